@@ -1,0 +1,15 @@
+"""masknet: predict which template points a partial source cloud also sees.
+
+    >>> from masknet import MaskNet
+    >>> model = MaskNet.pretrained()
+    >>> mask = model.predict_mask(template, source)   # (N,) bool, top-k with k = len(source)
+
+The transform convention for every registration result is documented in
+:mod:`masknet.geometry.se3`: ``template ~= R @ source + t``.
+"""
+
+from masknet.errors import MaskNetError
+from masknet.models import MaskNet, select_mask
+
+__version__ = "0.1.0"
+__all__ = ["MaskNet", "MaskNetError", "select_mask", "__version__"]

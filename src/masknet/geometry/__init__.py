@@ -1,0 +1,28 @@
+"""Geometry: the SE(3) module and the k-NN helper."""
+
+from masknet.geometry.knn import KNN, knn_points
+from masknet.geometry.se3 import (
+    invert_transform,
+    make_transform,
+    random_rotation,
+    rotation_error_deg,
+    se3_exp,
+    so3_exp,
+    split_transform,
+    transform_points,
+    translation_error,
+)
+
+__all__ = [
+    "KNN",
+    "knn_points",
+    "invert_transform",
+    "make_transform",
+    "random_rotation",
+    "rotation_error_deg",
+    "se3_exp",
+    "so3_exp",
+    "split_transform",
+    "transform_points",
+    "translation_error",
+]

@@ -1,0 +1,57 @@
+"""Nearest neighbours: the project's one k-NN helper.
+
+Exact search by chunked pairwise distances in torch, so it is batched, runs on
+CPU or GPU and keeps memory bounded for large clouds. Small searches are
+latency-bound, so callers on CPU may wrap them in ``torch.set_num_threads(1)``.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import torch
+from torch import Tensor
+
+__all__ = ["KNN", "knn_points"]
+
+
+class KNN(NamedTuple):
+    """Result of :func:`knn_points`.
+
+    dists: (B, P, K) squared Euclidean distances, ascending.
+    idx: (B, P, K) int64 indices into the reference cloud.
+    """
+
+    dists: Tensor
+    idx: Tensor
+
+
+def knn_points(query: Tensor, reference: Tensor, k: int = 1, chunk_size: int = 4096) -> KNN:
+    """The k nearest reference points of every query point.
+
+    Args:
+        query: (B, P, D) points.
+        reference: (B, R, D) points, R >= k.
+        k: number of neighbours.
+        chunk_size: query points per block; the block's distance matrix is
+            (B, chunk_size, R), which bounds memory.
+
+    Returns:
+        KNN with dists (B, P, k) squared distances and idx (B, P, k).
+    """
+    if query.dim() != 3 or reference.dim() != 3 or query.shape[0] != reference.shape[0]:
+        raise ValueError(
+            f"expected (B,P,D) and (B,R,D), got {tuple(query.shape)}, {tuple(reference.shape)}"
+        )
+    if reference.shape[1] < k:
+        raise ValueError(f"k={k} exceeds the {reference.shape[1]} reference points")
+    ref_sq = (reference * reference).sum(-1)[:, None, :]
+    dists, idx = [], []
+    for start in range(0, query.shape[1], chunk_size):
+        q = query[:, start : start + chunk_size]
+        # |q|^2 - 2 q.r + |r|^2: one matmul instead of a (P, R, D) difference tensor.
+        d2 = (q * q).sum(-1)[..., None] - 2 * q @ reference.transpose(1, 2) + ref_sq
+        d, i = torch.topk(d2.clamp_min_(0), k, dim=-1, largest=False, sorted=True)
+        dists.append(d)
+        idx.append(i)
+    return KNN(torch.cat(dists, 1), torch.cat(idx, 1))

@@ -1,0 +1,139 @@
+"""Rigid transforms: the project's one SE(3) module.
+
+Transform convention (used everywhere in masknet)
+-------------------------------------------------
+A rigid transform is a 4x4 homogeneous matrix ``T = [[R, t], [0, 1]]`` that maps
+**source points into the template frame**::
+
+    template ~= R @ source + t          (points as column vectors)
+    template ~= source @ R.T + t        (points as rows, the layout used in code)
+
+Pair generation stores the ground truth in this convention, and every
+registration result returns it. Units are those of the point coordinates
+(ModelNet40 shapes are scaled to unit radius). Angles are in radians unless a
+name ends in ``_deg``.
+
+Twists ``xi = (omega, v)`` in R^6 put the rotation part first, as PointNetLK does.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+__all__ = [
+    "skew",
+    "so3_exp",
+    "se3_exp",
+    "make_transform",
+    "split_transform",
+    "invert_transform",
+    "transform_points",
+    "random_rotation",
+    "rotation_angle",
+    "rotation_error_deg",
+    "translation_error",
+]
+
+
+def skew(v: Tensor) -> Tensor:
+    """Cross-product matrices: (..., 3) -> (..., 3, 3), with ``skew(a) @ b == a x b``."""
+    x, y, z = v.unbind(-1)
+    o = torch.zeros_like(x)
+    return torch.stack([o, -z, y, z, o, -x, -y, x, o], dim=-1).reshape(*v.shape[:-1], 3, 3)
+
+
+def _exp_coefficients(theta: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """sin(t)/t, (1-cos t)/t^2 and (t - sin t)/t^3, with Taylor series near zero."""
+    small = theta < 1e-4
+    t = torch.where(small, torch.ones_like(theta), theta)
+    t2 = t * t
+    a = torch.where(small, 1 - theta**2 / 6, torch.sin(t) / t)
+    b = torch.where(small, 0.5 - theta**2 / 24, (1 - torch.cos(t)) / t2)
+    c = torch.where(small, 1 / 6 - theta**2 / 120, (t - torch.sin(t)) / (t2 * t))
+    return a, b, c
+
+
+def so3_exp(omega: Tensor) -> Tensor:
+    """Rodrigues' formula: axis-angle vectors (..., 3) -> rotation matrices (..., 3, 3)."""
+    theta = omega.norm(dim=-1)[..., None, None]
+    a, b, _ = _exp_coefficients(theta)
+    k = skew(omega)
+    eye = torch.eye(3, dtype=omega.dtype, device=omega.device).expand_as(k)
+    return eye + a * k + b * (k @ k)
+
+
+def se3_exp(xi: Tensor) -> Tensor:
+    """Exponential map of twists ``(omega, v)``: (..., 6) -> transforms (..., 4, 4)."""
+    omega, v = xi[..., :3], xi[..., 3:]
+    theta = omega.norm(dim=-1)[..., None, None]
+    a, b, c = _exp_coefficients(theta)
+    k = skew(omega)
+    eye = torch.eye(3, dtype=xi.dtype, device=xi.device).expand_as(k)
+    k2 = k @ k
+    rot = eye + a * k + b * k2
+    left_jacobian = eye + b * k + c * k2
+    return make_transform(rot, (left_jacobian @ v[..., None])[..., 0])
+
+
+def make_transform(rotation: Tensor, translation: Tensor) -> Tensor:
+    """(..., 3, 3) and (..., 3) -> homogeneous (..., 4, 4)."""
+    batch = rotation.shape[:-2]
+    out = torch.zeros(*batch, 4, 4, dtype=rotation.dtype, device=rotation.device)
+    out[..., :3, :3] = rotation
+    out[..., :3, 3] = translation
+    out[..., 3, 3] = 1
+    return out
+
+
+def split_transform(transform: Tensor) -> tuple[Tensor, Tensor]:
+    """(..., 4, 4) -> rotation (..., 3, 3), translation (..., 3)."""
+    return transform[..., :3, :3], transform[..., :3, 3]
+
+
+def invert_transform(transform: Tensor) -> Tensor:
+    """Inverse of rigid transforms (..., 4, 4), using R^-1 = R^T."""
+    rot, trans = split_transform(transform)
+    rot_t = rot.transpose(-1, -2)
+    return make_transform(rot_t, -(rot_t @ trans[..., None])[..., 0])
+
+
+def transform_points(transform: Tensor, points: Tensor) -> Tensor:
+    """Apply (..., 4, 4) transforms to row-vector points (..., N, 3) -> (..., N, 3)."""
+    rot, trans = split_transform(transform)
+    return points @ rot.transpose(-1, -2) + trans[..., None, :]
+
+
+def random_rotation(
+    batch: int,
+    max_angle_deg: float,
+    generator: torch.Generator | None = None,
+    dtype: torch.dtype = torch.float32,
+) -> Tensor:
+    """Rotations about uniformly random axes with angles uniform in [0, max_angle_deg].
+
+    Returns (batch, 3, 3). This is the paper's protocol (not uniform on SO(3)).
+    """
+    axis = torch.randn(batch, 3, generator=generator, dtype=torch.float64)
+    axis = axis / axis.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    angle = torch.rand(batch, 1, generator=generator, dtype=torch.float64)
+    angle = angle * math.radians(max_angle_deg)
+    return so3_exp(axis * angle).to(dtype)
+
+
+def rotation_angle(rotation: Tensor) -> Tensor:
+    """Geodesic angle in radians of rotation matrices (..., 3, 3) -> (...)."""
+    trace = rotation.diagonal(dim1=-2, dim2=-1).sum(-1)
+    return torch.arccos(((trace - 1) / 2).clamp(-1.0, 1.0))
+
+
+def rotation_error_deg(r_pred: Tensor, r_true: Tensor) -> Tensor:
+    """Geodesic angle between rotations, in degrees: (..., 3, 3) x2 -> (...)."""
+    return torch.rad2deg(rotation_angle(r_pred.transpose(-1, -2) @ r_true))
+
+
+def translation_error(t_pred: Tensor, t_true: Tensor) -> Tensor:
+    """Euclidean distance between translations (..., 3) x2 -> (...), in point units."""
+    return (t_pred - t_true).norm(dim=-1)

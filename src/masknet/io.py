@@ -1,0 +1,424 @@
+"""Reading and writing point clouds, masks and text files, with one-line errors.
+
+Every failure caused by the user's input (a missing file, an unknown extension, a
+truncated or corrupt file, a cloud with too few or non-finite points) raises
+:class:`~masknet.errors.MaskNetError` whose message names the file and the problem,
+e.g. ``scan.ply: 12 rows contain NaN or inf``.
+
+**Formats** (chosen by extension, case-insensitive):
+
+* ``.ply``, ``.pcd``: Open3D (``.ply`` falls back to trimesh when Open3D does not
+  import). Note that ``.pcd`` files written by Open3D store float32 coordinates.
+* ``.xyz``, ``.txt``, ``.csv``: text, one point per line, whitespace or comma
+  separated; the first 3 columns are x, y, z (extra columns such as normals or
+  colours are ignored); ``#`` starts a comment; one header line is skipped.
+* ``.npy``: a numeric 2-D array with at least 3 columns; the first 3 are used.
+* ``.bin``: KITTI velodyne scans, float32 (x, y, z, intensity) records (read only).
+
+**Open3D quirks handled here.** Open3D does not raise on bad files: it prints a
+warning (through Python's ``sys.stdout``) and returns either an empty cloud (garbage,
+empty or missing files) or, for a truncated binary PLY, a cloud with the full header
+count whose tail is uninitialised memory. Reads therefore capture Open3D's output
+(which also keeps its chatter, and the C library RPly's stderr lines, out of the
+user's way) and treat any reported failure, or zero points, as an error.
+
+**Writes are atomic**: data goes to a temporary file in the target's directory
+(keeping the extension, since Open3D picks the format from it) and is then moved
+into place with :func:`os.replace`, so a failure never leaves a partial file.
+
+Open3D is optional and slow to import, so it is imported lazily by
+:func:`require_open3d`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import functools
+import io
+import os
+import re
+import tempfile
+import warnings
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+
+from masknet.errors import MaskNetError
+
+__all__ = [
+    "SUPPORTED_READ",
+    "SUPPORTED_WRITE",
+    "read_points",
+    "write_points",
+    "write_mask",
+    "write_text_atomic",
+    "require_open3d",
+]
+
+SUPPORTED_READ = (".ply", ".pcd", ".xyz", ".txt", ".csv", ".npy", ".bin")
+SUPPORTED_WRITE = (".ply", ".pcd", ".xyz", ".txt", ".npy")
+
+PathLike = str | os.PathLike
+
+_ANSI = re.compile(r"\x1b\[[0-9;]*m")
+_FAILURE = re.compile(r"fail|error", re.IGNORECASE)
+
+
+# --------------------------------------------------------------------------- Open3D
+
+
+@functools.lru_cache(maxsize=1)
+def _load_open3d() -> ModuleType:
+    """Import Open3D once (slow), and quieten its logger to errors only."""
+    import open3d
+
+    open3d.utility.set_verbosity_level(open3d.utility.VerbosityLevel.Error)
+    return open3d
+
+
+def require_open3d(feature: str) -> ModuleType:
+    """Return the ``open3d`` module, or raise a MaskNetError saying how to install it.
+
+    ``feature`` names what needs it, e.g. ``"reading .pcd files"``; it starts the
+    message. Import failures of any kind count (a missing package, or a shared
+    library such as libusb that the wheel needs).
+    """
+    try:
+        return _load_open3d()
+    except Exception as exc:  # ImportError, OSError from a missing shared library, ...
+        reason = _first_line(str(exc)) or type(exc).__name__
+        raise MaskNetError(
+            f"{feature} needs Open3D, which did not import ({reason}). "
+            "Install it with `pip install open3d`; on Debian/Ubuntu it also needs "
+            "`apt-get install libusb-1.0-0`."
+        ) from exc
+
+
+def _first_line(text: str) -> str:
+    lines = [line.strip() for line in text.strip().splitlines() if line.strip()]
+    return lines[0] if lines else ""
+
+
+@contextlib.contextmanager
+def _captured_output() -> Iterator[io.StringIO]:
+    """Capture what is printed to stdout/stderr, at Python and file-descriptor level.
+
+    Open3D logs through Python's ``sys.stdout``; the RPly library it uses for PLY
+    writes to the C stderr. The captured text is in the yielded buffer on exit.
+    """
+    buf = io.StringIO()
+    saved: list[tuple[int, int]] = []
+    sink = None
+    try:
+        sink = tempfile.TemporaryFile()
+        for fd in (1, 2):
+            try:
+                saved.append((fd, os.dup(fd)))
+                os.dup2(sink.fileno(), fd)
+            except OSError:
+                pass
+    except OSError:  # no temporary file: capture at Python level only
+        sink = None
+    try:
+        with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
+            yield buf
+    finally:
+        _flush_c_stdio()
+        for fd, copy in saved:
+            os.dup2(copy, fd)
+            os.close(copy)
+        if sink is not None:
+            sink.seek(0)
+            buf.write(sink.read().decode("utf-8", "replace"))
+            sink.close()
+
+
+def _flush_c_stdio() -> None:
+    with contextlib.suppress(Exception):  # not on every platform
+        ctypes.CDLL(None).fflush(None)
+
+
+def _open3d_failure(captured: str) -> str | None:
+    """The first failure Open3D (or RPly) reported in ``captured``, cleaned up; else None."""
+    for line in _ANSI.sub("", captured).splitlines():
+        if _FAILURE.search(line):
+            line = re.sub(r"^\[Open3D [A-Z]+\]\s*", "", line.strip())
+            return line.rstrip(".")
+    return None
+
+
+# --------------------------------------------------------------------------- reading
+
+
+def read_points(path: PathLike, drop_nonfinite: bool = False) -> np.ndarray:
+    """Read a point cloud file into a float64 array (N, 3), N >= 3, all finite.
+
+    Args:
+        path: a ``.ply``, ``.pcd``, ``.xyz``, ``.txt``, ``.csv``, ``.npy`` or ``.bin``
+            file (see the module docstring for the formats).
+        drop_nonfinite: drop rows containing NaN or inf instead of raising.
+
+    Raises:
+        MaskNetError: the file is missing, a directory, of an unsupported type,
+            unreadable, truncated or corrupt; or it holds no points, fewer than 3,
+            an array of the wrong shape, or (unless ``drop_nonfinite``) NaN/inf rows.
+    """
+    name = os.fspath(path)
+    p = Path(name)
+    if not p.exists():
+        raise MaskNetError(f"{name}: no such file")
+    if p.is_dir():
+        raise MaskNetError(f"{name}: is a directory, not a point cloud file")
+    ext = p.suffix.lower()
+    reader = _READERS.get(ext)
+    if reader is None:
+        raise MaskNetError(
+            f"{name}: unsupported extension {ext or '(none)'!r} "
+            f"(supported: {', '.join(SUPPORTED_READ)})"
+        )
+    with contextlib.suppress(OSError):
+        if p.stat().st_size == 0:
+            raise MaskNetError(f"{name}: empty file (no points)")
+    try:
+        points = reader(name)
+    except MaskNetError:
+        raise
+    except OSError as exc:
+        raise MaskNetError(f"{name}: cannot read file ({exc.strerror or exc})") from exc
+    return _validate(points, name, drop_nonfinite)
+
+
+def _validate(points: np.ndarray, name: str, drop_nonfinite: bool) -> np.ndarray:
+    """Check shape, finiteness and size; return the first 3 columns as float64 (N, 3)."""
+    if points.dtype.kind not in "iuf":
+        raise MaskNetError(f"{name}: expected numbers, got an array of dtype {points.dtype}")
+    if points.ndim != 2 or points.shape[1] < 3:
+        if points.size == 0:
+            raise MaskNetError(f"{name}: no points")
+        raise MaskNetError(
+            f"{name}: expected an (N, 3) array of points (extra columns allowed), "
+            f"got shape {tuple(points.shape)}"
+        )
+    points = np.ascontiguousarray(points[:, :3], dtype=np.float64)
+    if len(points) == 0:
+        raise MaskNetError(f"{name}: no points")
+    finite = np.isfinite(points).all(axis=1)
+    n_bad = int(len(points) - finite.sum())
+    if n_bad:
+        if not drop_nonfinite:
+            rows = "1 row contains" if n_bad == 1 else f"{n_bad} rows contain"
+            every = " (all of them)" if n_bad == len(points) else ""
+            raise MaskNetError(
+                f"{name}: {rows} NaN or inf{every}; pass --drop-nonfinite to drop them"
+            )
+        points = points[finite]
+        if len(points) == 0:
+            raise MaskNetError(f"{name}: all {n_bad} points contain NaN or inf; none remain")
+    if len(points) < 3:
+        raise MaskNetError(f"{name}: only {len(points)} point(s); at least 3 are needed")
+    return points
+
+
+def _read_open3d(name: str, fmt: str) -> np.ndarray:
+    """Read ``.ply``/``.pcd`` with Open3D; a reported failure or 0 points is an error."""
+    feature = f"{name}: reading .{fmt} files"
+    if fmt == "ply":
+        try:
+            o3d = _load_open3d()
+        except Exception:
+            return _read_trimesh(name)
+    else:
+        o3d = require_open3d(feature)
+    verbosity = o3d.utility.VerbosityLevel.Warning  # so that failures are reported
+    with _captured_output() as out, o3d.utility.VerbosityContextManager(verbosity):
+        cloud = o3d.io.read_point_cloud(
+            name, format=fmt, remove_nan_points=False, remove_infinite_points=False
+        )
+    failure = _open3d_failure(out.getvalue())
+    if failure is not None:
+        raise MaskNetError(f"{name}: unreadable, truncated or corrupt .{fmt} file ({failure})")
+    points = np.asarray(cloud.points, dtype=np.float64)
+    if len(points) == 0:
+        raise MaskNetError(f"{name}: no points (empty, or not a valid .{fmt} file)")
+    return points.reshape(-1, 3)
+
+
+def _read_trimesh(name: str) -> np.ndarray:
+    """Fallback PLY reader (vertices of whatever trimesh loads)."""
+    import trimesh
+
+    try:
+        obj = trimesh.load(name)
+    except Exception as exc:
+        reason = _first_line(str(exc)) or type(exc).__name__
+        raise MaskNetError(
+            f"{name}: unreadable, truncated or corrupt .ply file ({reason})"
+        ) from exc
+    if isinstance(obj, trimesh.Scene):
+        parts = [np.asarray(g.vertices) for g in obj.geometry.values() if hasattr(g, "vertices")]
+        return np.concatenate(parts) if parts else np.empty((0, 3))
+    return np.asarray(getattr(obj, "vertices", np.empty((0, 3))))
+
+
+def _read_ply(name: str) -> np.ndarray:
+    return _read_open3d(name, "ply")
+
+
+def _read_pcd(name: str) -> np.ndarray:
+    return _read_open3d(name, "pcd")
+
+
+def _read_text(name: str) -> np.ndarray:
+    """Whitespace- or comma-separated text; one header line is tolerated."""
+    try:
+        with open(name, encoding="utf-8") as f:
+            lines = [line.replace(",", " ") for line in f]
+    except UnicodeDecodeError as exc:
+        raise MaskNetError(f"{name}: not a text file (cannot decode as UTF-8)") from exc
+
+    def load(rows: list[str]) -> np.ndarray:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # "input contained no data"
+            return np.loadtxt(rows, dtype=np.float64, comments="#", ndmin=2)
+
+    try:
+        return load(lines)
+    except ValueError as exc:
+        first = next((i for i, s in enumerate(lines) if s.split("#")[0].strip()), None)
+        if first is not None:  # maybe a header such as "x,y,z"
+            with contextlib.suppress(ValueError):
+                return load(lines[first + 1 :])
+        reason = _first_line(str(exc))
+        raise MaskNetError(f"{name}: cannot parse as numbers ({reason})") from exc
+
+
+def _read_npy(name: str) -> np.ndarray:
+    try:
+        arr = np.load(name, allow_pickle=False)
+    except (ValueError, EOFError) as exc:
+        reason = _first_line(str(exc)) or type(exc).__name__
+        raise MaskNetError(f"{name}: not a valid, readable .npy file ({reason})") from exc
+    if not isinstance(arr, np.ndarray):  # an .npz archive under a .npy name
+        with contextlib.suppress(Exception):
+            arr.close()
+        raise MaskNetError(f"{name}: an .npz archive, not a single .npy array")
+    return arr
+
+
+def _read_kitti_bin(name: str) -> np.ndarray:
+    size = os.path.getsize(name)
+    if size % 16:
+        raise MaskNetError(
+            f"{name}: size {size} bytes is not a multiple of 16, so not a KITTI .bin "
+            "scan of float32 (x, y, z, intensity) records (truncated?)"
+        )
+    return np.fromfile(name, dtype=np.float32).reshape(-1, 4)[:, :3]
+
+
+_READERS: dict[str, Callable[[str], np.ndarray]] = {
+    ".ply": _read_ply,
+    ".pcd": _read_pcd,
+    ".xyz": _read_text,
+    ".txt": _read_text,
+    ".csv": _read_text,
+    ".npy": _read_npy,
+    ".bin": _read_kitti_bin,
+}
+
+
+# --------------------------------------------------------------------------- writing
+
+
+@contextlib.contextmanager
+def _atomic_target(path: PathLike, suffix: str = "") -> Iterator[str]:
+    """Yield a temporary path beside ``path``; on success move it over ``path``.
+
+    The temporary name is ``.<name>.tmpXXXX<suffix>``. Parent directories are
+    created. On any exception the temporary file is removed and ``path`` is untouched.
+    """
+    name = os.fspath(path)
+    target = Path(name)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.tmp", suffix=suffix, dir=target.parent)
+        os.close(fd)
+    except OSError as exc:
+        raise MaskNetError(f"{name}: cannot write ({exc.strerror or exc})") from exc
+    try:
+        yield tmp
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes it 0600
+        os.replace(tmp, target)
+    except BaseException as exc:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        if isinstance(exc, OSError):
+            raise MaskNetError(f"{name}: cannot write ({exc.strerror or exc})") from exc
+        raise
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def write_text_atomic(path: PathLike, text: str) -> None:
+    """Write ``text`` (UTF-8) to ``path`` atomically, creating parent directories."""
+    with _atomic_target(path) as tmp, open(tmp, "w", encoding="utf-8") as f:
+        f.write(text)
+
+
+def write_mask(path: PathLike, mask: np.ndarray) -> None:
+    """Write a mask (N,) as text, one ``0`` or ``1`` per line, atomically.
+
+    ``mask`` may be Boolean or numeric with values 0 and 1 only.
+    """
+    name = os.fspath(path)
+    mask = np.asarray(mask)
+    if mask.ndim != 1:
+        raise MaskNetError(f"{name}: a mask must be 1-D, got shape {tuple(mask.shape)}")
+    if mask.dtype != np.bool_:
+        if mask.dtype.kind not in "iuf" or not np.isin(mask, (0, 1)).all():
+            raise MaskNetError(f"{name}: a mask must hold only 0 and 1 (or booleans)")
+        mask = mask.astype(bool)
+    write_text_atomic(name, "".join("1\n" if m else "0\n" for m in mask.tolist()))
+
+
+def write_points(path: PathLike, points: np.ndarray) -> None:
+    """Write points (N, 3) to ``path``, format by extension, atomically.
+
+    ``.ply``/``.pcd`` via Open3D (``.pcd`` stores float32), ``.xyz``/``.txt`` as text
+    with full float64 precision, ``.npy`` as a float64 array. Parent directories are
+    created. An unsupported extension raises before anything is written.
+    """
+    name = os.fspath(path)
+    ext = Path(name).suffix.lower()
+    if ext not in SUPPORTED_WRITE:
+        raise MaskNetError(
+            f"{name}: cannot write extension {ext or '(none)'!r} "
+            f"(supported: {', '.join(SUPPORTED_WRITE)})"
+        )
+    points = np.asarray(points, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise MaskNetError(f"{name}: expected points of shape (N, 3), got {tuple(points.shape)}")
+    o3d = None
+    if ext in (".ply", ".pcd"):
+        if len(points) == 0:
+            raise MaskNetError(f"{name}: cannot write an empty cloud as {ext} (Open3D refuses)")
+        o3d = require_open3d(f"{name}: writing {ext} files")
+    with _atomic_target(name, suffix=ext) as tmp:
+        if o3d is not None:
+            cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+            verbosity = o3d.utility.VerbosityLevel.Warning
+            with _captured_output() as out, o3d.utility.VerbosityContextManager(verbosity):
+                ok = o3d.io.write_point_cloud(tmp, cloud)
+            if not ok:
+                reason = _open3d_failure(out.getvalue()) or "Open3D reported failure"
+                raise MaskNetError(f"{name}: cannot write ({reason})")
+        elif ext == ".npy":
+            np.save(tmp, points)
+        else:
+            np.savetxt(tmp, points, fmt="%.17g")

@@ -1,0 +1,348 @@
+"""MaskNet (Sarode, Dhagat et al., 3DV 2020): which template points does the source see?
+
+Architecture (the paper's):
+
+* a shared PointNet encoder 3-64-64-64-128-1024 (BatchNorm, ReLU) on both clouds;
+* the source features max-pooled into one global vector g (1024);
+* [template feature_i ; g] (2048 channels) through a head 1024-512-256-128-1 with
+  ReLU, and a sigmoid: one inlier score in [0, 1] per template point.
+
+**Centring.** Before the network, each cloud is centred on its own centroid
+(template on the template's, source on the source's). This removes most of the
+translation the network would otherwise have to learn; it is part of the model,
+applied by every forward path.
+
+**Three forward paths, one function.**
+
+* :meth:`MaskNet.forward_reference` is the paper's formulation: concatenate g to
+  every template feature, then the first head layer on 2048 channels.
+* :meth:`MaskNet.forward` splits that first layer, ``W [a_i; g] = W_a a_i + W_g g``,
+  so the global half is computed once per cloud. Same function, used in training.
+* :class:`FusedMaskNet` (via :meth:`MaskNet.fused`) is inference only: the split
+  head, BatchNorm folded into the linear layers, optional bf16, and chunking over
+  template points for bounded memory on large clouds.
+
+**Selecting inliers.** :func:`select_mask` turns scores into a Boolean mask either
+by top-k (k = number of source points by default, as the official code does) or
+by a threshold epsilon (as the paper describes).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Sequence
+from importlib import resources
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import torch
+from safetensors.torch import load_file, save_file
+from torch import Tensor, nn
+
+from masknet.errors import MaskNetError
+from masknet.models.pointnet import PointNetEncoder, fold_batchnorm
+
+__all__ = ["MaskNet", "FusedMaskNet", "select_mask", "centre", "unit_radius"]
+
+Precision = Literal["fp32", "bf16"]
+_DTYPES = {"fp32": torch.float32, "bf16": torch.bfloat16}
+
+
+def centre(points: Tensor) -> Tensor:
+    """Subtract each cloud's centroid: (B, N, 3) -> (B, N, 3)."""
+    return points - points.mean(dim=1, keepdim=True)
+
+
+def unit_radius(points: Tensor) -> Tensor:
+    """Largest distance from each cloud's bounding-box centre: (B, N, 3) -> (B,)."""
+    mid = (points.amax(1, keepdim=True) + points.amin(1, keepdim=True)) / 2
+    return (points - mid).norm(dim=-1).amax(1).clamp_min(1e-12)
+
+
+def select_mask(
+    scores: Tensor, k: int | Tensor | None = None, threshold: float | None = None
+) -> Tensor:
+    """Boolean inlier mask from scores (B, N).
+
+    Exactly one rule applies: ``threshold`` keeps scores >= threshold (the paper's
+    epsilon); otherwise top-``k`` keeps the k highest scores per row (k an int or a
+    (B,) tensor; the official code uses k = number of source points).
+    """
+    if threshold is not None:
+        if k is not None:
+            raise ValueError("give either k or threshold, not both")
+        return scores >= threshold
+    if k is None:
+        raise ValueError("top-k selection needs k (e.g. the number of source points)")
+    n = scores.shape[-1]
+    ks = torch.as_tensor(k, device=scores.device).clamp(0, n).expand(scores.shape[0])
+    ranks = scores.argsort(dim=-1, descending=True).argsort(dim=-1)
+    return ranks < ks[:, None]
+
+
+class MaskNet(nn.Module):
+    """The MaskNet network.
+
+    forward(template (B, N, 3), source (B, M, 3)) -> scores (B, N) in [0, 1].
+    """
+
+    def __init__(
+        self,
+        encoder_channels: Sequence[int] = (64, 64, 64, 128, 1024),
+        head_channels: Sequence[int] = (1024, 512, 256, 128),
+    ):
+        super().__init__()
+        self.config = {
+            "encoder_channels": list(encoder_channels),
+            "head_channels": list(head_channels),
+        }
+        self.encoder = PointNetEncoder(encoder_channels)
+        feat = self.encoder.out_channels
+        # The first head layer on [template feature; global source feature], split in two.
+        self.head_template = nn.Linear(feat, head_channels[0])
+        self.head_global = nn.Linear(feat, head_channels[0], bias=False)
+        dims = [*head_channels, 1]
+        self.head = nn.ModuleList(nn.Linear(a, b) for a, b in zip(dims[:-1], dims[1:], strict=True))
+        self._fused_cache: dict = {}
+
+    # ------------------------------------------------------------------ forward paths
+    def _global_feature(self, source: Tensor) -> Tensor:
+        return self.encoder(centre(source)).amax(dim=1)
+
+    def _head_tail(self, x: Tensor) -> Tensor:
+        for layer in self.head:
+            x = layer(torch.relu(x))
+        return torch.sigmoid(x).squeeze(-1)
+
+    def forward(self, template: Tensor, source: Tensor) -> Tensor:
+        """Split-head forward: (B, N, 3), (B, M, 3) -> scores (B, N)."""
+        g = self.head_global(self._global_feature(source))
+        x = self.head_template(self.encoder(centre(template))) + g[:, None, :]
+        return self._head_tail(x)
+
+    def forward_reference(self, template: Tensor, source: Tensor) -> Tensor:
+        """The paper's concatenation formulation; the same function as :meth:`forward`."""
+        g = self._global_feature(source)
+        t = self.encoder(centre(template))
+        joint = torch.cat([t, g[:, None, :].expand(-1, t.shape[1], -1)], dim=-1)
+        weight = torch.cat([self.head_template.weight, self.head_global.weight], dim=1)
+        return self._head_tail(nn.functional.linear(joint, weight, self.head_template.bias))
+
+    # ------------------------------------------------------------------ fast inference
+    def fused(self, precision: Precision = "fp32") -> FusedMaskNet:
+        """The inference path for the current weights (cached until a weight changes)."""
+        tensors = [*self.parameters(), *self.buffers()]
+        key = (precision, *((id(t), t._version, t.device) for t in tensors))
+        if self._fused_cache.get("key") != key:
+            self._fused_cache = {"key": key, "model": FusedMaskNet.from_masknet(self, precision)}
+        return self._fused_cache["model"]
+
+    @torch.inference_mode()
+    def predict(
+        self,
+        template: np.ndarray,
+        source: np.ndarray,
+        precision: Precision = "fp32",
+        chunk_size: int | None = 8192,
+        normalize: bool = True,
+    ) -> np.ndarray:
+        """Inlier scores for numpy clouds.
+
+        Args:
+            template: (N, 3) or (B, N, 3).
+            source: (M, 3) or (B, M, 3).
+            precision: ``"fp32"`` (default) or ``"bf16"`` (faster on CPUs with
+                AVX512-BF16/AMX and on GPUs; see docs/RESULTS.md for its mask agreement).
+            chunk_size: template points processed at a time (bounds memory).
+            normalize: scale each pair by its template's radius (about its
+                bounding-box centre), as the ModelNet40 training shapes were, so
+                clouds in any unit (mm, m) work. A no-op for unit-radius shapes.
+
+        Returns:
+            scores (N,) or (B, N), float32 in [0, 1].
+        """
+        t, s, single = _as_batch(template, source)
+        if normalize:
+            radius = unit_radius(t)[:, None, None]
+            t, s = t / radius, s / radius
+        device = next(self.parameters()).device
+        scores = self.fused(precision)(t.to(device), s.to(device), chunk_size=chunk_size)
+        out = scores.float().cpu().numpy()
+        return out[0] if single else out
+
+    def predict_mask(
+        self,
+        template: np.ndarray,
+        source: np.ndarray,
+        k: int | None = None,
+        threshold: float | None = None,
+        precision: Precision = "fp32",
+        normalize: bool = True,
+    ) -> np.ndarray:
+        """Boolean inlier mask, (N,) or (B, N).
+
+        By default top-k with k = M, the number of source points. Pass ``k`` for
+        another top-k, or ``threshold`` for the paper's epsilon rule.
+        """
+        scores = self.predict(template, source, precision=precision, normalize=normalize)
+        batch = torch.from_numpy(np.atleast_2d(scores))
+        if threshold is None and k is None:
+            k = np.asarray(source).shape[-2]
+        mask = select_mask(batch, k=k, threshold=threshold).numpy()
+        return mask[0] if scores.ndim == 1 else mask
+
+    # ------------------------------------------------------------------ weights
+    def save(self, path: str | os.PathLike, metadata: dict | None = None) -> None:
+        """Write the weights as safetensors (atomically), with the architecture in the metadata."""
+        meta = {"masknet_config": json.dumps(self.config)}
+        meta.update(
+            {k: v if isinstance(v, str) else json.dumps(v) for k, v in (metadata or {}).items()}
+        )
+        path = Path(path)
+        tmp = path.with_name(path.name + ".tmp")
+        save_file(
+            {k: v.detach().cpu().contiguous() for k, v in self.state_dict().items()}, str(tmp), meta
+        )
+        os.replace(tmp, path)
+
+    @classmethod
+    def from_file(
+        cls, path: str | os.PathLike, map_location: str | torch.device = "cpu"
+    ) -> MaskNet:
+        """Load weights written by :meth:`save` (safetensors; never unpickles)."""
+        path = Path(path)
+        if not path.exists():
+            raise MaskNetError(f"{path}: weights file not found")
+        try:
+            from safetensors import safe_open
+
+            with safe_open(str(path), framework="pt") as f:
+                meta = f.metadata() or {}
+            state = load_file(str(path), device=str(map_location))
+        except Exception as exc:  # safetensors raises its own error types
+            raise MaskNetError(f"{path}: not a readable safetensors file ({exc})") from None
+        config = json.loads(meta.get("masknet_config", "{}"))
+        model = cls(**config)
+        try:
+            model.load_state_dict(state)
+        except RuntimeError as exc:
+            raise MaskNetError(
+                f"{path}: weights do not fit the MaskNet architecture ({exc})"
+            ) from None
+        return model.to(map_location).eval()
+
+    @classmethod
+    def pretrained(
+        cls, name: str = "modelnet40", map_location: str | torch.device = "cpu"
+    ) -> MaskNet:
+        """Shipped weights, loaded offline from the package.
+
+        Names: ``"modelnet40"`` (all 40 categories) and ``"modelnet40_seen20"``
+        (first 20 categories only, for the generalisation experiment). Each has a
+        model card next to it in ``masknet/resources/weights/``.
+        """
+        path = Path(
+            str(
+                resources.files("masknet") / "resources" / "weights" / f"masknet_{name}.safetensors"
+            )
+        )
+        if not path.exists():
+            shipped = sorted(
+                p.stem.removeprefix("masknet_") for p in path.parent.glob("masknet_*.safetensors")
+            )
+            raise MaskNetError(
+                f"no shipped MaskNet weights named {name!r}; available: {shipped or 'none'}"
+            )
+        return cls.from_file(path, map_location)
+
+
+class FusedMaskNet(nn.Module):
+    """Inference-only MaskNet: split head, BatchNorm folded, optional bf16.
+
+    forward(template (B, N, 3), source (B, M, 3), chunk_size) -> scores (B, N) float32.
+    Matches :meth:`MaskNet.forward` in eval mode to ~1e-6 in fp32.
+    """
+
+    def __init__(
+        self,
+        encoder: list[tuple[Tensor, Tensor]],
+        head_template: tuple[Tensor, Tensor],
+        head_global: Tensor,
+        head: list[tuple[Tensor, Tensor]],
+        precision: Precision = "fp32",
+    ):
+        super().__init__()
+        dtype = _DTYPES[precision]
+        self.precision = precision
+        self.encoder = [(w.to(dtype), b.to(dtype)) for w, b in encoder]
+        self.head_template = tuple(p.to(dtype) for p in head_template)
+        self.head_global = head_global.to(dtype)
+        self.head = [(w.to(dtype), b.to(dtype)) for w, b in head]
+
+    @classmethod
+    def from_masknet(cls, model: MaskNet, precision: Precision = "fp32") -> FusedMaskNet:
+        enc = [
+            fold_batchnorm(lin, bn)
+            for lin, bn in zip(model.encoder.linears, model.encoder.norms, strict=True)
+        ]
+        ht = (
+            model.head_template.weight.detach().clone(),
+            model.head_template.bias.detach().clone(),
+        )
+        head = [
+            (layer.weight.detach().clone(), layer.bias.detach().clone()) for layer in model.head
+        ]
+        return cls(enc, ht, model.head_global.weight.detach().clone(), head, precision)
+
+    def _encode(self, x: Tensor) -> Tensor:
+        for w, b in self.encoder:
+            x = torch.relu(torch.addmm(b, x, w.t()))
+        return x
+
+    @torch.inference_mode()
+    def forward(self, template: Tensor, source: Tensor, chunk_size: int | None = None) -> Tensor:
+        dtype = self.head_global.dtype
+        b, n, _ = template.shape
+        src = centre(source.float()).to(dtype)
+        g = self._encode(src.reshape(-1, 3)).reshape(b, source.shape[1], -1).amax(1)
+        g = g @ self.head_global.t() + self.head_template[1]  # (B, H): once per cloud
+        tpl = centre(template.float()).to(dtype)
+        step = n if chunk_size is None else chunk_size
+        out = []
+        for start in range(0, n, step):
+            part = tpl[:, start : start + step]
+            x = self._encode(part.reshape(-1, 3)) @ self.head_template[0].t()
+            x = x.reshape(b, part.shape[1], -1) + g[:, None, :]
+            x = x.reshape(-1, x.shape[-1])
+            for w, bias in self.head:
+                x = torch.addmm(bias, torch.relu(x), w.t())
+            out.append(torch.sigmoid(x.float()).reshape(b, part.shape[1]))
+        return torch.cat(out, dim=1)
+
+
+def _as_batch(template: np.ndarray, source: np.ndarray) -> tuple[Tensor, Tensor, bool]:
+    """Validate numpy clouds and return batched float32 tensors plus 'was single'."""
+    t, s = np.asarray(template), np.asarray(source)
+    if t.ndim != s.ndim or t.ndim not in (2, 3):
+        raise MaskNetError(
+            f"template and source must both be (N,3) or (B,N,3); got {t.shape} and {s.shape}"
+        )
+    single = t.ndim == 2
+    if single:
+        t, s = t[None], s[None]
+    for name, a in (("template", t), ("source", s)):
+        if a.shape[-1] != 3:
+            raise MaskNetError(f"{name} must have 3 columns (x, y, z); got shape {a.shape}")
+        if a.shape[1] < 3:
+            raise MaskNetError(f"{name} has {a.shape[1]} points; at least 3 are needed")
+        if not np.isfinite(a).all():
+            raise MaskNetError(f"{name} contains NaN or inf coordinates")
+    if t.shape[0] != s.shape[0]:
+        raise MaskNetError(f"batch sizes differ: template {t.shape[0]}, source {s.shape[0]}")
+    return (
+        torch.from_numpy(np.ascontiguousarray(t, np.float32)),
+        torch.from_numpy(np.ascontiguousarray(s, np.float32)),
+        single,
+    )

@@ -1,0 +1,291 @@
+"""One training loop for every model.
+
+A model plugs in through a :class:`Task` (how to build the model, make batches,
+compute the loss and export weights). The loop owns the rest:
+
+* Adam, optional cosine learning-rate decay, fp32 or bf16 autocast;
+* validation on a split held out of the *training* shapes (never the test set);
+* a progress bar with loss and the task's metric;
+* an atomic checkpoint every epoch (``checkpoint.pt``, written to a temporary
+  file then renamed), so a kill at any moment loses at most the current epoch,
+  and ``resume=True`` continues where it stopped;
+* a CSV log (``log.csv``) and the best weights by validation metric
+  (``best.safetensors``, via the task's exporter).
+
+Pairs are a pure function of (seed, epoch, batch), so a resumed run sees the
+same data it would have seen without the interruption.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import sys
+import time
+from collections.abc import Iterable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Literal, Protocol
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+from tqdm.auto import tqdm
+
+from masknet.errors import MaskNetError
+
+__all__ = ["Task", "TrainConfig", "fit", "split_train_val", "resolve_device", "default_precision"]
+
+
+class Task(Protocol):
+    """What the loop needs to know about one model family."""
+
+    name: str
+    metric: str  # validation metric to maximise, a key of step()'s metrics
+
+    def build_model(self) -> nn.Module: ...
+
+    def train_batches(
+        self, points: np.ndarray, batch_size: int, seed: int, epoch: int
+    ) -> Iterable[Any]: ...
+
+    def val_batches(
+        self, points: np.ndarray, num_pairs: int, batch_size: int, seed: int
+    ) -> list[Any]: ...
+
+    def step(
+        self, model: nn.Module, batch: Any, device: torch.device
+    ) -> tuple[Tensor, dict[str, float]]: ...
+
+    def export(self, model: nn.Module, path: Path, metadata: dict) -> None: ...
+
+    def describe(self) -> dict: ...
+
+
+@dataclass
+class TrainConfig:
+    """Optimisation settings. Defaults follow the paper: Adam, lr 1e-4, batch 32."""
+
+    out_dir: str
+    epochs: int = 100
+    batch_size: int = 32
+    lr: float = 1e-4
+    lr_schedule: Literal["constant", "cosine"] = "constant"
+    min_lr: float = 1e-6
+    precision: Literal["auto", "fp32", "bf16"] = "auto"
+    seed: int = 0
+    val_fraction: float = 0.1
+    val_pairs: int = 512
+    device: str = "auto"
+    threads: int | None = None
+    max_minutes: float | None = None
+    extra: dict = field(default_factory=dict)
+
+
+def resolve_device(device: str) -> torch.device:
+    if device == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if device.startswith("cuda") and not torch.cuda.is_available():
+        raise MaskNetError(f"device {device!r} requested but CUDA is not available")
+    return torch.device(device)
+
+
+def default_precision(device: torch.device) -> str:
+    """bf16 autocast where the hardware runs it natively, else fp32."""
+    if device.type == "cuda":
+        return "bf16" if torch.cuda.is_bf16_supported() else "fp32"
+    try:
+        flags = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return "fp32"
+    return "bf16" if ("avx512_bf16" in flags or "amx_bf16" in flags) else "fp32"
+
+
+def split_train_val(
+    num_shapes: int, val_fraction: float, seed: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Seeded split of training-shape indices into (train, validation)."""
+    order = np.random.default_rng(seed).permutation(num_shapes)
+    n_val = max(1, round(val_fraction * num_shapes)) if val_fraction > 0 else 0
+    return np.sort(order[n_val:]), np.sort(order[:n_val])
+
+
+def _atomic_torch_save(obj: Any, path: Path) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "wb") as fh:
+        torch.save(obj, fh)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+def _write_csv(rows: list[dict], path: Path) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    os.replace(tmp, path)
+
+
+def _learning_rate(config: TrainConfig, epoch: int) -> float:
+    if config.lr_schedule == "constant":
+        return config.lr
+    progress = epoch / max(1, config.epochs - 1)
+    return config.min_lr + 0.5 * (config.lr - config.min_lr) * (1 + math.cos(math.pi * progress))
+
+
+def fit(
+    task: Task,
+    train_points: np.ndarray,
+    config: TrainConfig,
+    resume: bool = False,
+    init_weights: nn.Module | None = None,
+) -> list[dict]:
+    """Train ``task``'s model on shapes (S, N, 3); returns the per-epoch log rows.
+
+    ``train_points`` is split by :func:`split_train_val` into training and
+    validation shapes. ``init_weights`` optionally starts from another model's
+    weights (fine-tuning); it is ignored when resuming.
+    """
+    out = Path(config.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    ckpt_path = out / "checkpoint.pt"
+    device = resolve_device(config.device)
+    precision = default_precision(device) if config.precision == "auto" else config.precision
+    if config.threads:
+        torch.set_num_threads(config.threads)
+
+    torch.manual_seed(config.seed)
+    model = task.build_model().to(device)
+    if init_weights is not None:
+        model.load_state_dict(init_weights.state_dict())
+    optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
+    history: list[dict] = []
+    best = -math.inf
+    start_epoch = 0
+    if resume and ckpt_path.exists():
+        state = torch.load(ckpt_path, map_location=device, weights_only=True)
+        model.load_state_dict(state["model"])
+        optimizer.load_state_dict(state["optimizer"])
+        history, best, start_epoch = state["history"], state["best"], state["epoch"]
+        print(f"resuming {ckpt_path} at epoch {start_epoch + 1}", file=sys.stderr)
+    elif ckpt_path.exists():
+        raise MaskNetError(
+            f"{ckpt_path} exists: pass --resume to continue it, or choose another --out"
+        )
+
+    train_idx, val_idx = split_train_val(len(train_points), config.val_fraction, config.seed)
+    train_set = train_points[train_idx]
+    val_batches = (
+        task.val_batches(train_points[val_idx], config.val_pairs, config.batch_size, config.seed)
+        if len(val_idx)
+        else []
+    )
+    run_info = {
+        "task": task.describe(),
+        "train": {k: v for k, v in asdict(config).items() if k != "out_dir"}
+        | {"precision": precision},
+        "shapes": {"train": len(train_idx), "val": len(val_idx)},
+    }
+    (out / "run.json").write_text(json.dumps(run_info, indent=2))
+    autocast = torch.autocast(device.type, dtype=torch.bfloat16, enabled=precision == "bf16")
+    interactive = sys.stderr.isatty()
+    started = time.perf_counter()
+    elapsed_before = history[-1]["elapsed_min"] if history else 0.0
+
+    for epoch in range(start_epoch, config.epochs):
+        lr = _learning_rate(config, epoch)
+        for group in optimizer.param_groups:
+            group["lr"] = lr
+        model.train()
+        epoch_start = time.perf_counter()
+        sums: dict[str, float] = {}
+        count = 0
+        batches = task.train_batches(train_set, config.batch_size, config.seed, epoch)
+        total = len(train_set) // config.batch_size
+        bar = tqdm(
+            batches,
+            total=total,
+            desc=f"epoch {epoch + 1}/{config.epochs}",
+            leave=interactive,
+            mininterval=0.5 if interactive else 60,
+            file=sys.stderr,
+        )
+        for batch in bar:
+            with autocast:
+                loss, metrics = task.step(model, batch, device)
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+            if not math.isfinite(loss.item()):
+                raise MaskNetError(f"training diverged at epoch {epoch + 1}: loss is {loss.item()}")
+            count += 1
+            for key, value in {"loss": loss.item(), **metrics}.items():
+                sums[key] = sums.get(key, 0.0) + value
+            bar.set_postfix(
+                loss=f"{sums['loss'] / count:.4f}",
+                **{task.metric: f"{sums[task.metric] / count:.3f}"},
+                refresh=False,
+            )
+        bar.close()
+        row = {"epoch": epoch + 1, "lr": lr}
+        row.update({f"train_{k}": v / max(count, 1) for k, v in sums.items()})
+        row.update(
+            {
+                f"val_{k}": v
+                for k, v in _validate(task, model, val_batches, device, autocast).items()
+            }
+        )
+        row["epoch_min"] = (time.perf_counter() - epoch_start) / 60
+        row["elapsed_min"] = elapsed_before + (time.perf_counter() - started) / 60
+        history.append(row)
+
+        score = row.get(f"val_{task.metric}", row[f"train_{task.metric}"])
+        if score > best:
+            best = score
+            task.export(
+                model, out / "best.safetensors", {"epoch": epoch + 1, **run_info, "val": row}
+            )
+        task.export(model, out / "last.safetensors", {"epoch": epoch + 1, **run_info, "val": row})
+        _atomic_torch_save(
+            {
+                "model": model.state_dict(),
+                "optimizer": optimizer.state_dict(),
+                "epoch": epoch + 1,
+                "history": history,
+                "best": best,
+            },
+            ckpt_path,
+        )
+        _write_csv(history, out / "log.csv")
+        print(
+            f"epoch {epoch + 1}: "
+            + ", ".join(f"{k} {v:.4f}" for k, v in row.items() if k != "epoch"),
+            file=sys.stderr,
+            flush=True,
+        )
+        if config.max_minutes is not None:
+            spent = (time.perf_counter() - started) / 60
+            if spent + row["epoch_min"] > config.max_minutes:
+                print(f"stopping: time budget of {config.max_minutes} min reached", file=sys.stderr)
+                break
+    return history
+
+
+@torch.no_grad()
+def _validate(
+    task: Task, model: nn.Module, batches: list, device: torch.device, autocast
+) -> dict[str, float]:
+    if not batches:
+        return {}
+    model.eval()
+    sums: dict[str, float] = {}
+    for batch in batches:
+        with autocast:
+            loss, metrics = task.step(model, batch, device)
+        for key, value in {"loss": loss.item(), **metrics}.items():
+            sums[key] = sums.get(key, 0.0) + value
+    return {k: v / len(batches) for k, v in sums.items()}

@@ -1,0 +1,86 @@
+"""Static pictures (matplotlib, headless): a pair and its predicted inliers."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["plot_mask"]
+
+GREY, BLUE = "#b0b0b0", "#1f77b4"
+TP, FP, FN = "#2ca02c", "#d62728", "#ff7f0e"
+
+
+def plot_mask(
+    template: np.ndarray,
+    source: np.ndarray,
+    predicted: np.ndarray,
+    path: str | os.PathLike,
+    truth: np.ndarray | None = None,
+    title: str | None = None,
+) -> Path:
+    """Write a PNG of template (N, 3), source (M, 3) and the predicted mask (N,) bool.
+
+    Left: the inputs as given. Middle: the ground-truth inliers when ``truth`` (N,)
+    is known, else the source. Right: the template coloured by the prediction, split
+    into true positives, false positives and misses when the truth is known.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    predicted = np.asarray(predicted, bool)
+    fig = plt.figure(figsize=(13, 4.6), dpi=110)
+    lim = np.abs(np.concatenate([template, source])).max()
+
+    def panel(i: int, heading: str):
+        ax = fig.add_subplot(1, 3, i, projection="3d")
+        ax.set_title(heading, fontsize=10)
+        ax.set_xlim(-lim, lim), ax.set_ylim(-lim, lim), ax.set_zlim(-lim, lim)
+        ax.set_box_aspect((1, 1, 1))
+        ax.view_init(elev=20, azim=-60)
+        ax.set_xlabel("x"), ax.set_ylabel("y"), ax.set_zlabel("z")
+        return ax
+
+    ax = panel(1, "input: template (grey), source (blue)")
+    ax.scatter(*template.T, s=2, c=GREY, label=f"template ({len(template)})")
+    ax.scatter(*source.T, s=2, c=BLUE, label=f"source ({len(source)})")
+    ax.legend(loc="upper left", fontsize=7, markerscale=4)
+
+    if truth is None:
+        ax = panel(2, "source (partial)")
+        ax.scatter(*source.T, s=2, c=BLUE)
+    else:
+        truth = np.asarray(truth, bool)
+        ax = panel(2, "template: true inliers (seen by the source)")
+        ax.scatter(*template[~truth].T, s=1, c=GREY, label=f"not seen ({(~truth).sum()})")
+        ax.scatter(*template[truth].T, s=3, c=TP, label=f"seen ({truth.sum()})")
+        ax.legend(loc="upper left", fontsize=7, markerscale=4)
+
+    ax = panel(3, "template: predicted inliers")
+    if truth is None:
+        ax.scatter(*template[~predicted].T, s=1, c=GREY, label="outlier")
+        ax.scatter(*template[predicted].T, s=3, c=TP, label=f"predicted inlier ({predicted.sum()})")
+    else:
+        groups = [
+            (~predicted & ~truth, GREY, "correctly rejected", 1),
+            (predicted & truth, TP, "true positive", 3),
+            (predicted & ~truth, FP, "false positive", 4),
+            (~predicted & truth, FN, "missed inlier", 4),
+        ]
+        for sel, colour, name, size in groups:
+            ax.scatter(*template[sel].T, s=size, c=colour, label=f"{name} ({sel.sum()})")
+    ax.legend(loc="upper left", fontsize=7, markerscale=4)
+    if title:
+        fig.suptitle(title, fontsize=11)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.stem + ".tmp.png")
+    fig.savefig(tmp)
+    plt.close(fig)
+    os.replace(tmp, path)
+    return path

@@ -1,0 +1,87 @@
+"""Tests for masknet.geometry.knn against a brute-force scipy KD-tree."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial import cKDTree
+
+from masknet.geometry.knn import KNN, knn_points
+
+
+def _clouds(b: int, p: int, r: int, dtype=torch.float64, seed: int = 0):
+    g = torch.Generator().manual_seed(seed)
+    query = torch.randn(b, p, 3, generator=g, dtype=dtype)
+    reference = torch.randn(b, r, 3, generator=g, dtype=dtype)
+    return query, reference
+
+
+def _expected(query: torch.Tensor, reference: torch.Tensor, k: int):
+    dists, idx = [], []
+    for q, r in zip(query.double().numpy(), reference.double().numpy(), strict=True):
+        d, i = cKDTree(r).query(q, k=k)
+        d, i = np.asarray(d).reshape(len(q), k), np.asarray(i).reshape(len(q), k)
+        dists.append(d**2)
+        idx.append(i)
+    return np.stack(dists), np.stack(idx)
+
+
+@pytest.mark.parametrize("k", [1, 4])
+@pytest.mark.parametrize("chunk_size", [4096, 7, 1])
+def test_knn_matches_kdtree(k, chunk_size):
+    query, reference = _clouds(2, 37, 50, seed=k)
+    result = knn_points(query, reference, k=k, chunk_size=chunk_size)
+    assert isinstance(result, KNN)
+    assert result.dists.shape == (2, 37, k) and result.idx.shape == (2, 37, k)
+    assert result.idx.dtype == torch.int64
+    exp_d, exp_i = _expected(query, reference, k)
+    np.testing.assert_array_equal(result.idx.numpy(), exp_i)
+    np.testing.assert_allclose(result.dists.numpy(), exp_d, rtol=1e-9, atol=1e-12)
+
+
+def test_knn_float32_matches_kdtree():
+    query, reference = _clouds(3, 64, 40, dtype=torch.float32, seed=5)
+    result = knn_points(query, reference, k=3, chunk_size=10)
+    assert result.dists.dtype == torch.float32
+    exp_d, exp_i = _expected(query, reference, 3)
+    np.testing.assert_array_equal(result.idx.numpy(), exp_i)
+    np.testing.assert_allclose(result.dists.numpy(), exp_d, rtol=1e-4, atol=1e-5)
+
+
+def test_knn_distances_ascending_and_nonnegative():
+    query, reference = _clouds(1, 20, 30, seed=2)
+    result = knn_points(query, reference, k=30)
+    assert (result.dists >= 0).all()
+    assert (result.dists[..., 1:] >= result.dists[..., :-1]).all()
+    # k = R returns every reference point once per query.
+    assert torch.equal(result.idx.sort(-1).values, torch.arange(30).expand(1, 20, 30))
+
+
+def test_knn_self_query_finds_itself():
+    _, reference = _clouds(2, 1, 25, seed=3)
+    result = knn_points(reference, reference, k=1)
+    assert torch.equal(result.idx[..., 0], torch.arange(25).expand(2, 25))
+    assert result.dists.max() < 1e-10
+
+
+def test_knn_chunked_equals_unchunked():
+    query, reference = _clouds(2, 101, 33, dtype=torch.float32, seed=4)
+    a = knn_points(query, reference, k=5)
+    b = knn_points(query, reference, k=5, chunk_size=16)
+    assert torch.equal(a.idx, b.idx)
+    torch.testing.assert_close(a.dists, b.dists)
+
+
+def test_knn_k_larger_than_reference_raises():
+    query, reference = _clouds(1, 5, 4)
+    with pytest.raises(ValueError, match="k=5"):
+        knn_points(query, reference, k=5)
+
+
+def test_knn_bad_shapes_raise():
+    query, reference = _clouds(2, 5, 6)
+    with pytest.raises(ValueError):
+        knn_points(query[0], reference[0])
+    with pytest.raises(ValueError):
+        knn_points(query, reference[:1])

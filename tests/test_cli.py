@@ -1,0 +1,150 @@
+"""The masknet command: outputs, one-line errors, nothing half-written."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+
+from masknet.cli import main
+from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
+from masknet.models import MaskNet
+
+
+@pytest.fixture(scope="module")
+def weights(tmp_path_factory):
+    torch.manual_seed(0)
+    path = tmp_path_factory.mktemp("w") / "tiny.safetensors"
+    MaskNet(encoder_channels=(16, 32), head_channels=(32, 16)).eval().save(path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def pair_files(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("pair")
+    shapes = load_modelnet40(bundled_sample_path(), "test").points[:1]
+    pair = make_test_pairs(shapes, 1, PairConfig(), seed=1)
+    np.savetxt(folder / "template.xyz", pair.template[0].numpy())
+    np.save(folder / "source.npy", pair.source[0].numpy())
+    return folder / "template.xyz", folder / "source.npy", pair
+
+
+def test_mask_writes_inliers_and_mask(tmp_path, weights, pair_files, capsys):
+    template, source, pair = pair_files
+    out = tmp_path / "inliers.xyz"
+    assert (
+        main(["mask", str(template), str(source), "-o", str(out), "--weights", str(weights)]) == 0
+    )
+    mask = np.loadtxt(tmp_path / "inliers_mask.txt", dtype=int)
+    assert mask.shape == (1024,) and mask.sum() == pair.source.shape[1]
+    kept = np.loadtxt(out)
+    np.testing.assert_allclose(kept, pair.template[0].numpy()[mask.astype(bool)], atol=1e-6)
+    assert "kept 717 of 1024" in capsys.readouterr().out
+
+
+def test_mask_threshold_rule(tmp_path, weights, pair_files):
+    template, source, _ = pair_files
+    out = tmp_path / "t.npy"
+    args = [
+        "mask",
+        str(template),
+        str(source),
+        "-o",
+        str(out),
+        "--weights",
+        str(weights),
+        "--threshold",
+        "2",
+    ]
+    assert main(args) == 0
+    assert np.load(out).shape == (0, 3)  # no sigmoid score reaches 2
+
+
+@pytest.mark.parametrize(
+    ("content", "name", "needle"),
+    [
+        (None, "missing.xyz", "missing.xyz"),
+        ("1 2 3\nnan 0 0\n4 5 6\n7 8 9\n", "nan.xyz", "NaN"),
+        ("1 2\n3 4\n5 6\n", "flat.xyz", "flat.xyz"),
+        ("1 2 3\n", "few.xyz", "few.xyz"),
+        ("hello", "cloud.foo", "cloud.foo"),
+    ],
+)
+def test_bad_input_is_one_line_and_writes_nothing(
+    tmp_path, weights, pair_files, content, name, needle
+):
+    template, _, _ = pair_files
+    bad = tmp_path / name
+    if content is not None:
+        bad.write_text(content)
+    out = tmp_path / "out.ply"
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "masknet.cli",
+            "mask",
+            str(template),
+            str(bad),
+            "-o",
+            str(out),
+            "--weights",
+            str(weights),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("masknet: error:") and needle in lines[0], (
+        proc.stderr
+    )
+    assert "Traceback" not in proc.stderr
+    assert list(tmp_path.glob("out*")) == []
+
+
+def test_evaluate_json(tmp_path, weights, capsys):
+    out = tmp_path / "r.json"
+    args = [
+        "evaluate",
+        "--data",
+        str(bundled_sample_path()),
+        "--pairs",
+        "40",
+        "--seed",
+        "3",
+        "--weights",
+        str(weights),
+        "--json",
+        str(out),
+    ]
+    assert main(args) == 0
+    result = json.loads(out.read_text())
+    assert result["pairs"] == 40 and result["seed"] == 3
+    top_k = result["metrics"]["top-k (k=M)"]
+    assert 0 <= top_k["precision"] <= 1 and top_k["precision"] == pytest.approx(top_k["recall"])
+    assert "random top-k" in capsys.readouterr().out
+
+
+def test_evaluate_missing_data_says_what_to_download(monkeypatch, capsys):
+    monkeypatch.delenv("MASKNET_DATA", raising=False)
+    assert main(["evaluate", "--pairs", "5"]) == 2
+    assert "modelnet40_ply_hdf5_2048" in capsys.readouterr().err
+
+
+def test_demo_writes_picture_and_metrics(tmp_path, weights, capsys):
+    assert main(["demo", "--out", str(tmp_path), "--pairs", "16", "--weights", str(weights)]) == 0
+    png = (tmp_path / "masknet_demo.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 20_000
+    assert json.loads((tmp_path / "metrics.json").read_text())["pairs"] == 16
+    assert "top-k (k=M)" in capsys.readouterr().out
+
+
+def test_unknown_pretrained_name_is_clear(capsys):
+    assert main(["demo", "--pretrained", "nope"]) == 2
+    assert "no shipped MaskNet weights named 'nope'" in capsys.readouterr().err
