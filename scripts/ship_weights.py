@@ -1,10 +1,11 @@
 """Ship a training run's best weights inside the package, with a generated model card.
 
     python scripts/ship_weights.py runs/modelnet40 modelnet40 --data PATH
-    python scripts/ship_weights.py runs/seen20 modelnet40_seen20 --data PATH --categories seen
+    python scripts/ship_weights.py runs/seen20 modelnet40_seen20 --data PATH
 
 Every figure on the card comes from the run folder (run.json, log.csv) or is
-measured here on 1,000 seeded ModelNet40 *test* pairs; nothing is typed by hand.
+measured here on ``--pairs`` (default 1,000) seeded ModelNet40 *test* pairs for each
+of all, seen and unseen categories; nothing is typed by hand.
 """
 
 from __future__ import annotations

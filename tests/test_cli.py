@@ -148,3 +148,20 @@ def test_demo_writes_picture_and_metrics(tmp_path, weights, capsys):
 def test_unknown_pretrained_name_is_clear(capsys):
     assert main(["demo", "--pretrained", "nope"]) == 2
     assert "no shipped MaskNet weights named 'nope'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["evaluate", "--pairs", "0"],
+        ["train", "--out", "x", "--batch-size", "0"],
+        ["train", "--out", "x", "--seed", "-1"],
+        ["mask", "a.xyz", "b.xyz", "-o", "c.xyz", "--k", "0"],
+        ["mask", "a.xyz", "b.xyz", "-o", "c.xyz", "--threshold", "nan"],
+    ],
+)
+def test_bad_numbers_are_rejected_by_the_parser(args, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(args)
+    assert exc.value.code == 2
+    assert "error: argument" in capsys.readouterr().err

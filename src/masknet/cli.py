@@ -8,12 +8,34 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 
 from masknet.errors import MaskNetError
 
 __all__ = ["main", "build_parser"]
+
+
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
+
+
+def _seed(text: str) -> int:
+    value = int(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be non-negative, got {value}")
+    return value
+
+
+def _finite_float(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text}")
+    return value
 
 
 def _add_pair_options(p: argparse.ArgumentParser) -> None:
@@ -72,8 +94,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--out", required=True, help="run folder: checkpoint.pt, log.csv, best.safetensors"
     )
-    p.add_argument("--epochs", type=int, default=100)
-    p.add_argument("--batch-size", type=int, default=32)
+    p.add_argument("--epochs", type=_positive_int, default=100)
+    p.add_argument("--batch-size", type=_positive_int, default=32)
     p.add_argument("--lr", type=float, default=1e-4)
     p.add_argument("--lr-schedule", choices=["constant", "cosine"], default="constant")
     p.add_argument("--loss", choices=["mse", "bce"], default="mse")
@@ -83,16 +105,21 @@ def build_parser() -> argparse.ArgumentParser:
         default="auto",
         help="autocast dtype; auto = bf16 where the hardware has it",
     )
-    p.add_argument("--num-points", type=int, default=1024, help="template points per training pair")
+    p.add_argument(
+        "--num-points", type=_positive_int, default=1024, help="template points per training pair"
+    )
     p.add_argument(
         "--val-fraction", type=float, default=0.1, help="training shapes held out for validation"
     )
     p.add_argument(
-        "--val-pairs", type=int, default=512, help="validation pairs made from those shapes"
+        "--val-pairs",
+        type=_positive_int,
+        default=512,
+        help="validation pairs made from those shapes",
     )
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=_seed, default=0)
     p.add_argument("--device", default="auto")
-    p.add_argument("--threads", type=int, help="torch CPU threads")
+    p.add_argument("--threads", type=_positive_int, help="torch CPU threads")
     p.add_argument("--max-minutes", type=float, help="stop at the first epoch end past this budget")
     p.add_argument("--resume", action="store_true", help="continue the checkpoint in --out")
     p.add_argument("--init", help="start from these weights (.safetensors), e.g. to fine-tune")
@@ -102,8 +129,8 @@ def build_parser() -> argparse.ArgumentParser:
         "evaluate", help="mask precision/recall/F1/IoU on seeded ModelNet40 test pairs"
     )
     p.add_argument("--data", help="ModelNet40 folder or .npz (default: $MASKNET_DATA)")
-    p.add_argument("--pairs", type=int, default=1000)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--pairs", type=_positive_int, default=1000)
+    p.add_argument("--seed", type=_seed, default=0)
     p.add_argument("--json", help="also write the results to this JSON file")
     _add_model_options(p)
     _add_pair_options(p)
@@ -121,8 +148,12 @@ def build_parser() -> argparse.ArgumentParser:
         "<stem>_mask.txt beside it, one 0/1 per template point",
     )
     sel = p.add_mutually_exclusive_group()
-    sel.add_argument("--k", type=int, help="keep the k highest scores (default: k = source points)")
-    sel.add_argument("--threshold", type=float, help="keep scores >= this (the paper's epsilon)")
+    sel.add_argument(
+        "--k", type=_positive_int, help="keep the k highest scores (default: k = source points)"
+    )
+    sel.add_argument(
+        "--threshold", type=_finite_float, help="keep scores >= this (the paper's epsilon)"
+    )
     p.add_argument(
         "--drop-nonfinite", action="store_true", help="drop NaN/inf rows instead of failing"
     )
@@ -132,8 +163,8 @@ def build_parser() -> argparse.ArgumentParser:
         "demo", help="run the shipped model on the bundled sample: metrics and a picture"
     )
     p.add_argument("--out", default="masknet_demo", help="folder for the picture and metrics")
-    p.add_argument("--pairs", type=int, default=240)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--pairs", type=_positive_int, default=240)
+    p.add_argument("--seed", type=_seed, default=0)
     _add_model_options(p)
 
     p = sub.add_parser(
@@ -141,7 +172,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--data", help="ModelNet40 folder or .npz (default: $MASKNET_DATA)")
     p.add_argument("-o", "--output", required=True)
-    p.add_argument("--per-class", type=int, default=3)
+    p.add_argument("--per-class", type=_positive_int, default=3)
     return parser
 
 
@@ -168,6 +199,10 @@ def cmd_train(args: argparse.Namespace) -> None:
     from masknet.training import MaskNetTask, TrainConfig, fit
 
     data = load_modelnet40(args.data, "train").subset(args.categories)
+    if not 16 <= args.num_points <= data.points.shape[1]:
+        raise MaskNetError(
+            f"--num-points must be in [16, {data.points.shape[1]}], got {args.num_points}"
+        )
     task = MaskNetTask(pairs=_pair_config(args), num_points=args.num_points, loss=args.loss)
     config = TrainConfig(
         out_dir=args.out,
@@ -233,12 +268,16 @@ def cmd_mask(args: argparse.Namespace) -> None:
     source = read_points(args.source, drop_nonfinite=args.drop_nonfinite)
     model = _load_model(args)
     scores = model.predict(template, source, precision=args.inference_precision)
-    k = None if args.threshold is not None else (args.k or len(source))
+    k = None if args.threshold is not None else (args.k if args.k is not None else len(source))
     mask = select_mask(torch.from_numpy(scores[None]), k=k, threshold=args.threshold)[0].numpy()
     out = Path(args.output)
     mask_path = out.with_name(out.stem + "_mask.txt")
     write_points(out, template[mask])
-    write_mask(mask_path, mask)
+    try:
+        write_mask(mask_path, mask)
+    except Exception:
+        out.unlink(missing_ok=True)  # never leave one output without the other
+        raise
     rule = (
         f"threshold {args.threshold}"
         if args.threshold is not None

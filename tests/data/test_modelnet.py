@@ -225,7 +225,8 @@ def test_off_layout_samples_cube_surface(tmp_path):
         on_face = (np.abs(cloud - lo) < 1e-5) | (np.abs(cloud - hi) < 1e-5)
         assert on_face.any(axis=1).all()
         # And the samples are spread over all six faces.
-        assert on_face.sum(0).min() > 50
+        on_low, on_high = np.abs(cloud - lo) < 1e-5, np.abs(cloud - hi) < 1e-5
+        assert min(on_low.sum(0).min(), on_high.sum(0).min()) > 50
     # Sampling is reproducible.
     again = load_modelnet40(tmp_path, split="test")
     np.testing.assert_array_equal(again.points, ds.points)
@@ -295,3 +296,26 @@ def test_subset_seen_unseen():
     assert ds.subset("all") is ds
     with pytest.raises(MaskNetError):
         ds.subset("half")
+
+
+def test_corrupt_npz_is_one_clear_error(tmp_path):
+    from masknet.data import bundled_sample_path
+
+    truncated = tmp_path / "cut.npz"
+    truncated.write_bytes(bundled_sample_path().read_bytes()[:5000])
+    garbage = tmp_path / "junk.npz"
+    garbage.write_bytes(b"\x00" * 100)
+    for path in (truncated, garbage):
+        with pytest.raises(MaskNetError, match=path.name):
+            load_modelnet40(path, "test")
+
+
+def test_npz_with_nan_shapes_is_refused(tmp_path):
+    points = np.zeros((2, 1024, 3), np.float32)
+    points[1, 5] = np.nan
+    path = tmp_path / "nan.npz"
+    np.savez(
+        path, test_points=points, test_labels=np.array([0, 1]), shape_names=np.array(["a", "b"])
+    )
+    with pytest.raises(MaskNetError, match="1 shapes contain NaN"):
+        load_modelnet40(path, "test")

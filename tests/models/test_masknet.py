@@ -402,9 +402,12 @@ def test_fused_precision_switch(model, clouds):
     assert net.fused("bf16").head_global.dtype == torch.bfloat16
 
 
-# src/masknet/models/masknet.py, MaskNet.fused: the cache key uses id() of the tensors
-# returned by self.state_dict(), which are fresh detached views on every call, so the key
-# never matches and FusedMaskNet is rebuilt (BatchNorm re-folded) on every predict().
 def test_fused_cache_is_reused_when_weights_unchanged(model):
     net = _fresh(model)
     assert net.fused("fp32") is net.fused("fp32")
+
+
+def test_select_mask_accepts_one_cloud():
+    scores = torch.tensor([0.1, 0.9, 0.5, 0.7])
+    assert select_mask(scores, k=2).tolist() == [False, True, False, True]
+    assert select_mask(scores, threshold=0.6).shape == (4,)

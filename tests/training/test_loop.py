@@ -141,3 +141,37 @@ def test_kill_mid_training_loses_at_most_one_epoch(tmp_path):
     rows = (out / "log.csv").read_text().splitlines()[1:]
     assert [int(r.split(",")[0]) for r in rows] == list(range(1, done + 2))
     assert MaskNet.from_file(out / "best.safetensors") is not None
+
+
+@pytest.mark.parametrize(
+    ("changes", "needle"),
+    [
+        ({"batch_size": 200}, "fewer than one batch"),
+        ({"val_fraction": 1.5}, "--val-fraction"),
+        ({"device": "bogus"}, "unknown device"),
+    ],
+)
+def test_bad_config_is_refused_before_writing(tmp_path, shapes, changes, needle):
+    config = _config(tmp_path / "run", 1)
+    for key, value in changes.items():
+        setattr(config, key, value)
+    with pytest.raises(MaskNetError, match=needle):
+        fit(_task(), shapes, config)
+    assert not (tmp_path / "run").exists()
+
+
+def test_resume_with_other_settings_is_refused(tmp_path, shapes):
+    fit(_task(), shapes, _config(tmp_path, 1))
+    changed = _config(tmp_path, 2)
+    changed.seed = 1  # would move training shapes into validation
+    with pytest.raises(MaskNetError, match="seed"):
+        fit(_task(), shapes, changed, resume=True)
+    longer = fit(_task(), shapes, _config(tmp_path, 2), resume=True)  # epochs may change
+    assert len(longer) == 2
+
+
+def test_corrupt_checkpoint_is_one_clear_error(tmp_path, shapes):
+    fit(_task(), shapes, _config(tmp_path, 1))
+    (tmp_path / "checkpoint.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(MaskNetError, match="cannot resume"):
+        fit(_task(), shapes, _config(tmp_path, 2), resume=True)

@@ -5,7 +5,9 @@
   2,048 points are used, as PointNet does);
 * a folder of per-shape ``.npy`` files: ``<class>/{train,test}/*.npy``;
 * the compact ``.npz`` of int16 points (``modelnet40_1024_int16.npz``, and the
-  sample bundled with this package);
+  sample bundled with this package), with keys ``{train,test}_points`` (S, N, 3)
+  int16, ``scale`` (float; coordinates = points * scale), ``{train,test}_labels``
+  (S,) int, optional ``{train,test}_names`` (S,) str and ``shape_names`` (40,) str;
 * raw ``.off`` meshes: ``<class>/{train,test}/*.off``, surface-sampled with trimesh.
 
 Every shape is returned centred on its bounding-box centre and scaled to a
@@ -15,6 +17,7 @@ largest radius of 1.0, the normalisation of the bundled data.
 from __future__ import annotations
 
 import os
+import zipfile
 import zlib
 from dataclasses import dataclass
 from importlib import resources
@@ -121,6 +124,15 @@ def load_modelnet40(
         data = _load_npz(root, split)
     else:
         data = _load_folder(root, split, num_points)
+    if data.points.ndim != 3 or data.points.shape[-1] != 3:
+        raise MaskNetError(
+            f"{root}: expected shapes of (N, 3) points, got array {data.points.shape}"
+        )
+    if len(data.points) == 0:
+        raise MaskNetError(f"{root}: the {split} split holds no shapes")
+    if not np.isfinite(data.points).all():
+        bad = int((~np.isfinite(data.points)).any(axis=(1, 2)).sum())
+        raise MaskNetError(f"{root}: {bad} shapes contain NaN or inf coordinates")
     if data.points.shape[1] < num_points:
         raise MaskNetError(
             f"{root}: shapes have {data.points.shape[1]} points, fewer than {num_points}"
@@ -136,8 +148,11 @@ def _load_folder(root: Path, split: Split, num_points: int) -> PointCloudSet:
     npz = sorted(root.glob("*.npz"))
     if len(npz) == 1:
         return _load_npz(npz[0], split)
-    class_dirs = sorted(d for d in root.iterdir() if (d / split).is_dir())
-    if class_dirs:
+    # Classes come from both splits so that labels agree between train and test.
+    class_dirs = sorted(
+        d for d in root.iterdir() if (d / "train").is_dir() or (d / "test").is_dir()
+    )
+    if any((d / split).is_dir() for d in class_dirs):
         for kind in ("npy", "off"):
             if any(_has_file(d / split, kind) for d in class_dirs):
                 return _load_per_shape(root, class_dirs, split, kind, num_points)
@@ -162,8 +177,8 @@ def _load_npz(path: Path, split: Split) -> PointCloudSet:
         raise MaskNetError(
             f"{path}: missing array {exc.args[0]!r}; not a ModelNet40 .npz"
         ) from None
-    except (OSError, ValueError) as exc:
-        raise MaskNetError(f"{path}: unreadable .npz ({exc})") from None
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        raise MaskNetError(f"{path}: unreadable or truncated .npz ({exc})") from None
     return PointCloudSet(points.astype(np.float32) * np.float32(scale), labels, names, shape_names)
 
 
@@ -182,7 +197,13 @@ def _load_hdf5(folder: Path, split: Split) -> PointCloudSet:
                 labels.append(np.asarray(h5["label"]).reshape(-1).astype(np.int64))
         except (OSError, KeyError) as exc:
             raise MaskNetError(f"{file}: unreadable HDF5 shard ({exc})") from None
+    if not points:
+        raise MaskNetError(f"{folder}: no ply_data_{split}*.h5 shards")
     all_labels = np.concatenate(labels)
+    if all_labels.min() < 0 or all_labels.max() >= len(shape_names):
+        raise MaskNetError(
+            f"{folder}: labels outside the {len(shape_names)} names of shape_names.txt"
+        )
     names = np.array([f"{shape_names[c]}_{i}" for i, c in enumerate(all_labels)])
     return PointCloudSet(np.concatenate(points), all_labels, names, shape_names)
 
@@ -200,6 +221,8 @@ def _load_per_shape(
             points.append(cloud[:num_points, :3])
             labels.append(label)
             names.append(file.stem)
+    if not points:
+        raise MaskNetError(f"{root}: no .{kind} shapes in the {split} split")
     return PointCloudSet(
         np.stack(points).astype(np.float32), np.array(labels), np.array(names), shape_names
     )
@@ -208,7 +231,7 @@ def _load_per_shape(
 def _read_npy_shape(file: Path) -> np.ndarray:
     try:
         cloud = np.load(file, allow_pickle=False)
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, EOFError) as exc:
         raise MaskNetError(f"{file}: unreadable .npy ({exc})") from None
     if cloud.ndim != 2 or cloud.shape[1] < 3:
         raise MaskNetError(f"{file}: expected an (N, 3) array, got shape {cloud.shape}")

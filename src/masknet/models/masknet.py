@@ -64,12 +64,14 @@ def unit_radius(points: Tensor) -> Tensor:
 def select_mask(
     scores: Tensor, k: int | Tensor | None = None, threshold: float | None = None
 ) -> Tensor:
-    """Boolean inlier mask from scores (B, N).
+    """Boolean inlier mask from scores (B, N) or (N,), same shape out.
 
     Exactly one rule applies: ``threshold`` keeps scores >= threshold (the paper's
     epsilon); otherwise top-``k`` keeps the k highest scores per row (k an int or a
     (B,) tensor; the official code uses k = number of source points).
     """
+    if scores.dim() == 1:
+        return select_mask(scores[None], k, threshold)[0]
     if threshold is not None:
         if k is not None:
             raise ValueError("give either k or threshold, not both")
@@ -223,8 +225,10 @@ class MaskNet(nn.Module):
             state = load_file(str(path), device=str(map_location))
         except Exception as exc:  # safetensors raises its own error types
             raise MaskNetError(f"{path}: not a readable safetensors file ({exc})") from None
-        config = json.loads(meta.get("masknet_config", "{}"))
-        model = cls(**config)
+        try:
+            model = cls(**json.loads(meta.get("masknet_config", "{}")))
+        except (ValueError, TypeError) as exc:
+            raise MaskNetError(f"{path}: bad masknet_config metadata ({exc})") from None
         try:
             model.load_state_dict(state)
         except RuntimeError as exc:

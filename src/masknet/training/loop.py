@@ -80,7 +80,7 @@ class TrainConfig:
     val_pairs: int = 512
     device: str = "auto"
     threads: int | None = None
-    max_minutes: float | None = None
+    max_minutes: float | None = None  # per invocation: no epoch starts that would end past it
     extra: dict = field(default_factory=dict)
 
 
@@ -89,7 +89,10 @@ def resolve_device(device: str) -> torch.device:
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     if device.startswith("cuda") and not torch.cuda.is_available():
         raise MaskNetError(f"device {device!r} requested but CUDA is not available")
-    return torch.device(device)
+    try:
+        return torch.device(device)
+    except RuntimeError:
+        raise MaskNetError(f"unknown device {device!r}; use auto, cpu, cuda or cuda:N") from None
 
 
 def default_precision(device: torch.device) -> str:
@@ -101,6 +104,43 @@ def default_precision(device: torch.device) -> str:
     except OSError:
         return "fp32"
     return "bf16" if ("avx512_bf16" in flags or "amx_bf16" in flags) else "fp32"
+
+
+# Settings that may change between a run and its --resume; any other change is refused,
+# because it would change the data split, the pairs or the model being continued.
+RESUMABLE_CHANGES = {"epochs", "max_minutes", "threads", "device"}
+
+
+def _check_config(config: TrainConfig, num_shapes: int) -> None:
+    if config.batch_size < 1 or config.epochs < 1:
+        raise MaskNetError("--batch-size and --epochs must be at least 1")
+    if not 0 <= config.val_fraction < 1:
+        raise MaskNetError(f"--val-fraction must be in [0, 1), got {config.val_fraction}")
+    n_train = num_shapes - (
+        max(1, round(config.val_fraction * num_shapes)) if config.val_fraction else 0
+    )
+    if n_train < config.batch_size:
+        raise MaskNetError(
+            f"{n_train} training shapes are fewer than one batch of {config.batch_size}; "
+            "lower --batch-size or --val-fraction"
+        )
+
+
+def _check_resumable(path: Path, saved: dict | None, current: dict) -> None:
+    if saved is None:
+        return  # checkpoints from before run_info was stored
+    changed = [
+        key
+        for key in sorted(set(saved["train"]) | set(current["train"]))
+        if key not in RESUMABLE_CHANGES and saved["train"].get(key) != current["train"].get(key)
+    ]
+    if saved["task"] != current["task"]:
+        changed.append("task/pair settings")
+    if changed:
+        raise MaskNetError(
+            f"{path}: cannot resume with different settings ({', '.join(changed)}); "
+            "use the original ones or a new --out"
+        )
 
 
 def split_train_val(
@@ -150,46 +190,57 @@ def fit(
     validation shapes. ``init_weights`` optionally starts from another model's
     weights (fine-tuning); it is ignored when resuming.
     """
+    _check_config(config, len(train_points))
     out = Path(config.out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    if out.exists() and not out.is_dir():
+        raise MaskNetError(f"{out}: exists and is not a folder; choose another --out")
     ckpt_path = out / "checkpoint.pt"
+    if ckpt_path.exists() and not resume:
+        raise MaskNetError(
+            f"{ckpt_path} exists: pass --resume to continue it, or choose another --out"
+        )
     device = resolve_device(config.device)
     precision = default_precision(device) if config.precision == "auto" else config.precision
     if config.threads:
         torch.set_num_threads(config.threads)
 
-    torch.manual_seed(config.seed)
-    model = task.build_model().to(device)
-    if init_weights is not None:
-        model.load_state_dict(init_weights.state_dict())
-    optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
-    history: list[dict] = []
-    best = -math.inf
-    start_epoch = 0
-    if resume and ckpt_path.exists():
-        state = torch.load(ckpt_path, map_location=device, weights_only=True)
-        model.load_state_dict(state["model"])
-        optimizer.load_state_dict(state["optimizer"])
-        history, best, start_epoch = state["history"], state["best"], state["epoch"]
-        print(f"resuming {ckpt_path} at epoch {start_epoch + 1}", file=sys.stderr)
-    elif ckpt_path.exists():
-        raise MaskNetError(
-            f"{ckpt_path} exists: pass --resume to continue it, or choose another --out"
-        )
-
     train_idx, val_idx = split_train_val(len(train_points), config.val_fraction, config.seed)
-    train_set = train_points[train_idx]
-    val_batches = (
-        task.val_batches(train_points[val_idx], config.val_pairs, config.batch_size, config.seed)
-        if len(val_idx)
-        else []
-    )
     run_info = {
         "task": task.describe(),
         "train": {k: v for k, v in asdict(config).items() if k != "out_dir"}
         | {"precision": precision},
         "shapes": {"train": len(train_idx), "val": len(val_idx)},
     }
+
+    torch.manual_seed(config.seed)
+    model = task.build_model().to(device)
+    if init_weights is not None:
+        try:
+            model.load_state_dict(init_weights.state_dict())
+        except RuntimeError as exc:
+            raise MaskNetError(f"--init weights do not fit this model ({exc})") from None
+    optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
+    history: list[dict] = []
+    best = -math.inf
+    start_epoch = 0
+    if resume and ckpt_path.exists():
+        try:
+            state = torch.load(ckpt_path, map_location=device, weights_only=True)
+            model.load_state_dict(state["model"])
+            optimizer.load_state_dict(state["optimizer"])
+        except Exception as exc:  # unpickling and shape errors come in many types
+            raise MaskNetError(f"{ckpt_path}: cannot resume from it ({exc})") from None
+        _check_resumable(ckpt_path, state.get("run_info"), run_info)
+        history, best, start_epoch = state["history"], state["best"], state["epoch"]
+        print(f"resuming {ckpt_path} at epoch {start_epoch + 1}", file=sys.stderr)
+
+    train_set = train_points[train_idx]
+    val_batches = (
+        task.val_batches(train_points[val_idx], config.val_pairs, config.batch_size, config.seed)
+        if len(val_idx)
+        else []
+    )
+    out.mkdir(parents=True, exist_ok=True)
     (out / "run.json").write_text(json.dumps(run_info, indent=2))
     autocast = torch.autocast(device.type, dtype=torch.bfloat16, enabled=precision == "bf16")
     interactive = sys.stderr.isatty()
@@ -217,11 +268,11 @@ def fit(
         for batch in bar:
             with autocast:
                 loss, metrics = task.step(model, batch, device)
+            if not math.isfinite(loss.item()):
+                raise MaskNetError(f"training diverged at epoch {epoch + 1}: loss is {loss.item()}")
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
-            if not math.isfinite(loss.item()):
-                raise MaskNetError(f"training diverged at epoch {epoch + 1}: loss is {loss.item()}")
             count += 1
             for key, value in {"loss": loss.item(), **metrics}.items():
                 sums[key] = sums.get(key, 0.0) + value
@@ -243,7 +294,7 @@ def fit(
         row["elapsed_min"] = elapsed_before + (time.perf_counter() - started) / 60
         history.append(row)
 
-        score = row.get(f"val_{task.metric}", row[f"train_{task.metric}"])
+        score = row[f"val_{task.metric}"] if val_batches else row[f"train_{task.metric}"]
         if score > best:
             best = score
             task.export(
@@ -257,6 +308,7 @@ def fit(
                 "epoch": epoch + 1,
                 "history": history,
                 "best": best,
+                "run_info": run_info,
             },
             ckpt_path,
         )

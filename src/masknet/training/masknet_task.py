@@ -71,6 +71,7 @@ class MaskNetTask:
 
     def describe(self) -> dict:
         return {
+            "model": dict(self.model_config),
             "name": self.name,
             "pairs": self.pairs.to_dict(),
             "num_points": self.num_points,
