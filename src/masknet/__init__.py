@@ -3,6 +3,8 @@
     >>> from masknet import MaskNet
     >>> model = MaskNet.pretrained()
     >>> mask = model.predict_mask(template, source)   # (N,) bool, top-k with k = len(source)
+    >>> from masknet import register
+    >>> result = register(template, source)           # Mask-ICP; result.transform (4, 4)
 
 The transform convention for every registration result is documented in
 :mod:`masknet.geometry.se3`: ``template ~= R @ source + t``.
@@ -10,6 +12,14 @@ The transform convention for every registration result is documented in
 
 from masknet.errors import MaskNetError
 from masknet.models import MaskNet, select_mask
+from masknet.registration import RegistrationResult, register
 
 __version__ = "0.1.0"
-__all__ = ["MaskNet", "MaskNetError", "select_mask", "__version__"]
+__all__ = [
+    "MaskNet",
+    "MaskNetError",
+    "RegistrationResult",
+    "register",
+    "select_mask",
+    "__version__",
+]

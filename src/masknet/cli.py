@@ -86,7 +86,13 @@ def _pair_config(args: argparse.Namespace):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="masknet", description=__doc__.splitlines()[0])
+    from masknet import __version__
+
+    parser = argparse.ArgumentParser(
+        prog="masknet",
+        description="MaskNet: predict which template points a partial source cloud also sees.",
+    )
+    parser.add_argument("--version", action="version", version=f"masknet {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("train", help="train MaskNet on ModelNet40 (CPU or GPU), resumable")

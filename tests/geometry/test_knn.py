@@ -85,3 +85,43 @@ def test_knn_bad_shapes_raise():
         knn_points(query[0], reference[0])
     with pytest.raises(ValueError):
         knn_points(query, reference[:1])
+
+
+def test_knn_reference_valid_matches_kdtree_on_valid_subset():
+    query, reference = _clouds(2, 31, 40, seed=6)
+    g = torch.Generator().manual_seed(6)
+    valid = torch.rand(2, 40, generator=g) < 0.5
+    result = knn_points(query, reference, k=3, chunk_size=8, reference_valid=valid)
+    for b in range(2):
+        kept = torch.nonzero(valid[b])[:, 0]
+        exp_d, exp_i = _expected(query[b : b + 1], reference[b : b + 1, kept], 3)
+        np.testing.assert_array_equal(result.idx[b].numpy(), kept.numpy()[exp_i[0]])
+        np.testing.assert_allclose(result.dists[b].numpy(), exp_d[0], rtol=1e-9, atol=1e-12)
+    assert valid.gather(1, result.idx.reshape(2, -1)).all()
+
+
+def test_knn_reference_valid_all_true_is_default():
+    query, reference = _clouds(2, 20, 15, dtype=torch.float32, seed=7)
+    a = knn_points(query, reference, k=4)
+    b = knn_points(query, reference, k=4, reference_valid=torch.ones(2, 15, dtype=torch.bool))
+    assert torch.equal(a.idx, b.idx)
+    assert torch.equal(a.dists, b.dists)
+
+
+def test_knn_reference_valid_fewer_than_k_pads_with_inf():
+    query, reference = _clouds(2, 6, 10, seed=8)
+    valid = torch.zeros(2, 10, dtype=torch.bool)
+    valid[0, [2, 7]] = True  # 2 valid points for k = 3; none in the second element
+    result = knn_points(query, reference, k=3, reference_valid=valid)
+    assert set(result.idx[0, :, :2].flatten().tolist()) <= {2, 7}
+    assert torch.isfinite(result.dists[0, :, :2]).all()
+    assert torch.isinf(result.dists[0, :, 2]).all() and (result.idx[0, :, 2] == -1).all()
+    assert torch.isinf(result.dists[1]).all() and (result.idx[1] == -1).all()
+
+
+def test_knn_reference_valid_bad_shape_or_dtype_raises():
+    query, reference = _clouds(2, 5, 6)
+    with pytest.raises(ValueError, match="reference_valid"):
+        knn_points(query, reference, reference_valid=torch.ones(2, 5, dtype=torch.bool))
+    with pytest.raises(ValueError, match="reference_valid"):
+        knn_points(query, reference, reference_valid=torch.ones(2, 6))

@@ -216,3 +216,9 @@ def test_translation_error():
     a = torch.tensor([[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]])
     b = torch.tensor([[3.0, 4.0, 0.0], [1.0, 1.0, 1.0]])
     torch.testing.assert_close(translation_error(a, b), torch.tensor([5.0, 0.0]))
+
+
+def test_rotation_angle_is_accurate_for_tiny_angles():
+    omega = torch.tensor([[1e-6, 0.0, 0.0], [0.0, 3e-7, 4e-7]])
+    angle = rotation_angle(so3_exp(omega))  # float32
+    torch.testing.assert_close(angle, omega.norm(dim=-1), rtol=1e-3, atol=0)

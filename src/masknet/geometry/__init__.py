@@ -1,5 +1,6 @@
-"""Geometry: the SE(3) module and the k-NN helper."""
+"""Geometry: the SE(3) module, the k-NN helper and rigid alignment."""
 
+from masknet.geometry.align import rigid_align
 from masknet.geometry.knn import KNN, knn_points
 from masknet.geometry.se3 import (
     invert_transform,
@@ -19,6 +20,7 @@ __all__ = [
     "invert_transform",
     "make_transform",
     "random_rotation",
+    "rigid_align",
     "rotation_error_deg",
     "se3_exp",
     "so3_exp",

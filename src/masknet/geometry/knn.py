@@ -26,7 +26,13 @@ class KNN(NamedTuple):
     idx: Tensor
 
 
-def knn_points(query: Tensor, reference: Tensor, k: int = 1, chunk_size: int = 4096) -> KNN:
+def knn_points(
+    query: Tensor,
+    reference: Tensor,
+    k: int = 1,
+    chunk_size: int = 4096,
+    reference_valid: Tensor | None = None,
+) -> KNN:
     """The k nearest reference points of every query point.
 
     Args:
@@ -35,6 +41,9 @@ def knn_points(query: Tensor, reference: Tensor, k: int = 1, chunk_size: int = 4
         k: number of neighbours.
         chunk_size: query points per block; the block's distance matrix is
             (B, chunk_size, R), which bounds memory.
+        reference_valid: optional (B, R) bool; reference points marked False are
+            never returned. Where a batch element has fewer than k valid points,
+            the missing neighbours get dists ``+inf`` and idx ``-1``.
 
     Returns:
         KNN with dists (B, P, k) squared distances and idx (B, P, k).
@@ -45,13 +54,25 @@ def knn_points(query: Tensor, reference: Tensor, k: int = 1, chunk_size: int = 4
         )
     if reference.shape[1] < k:
         raise ValueError(f"k={k} exceeds the {reference.shape[1]} reference points")
+    if reference_valid is not None:
+        if reference_valid.shape != reference.shape[:2] or reference_valid.dtype != torch.bool:
+            raise ValueError(
+                f"reference_valid must be a bool tensor of shape {tuple(reference.shape[:2])}, "
+                f"got {reference_valid.dtype} {tuple(reference_valid.shape)}"
+            )
+        invalid = ~reference_valid[:, None, :]  # (B, 1, R)
     ref_sq = (reference * reference).sum(-1)[:, None, :]
     dists, idx = [], []
     for start in range(0, query.shape[1], chunk_size):
         q = query[:, start : start + chunk_size]
         # |q|^2 - 2 q.r + |r|^2: one matmul instead of a (P, R, D) difference tensor.
         d2 = (q * q).sum(-1)[..., None] - 2 * q @ reference.transpose(1, 2) + ref_sq
-        d, i = torch.topk(d2.clamp_min_(0), k, dim=-1, largest=False, sorted=True)
+        d2 = d2.clamp_min_(0)
+        if reference_valid is not None:
+            d2 = d2.masked_fill_(invalid, float("inf"))
+        d, i = torch.topk(d2, k, dim=-1, largest=False, sorted=True)
+        if reference_valid is not None:
+            i = i.masked_fill_(torch.isinf(d), -1)
         dists.append(d)
         idx.append(i)
     return KNN(torch.cat(dists, 1), torch.cat(idx, 1))

@@ -1,0 +1,63 @@
+"""Closed-form rigid alignment of corresponding points (weighted Kabsch / Umeyama, no scale).
+
+The result follows the project's transform convention (:mod:`masknet.geometry.se3`):
+``R``, ``t`` map source points onto their targets, ``target ~= source @ R.T + t``.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+__all__ = ["rigid_align"]
+
+
+def rigid_align(
+    source: Tensor, target: Tensor, weights: Tensor | None = None
+) -> tuple[Tensor, Tensor]:
+    """The rotation and translation that best map ``source`` onto ``target``.
+
+    Minimises ``sum_i w_i ||R s_i + t - y_i||^2`` over rotations R (det +1, never a
+    reflection: the smallest singular direction is flipped when needed) and
+    translations t. The solve runs in float64 whatever the input dtype.
+
+    Args:
+        source: (B, P, 3) points s_i.
+        target: (B, P, 3) corresponding points y_i.
+        weights: (B, P) non-negative weights, or None for all ones. A batch element
+            whose weights sum to zero has nothing to align and gets the identity.
+
+    Returns:
+        R (B, 3, 3) and t (B, 3), in the dtype of ``source``.
+    """
+    if source.dim() != 3 or source.shape[-1] != 3 or source.shape != target.shape:
+        raise ValueError(
+            f"expected source and target of the same shape (B,P,3), got "
+            f"{tuple(source.shape)} and {tuple(target.shape)}"
+        )
+    if weights is not None and weights.shape != source.shape[:2]:
+        raise ValueError(
+            f"expected weights of shape {tuple(source.shape[:2])}, got {tuple(weights.shape)}"
+        )
+    s, y = source.double(), target.double()
+    w = torch.ones(s.shape[:2], dtype=s.dtype, device=s.device) if weights is None else weights
+    w = w.to(s)
+    total = w.sum(1)  # (B,)
+    has_weight = total > 0
+    wn = w / torch.where(has_weight, total, torch.ones_like(total))[:, None]  # sums to 1 or 0
+    s_mean = (wn[..., None] * s).sum(1)  # (B, 3)
+    y_mean = (wn[..., None] * y).sum(1)
+    # Weighted cross-covariance H = sum_i w_i (s_i - s_mean)(y_i - y_mean)^T, (B, 3, 3).
+    cov = (s - s_mean[:, None]).transpose(1, 2) @ (wn[..., None] * (y - y_mean[:, None]))
+    u, _, vh = torch.linalg.svd(cov)
+    v = vh.transpose(1, 2)
+    # R = V diag(1, 1, d) U^T with d = det(V U^T) = +-1 keeps det(R) = +1.
+    d = torch.linalg.det(v @ u.transpose(1, 2)).sign()
+    d = torch.where(d == 0, torch.ones_like(d), d)
+    fix = torch.ones(s.shape[0], 3, dtype=s.dtype, device=s.device)
+    fix[:, 2] = d
+    rot = (v * fix[:, None, :]) @ u.transpose(1, 2)
+    eye = torch.eye(3, dtype=s.dtype, device=s.device).expand_as(rot)
+    rot = torch.where(has_weight[:, None, None], rot, eye)
+    trans = y_mean - (rot @ s_mean[..., None])[..., 0]
+    return rot.to(source.dtype), trans.to(source.dtype)

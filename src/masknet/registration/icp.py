@@ -1,0 +1,158 @@
+"""Batched point-to-point ICP in torch (CPU or GPU, on whatever device the inputs are).
+
+Each iteration moves the source by the current estimate, pairs every source point
+with its nearest template point (:func:`masknet.geometry.knn_points`), drops pairs
+farther apart than ``max_correspondence_distance``, solves the weighted Kabsch
+problem (:func:`masknet.geometry.rigid_align`) and composes the update on the left.
+
+Names and definitions follow Open3D's ``registration_icp`` where the two overlap
+(``fitness``, ``inlier_rmse``; Open3D's ``transformation`` is ``transform`` here).
+The transform maps source points into the template frame, as everywhere in masknet
+(:mod:`masknet.geometry.se3`).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import torch
+from torch import Tensor
+
+from masknet.geometry.align import rigid_align
+from masknet.geometry.knn import knn_points
+from masknet.geometry.se3 import make_transform, transform_points
+
+__all__ = ["ICPSolution", "icp"]
+
+
+class ICPSolution(NamedTuple):
+    """Result of :func:`icp` (and of :func:`masknet.registration.open3d_icp`).
+
+    transform: (B, 4, 4) source -> template, ``template ~= source @ R.T + t``.
+    converged: (B,) bool, True where the change in mean squared error fell below
+        the tolerance before ``max_iterations``.
+    iterations: (B,) int64, updates applied (-1 where the backend does not report it).
+    fitness: (B,) fraction of source points with a template point within
+        ``max_correspondence_distance`` at the final transform (Open3D's definition).
+    inlier_rmse: (B,) root mean square distance over those inlier pairs (0 when
+        there are none; Open3D's definition).
+    """
+
+    transform: Tensor
+    converged: Tensor
+    iterations: Tensor
+    fitness: Tensor
+    inlier_rmse: Tensor
+
+
+class _Matches(NamedTuple):
+    moved: Tensor  # (B, M, 3) source under the current transform, float64
+    matched: Tensor  # (B, M, 3) nearest valid template point, float64
+    inlier: Tensor  # (B, M) bool
+    fitness: Tensor  # (B,) float64
+    mse: Tensor  # (B,) float64, mean squared distance over inliers (0 if none)
+
+
+def _match(
+    transform: Tensor,
+    source: Tensor,
+    template: Tensor,
+    max_distance: float | None,
+    template_valid: Tensor | None,
+) -> _Matches:
+    """Nearest-neighbour pairs for ``source`` moved by ``transform`` (B, 4, 4) float64."""
+    moved = transform_points(transform.to(source.dtype), source)
+    idx = knn_points(moved, template, 1, reference_valid=template_valid).idx[..., 0]  # (B, M)
+    found = idx >= 0
+    matched = torch.gather(template, 1, idx.clamp_min(0)[..., None].expand(-1, -1, 3)).double()
+    moved = moved.double()
+    d2 = (moved - matched).square().sum(-1)  # exact, unlike the k-NN's expanded form
+    inlier = found if max_distance is None else found & (d2 <= max_distance**2)
+    count = inlier.sum(1)
+    mse = (d2 * inlier).sum(1) / count.clamp_min(1)
+    return _Matches(moved, matched, inlier, count.double() / source.shape[1], mse)
+
+
+def icp(
+    source: Tensor,
+    template: Tensor,
+    init: Tensor | None = None,
+    max_iterations: int = 10,
+    tolerance: float = 1e-6,
+    max_correspondence_distance: float | None = None,
+    template_valid: Tensor | None = None,
+) -> ICPSolution:
+    """Point-to-point ICP for a batch of pairs.
+
+    Args:
+        source: (B, M, 3) points to move.
+        template: (B, N, 3) points to move them onto (same dtype and device).
+        init: (B, 4, 4) or (4, 4) initial source -> template transform; None is the
+            identity.
+        max_iterations: most updates per pair (0 just evaluates ``init``).
+        tolerance: a pair stops, converged, once its mean squared inlier distance
+            changes by less than this in one iteration.
+        max_correspondence_distance: pairs farther apart are not used (and do not
+            count towards fitness); None keeps every pair.
+        template_valid: (B, N) bool; template points marked False are never matched
+            (fixed shapes for masked, batched templates).
+
+    Returns:
+        ICPSolution; ``transform``, ``fitness`` and ``inlier_rmse`` in the dtype of
+        ``source`` (the iteration itself composes in float64). A pair with no
+        inlier stops at once with the identity update and ``converged`` False.
+    """
+    if (
+        source.dim() != 3
+        or template.dim() != 3
+        or source.shape[-1] != 3
+        or template.shape[-1] != 3
+        or source.shape[0] != template.shape[0]
+    ):
+        raise ValueError(
+            f"expected source (B,M,3) and template (B,N,3), got {tuple(source.shape)} "
+            f"and {tuple(template.shape)}"
+        )
+    if not source.is_floating_point() or template.dtype != source.dtype:
+        raise ValueError(
+            f"source and template must share a floating dtype, got {source.dtype} "
+            f"and {template.dtype}"
+        )
+    if max_iterations < 0:
+        raise ValueError(f"max_iterations must be >= 0, got {max_iterations}")
+    if max_correspondence_distance is not None and not max_correspondence_distance > 0:
+        raise ValueError(
+            f"max_correspondence_distance must be positive, got {max_correspondence_distance}"
+        )
+    b, device = source.shape[0], source.device
+    if init is None:
+        transform = torch.eye(4, dtype=torch.float64, device=device).repeat(b, 1, 1)
+    else:
+        if init.shape not in ((4, 4), (b, 4, 4)):
+            raise ValueError(f"init must be (4,4) or ({b},4,4), got {tuple(init.shape)}")
+        transform = init.to(device=device, dtype=torch.float64).expand(b, 4, 4).clone()
+
+    m = _match(transform, source, template, max_correspondence_distance, template_valid)
+    converged = torch.zeros(b, dtype=torch.bool, device=device)
+    iterations = torch.zeros(b, dtype=torch.int64, device=device)
+    done = m.fitness == 0
+    for _ in range(max_iterations):
+        if bool(done.all()):
+            break
+        rot, trans = rigid_align(m.moved, m.matched, m.inlier.double())
+        update = make_transform(rot, trans) @ transform
+        transform = torch.where(done[:, None, None], transform, update)
+        iterations += (~done).long()
+        prev_mse = m.mse
+        m = _match(transform, source, template, max_correspondence_distance, template_valid)
+        has_inliers = m.fitness > 0
+        newly = ~done & has_inliers & ((prev_mse - m.mse).abs() < tolerance)
+        converged |= newly
+        done |= newly | ~has_inliers
+    return ICPSolution(
+        transform.to(source.dtype),
+        converged,
+        iterations,
+        m.fitness.to(source.dtype),
+        m.mse.sqrt().to(source.dtype),
+    )

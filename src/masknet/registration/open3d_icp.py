@@ -1,0 +1,80 @@
+"""Open3D's point-to-point ICP for one pair, as an :class:`ICPSolution`.
+
+A reference backend: ``open3d.pipelines.registration.registration_icp`` with
+``TransformationEstimationPointToPoint``. Open3D's ``result.transformation`` maps
+the source onto the target, which is masknet's convention (:mod:`masknet.geometry.se3`).
+Open3D is optional; a missing install raises :class:`~masknet.errors.MaskNetError`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from masknet.io import require_open3d
+from masknet.registration.icp import ICPSolution
+
+__all__ = ["open3d_icp"]
+
+
+def open3d_icp(
+    source: np.ndarray,
+    template: np.ndarray,
+    init: np.ndarray | None = None,
+    max_iterations: int = 10,
+    max_correspondence_distance: float | None = None,
+    relative_fitness: float = 1e-6,
+    relative_rmse: float = 1e-6,
+) -> ICPSolution:
+    """Register one pair with Open3D's ICP.
+
+    Args:
+        source: (M, 3) points to move.
+        template: (N, 3) target points.
+        init: (4, 4) initial source -> template transform; None is the identity.
+        max_iterations: Open3D's ``max_iteration``.
+        max_correspondence_distance: Open3D's threshold; None uses 1e3, so that every
+            pair counts (for unit-scale shapes).
+        relative_fitness, relative_rmse: Open3D's convergence criteria (its defaults).
+
+    Returns:
+        ICPSolution with a batch of one: transform (1, 4, 4) float64, fitness and
+        inlier_rmse (1,) float64. Open3D's legacy API reports neither the iteration
+        count nor whether it converged, so ``iterations`` is -1 and ``converged`` is
+        False. An empty template gives the identity with fitness 0.
+    """
+    o3d = require_open3d("the open3d ICP backend")
+    reg = o3d.pipelines.registration
+    src = np.ascontiguousarray(np.asarray(source, dtype=np.float64).reshape(-1, 3))
+    tpl = np.ascontiguousarray(np.asarray(template, dtype=np.float64).reshape(-1, 3))
+    init = np.eye(4) if init is None else np.asarray(init, dtype=np.float64)
+    if init.shape != (4, 4):
+        raise ValueError(f"init must be (4, 4), got {init.shape}")
+    threshold = 1e3 if max_correspondence_distance is None else float(max_correspondence_distance)
+    if len(tpl) == 0 or len(src) == 0:
+        transform, fitness, rmse = init, 0.0, 0.0
+    else:
+        result = reg.registration_icp(
+            o3d.geometry.PointCloud(o3d.utility.Vector3dVector(src)),
+            o3d.geometry.PointCloud(o3d.utility.Vector3dVector(tpl)),
+            threshold,
+            init,
+            reg.TransformationEstimationPointToPoint(),
+            reg.ICPConvergenceCriteria(
+                relative_fitness=relative_fitness,
+                relative_rmse=relative_rmse,
+                max_iteration=int(max_iterations),
+            ),
+        )
+        transform, fitness, rmse = (
+            np.asarray(result.transformation),
+            result.fitness,
+            result.inlier_rmse,
+        )
+    return ICPSolution(
+        torch.tensor(transform, dtype=torch.float64)[None],
+        torch.zeros(1, dtype=torch.bool),
+        torch.full((1,), -1, dtype=torch.int64),
+        torch.tensor([fitness], dtype=torch.float64),
+        torch.tensor([rmse], dtype=torch.float64),
+    )

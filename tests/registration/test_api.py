@@ -1,0 +1,281 @@
+"""Tests for masknet.register (Mask-ICP and plain ICP, numpy in, numpy out)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+import masknet
+import masknet.io as mio
+from masknet import MaskNet, MaskNetError, RegistrationResult, register
+from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
+from masknet.io import require_open3d
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _one_thread():
+    """Small problems: one thread is faster and avoids contention on busy machines."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+@pytest.fixture(scope="module")
+def model() -> MaskNet:
+    """A small random MaskNet, so that the tests do not depend on the shipped weights."""
+    torch.manual_seed(0)
+    return MaskNet(encoder_channels=(16, 32), head_channels=(32, 16)).eval()
+
+
+@pytest.fixture(scope="module")
+def pairs():
+    shapes = load_modelnet40(bundled_sample_path()).points
+    return make_test_pairs(shapes, 3, PairConfig(max_angle_deg=10, max_translation=0.1), seed=0)
+
+
+@pytest.fixture(scope="module")
+def full_pairs():
+    shapes = load_modelnet40(bundled_sample_path()).points
+    config = PairConfig(keep_ratio=1.0, max_angle_deg=10, max_translation=0.1)
+    return make_test_pairs(shapes, 2, config, seed=1)
+
+
+def _angle(r1: np.ndarray, r2: np.ndarray) -> np.ndarray:
+    """Rotation angle between (..., 3, 3) rotations, accurate near zero."""
+    diff = np.linalg.norm((r1 - r2).reshape(*r1.shape[:-2], 9), axis=-1)
+    return 2 * np.arcsin(np.minimum(diff / 8**0.5, 1))
+
+
+def _open3d_or_skip():
+    try:
+        return require_open3d("these tests")
+    except MaskNetError as exc:
+        pytest.skip(str(exc))
+
+
+def test_exported_from_the_package():
+    assert masknet.register is register and masknet.RegistrationResult is RegistrationResult
+    assert {"register", "RegistrationResult"} <= set(masknet.__all__)
+
+
+def test_convention_source_moved_by_inverse_gives_transform(full_pairs):
+    """source = template moved by T^-1, so register(template, source) must return T."""
+    g = np.random.default_rng(0)
+    template = full_pairs.template[0].double().numpy()
+    angle = np.radians(8)
+    axis = g.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    rot = np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
+    transform = np.eye(4)
+    transform[:3, :3], transform[:3, 3] = rot, [0.05, -0.08, 0.03]
+    # template = source @ R.T + t  <=>  source = (template - t) @ R
+    source = (template - transform[:3, 3]) @ rot
+    result = register(template, source, use_mask=False, max_iterations=50)
+    np.testing.assert_allclose(result.transform, transform, atol=1e-6)
+    np.testing.assert_allclose(source @ result.R.T + result.t, template, atol=1e-6)
+
+
+def test_plain_icp_recovers_pair_transform(full_pairs):
+    result = register(
+        full_pairs.template.numpy(), full_pairs.source.numpy(), use_mask=False, max_iterations=50
+    )
+    truth = full_pairs.transform.double().numpy()
+    assert (_angle(result.R, truth[:, :3, :3]) < 1e-4).all()
+    assert (np.linalg.norm(result.t - truth[:, :3, 3], axis=-1) < 1e-4).all()
+    assert result.info["converged"].all()
+
+
+def test_single_pair_shapes(pairs, model):
+    template, source = pairs.template[0].numpy(), pairs.source[0].numpy()
+    result = register(template, source, model=model)
+    assert isinstance(result, RegistrationResult)
+    assert result.R.shape == (3, 3) and result.t.shape == (3,) and result.transform.shape == (4, 4)
+    assert result.transform.dtype == np.float64
+    np.testing.assert_array_equal(result.transform[:3, :3], result.R)
+    np.testing.assert_array_equal(result.transform[:3, 3], result.t)
+    np.testing.assert_array_equal(result.transform[3], [0, 0, 0, 1])
+    assert result.mask.shape == (template.shape[0],) and result.mask.dtype == np.bool_
+    assert len(result.rounds) == 1 and result.rounds[0].shape == (4, 4)
+    for key in ("converged", "fitness", "inlier_rmse", "iterations"):
+        assert np.ndim(result.info[key]) == 0, key
+    np.testing.assert_allclose(np.linalg.det(result.R), 1.0, atol=1e-9)
+
+
+def test_batch_shapes_and_equals_single(pairs, model):
+    template, source = pairs.template.numpy(), pairs.source.numpy()
+    b, n, _ = template.shape
+    result = register(template, source, model=model, iterations=2)
+    assert result.R.shape == (b, 3, 3) and result.t.shape == (b, 3)
+    assert result.transform.shape == (b, 4, 4) and result.mask.shape == (b, n)
+    assert len(result.rounds) == 2 and all(r.shape == (b, 4, 4) for r in result.rounds)
+    for key in ("converged", "fitness", "inlier_rmse", "iterations"):
+        assert result.info[key].shape == (b,), key
+    one = register(template[1], source[1], model=model, iterations=2)
+    np.testing.assert_allclose(one.transform, result.transform[1], atol=1e-9)
+    np.testing.assert_array_equal(one.mask, result.mask[1])
+
+
+@pytest.mark.parametrize("iterations", [1, 3])
+def test_rounds_are_cumulative(pairs, model, iterations):
+    template, source = pairs.template.numpy(), pairs.source.numpy()
+    result = register(template, source, model=model, iterations=iterations, max_iterations=3)
+    assert len(result.rounds) == iterations
+    np.testing.assert_array_equal(result.rounds[-1], result.transform)
+    # Each round registers the source moved by the previous rounds' estimate.
+    first = register(template, source, model=model, iterations=1, max_iterations=3)
+    np.testing.assert_allclose(result.rounds[0], first.transform, atol=1e-12)
+
+
+def test_times_keys(pairs, model):
+    result = register(pairs.template[0].numpy(), pairs.source[0].numpy(), model=model)
+    assert set(result.times) == {"mask", "register", "total"}
+    assert all(v >= 0 for v in result.times.values())
+    assert result.times["total"] >= result.times["mask"] + result.times["register"]
+    plain = register(pairs.template[0].numpy(), pairs.source[0].numpy(), use_mask=False)
+    assert plain.times["mask"] == 0 and plain.mask is None
+
+
+def test_mask_is_top_k_with_k_equal_m(pairs, model):
+    template, source = pairs.template.numpy(), pairs.source.numpy()
+    result = register(template, source, model=model)
+    assert (result.mask.sum(-1) == source.shape[1]).all()
+    np.testing.assert_array_equal(result.mask, model.predict_mask(template, source))
+    k = register(template, source, model=model, k=100)
+    assert (k.mask.sum(-1) == 100).all()
+    scores = model.predict(template, source)
+    thr = float(np.median(scores))
+    by_threshold = register(template, source, model=model, threshold=thr)
+    np.testing.assert_array_equal(by_threshold.mask, scores >= thr)
+
+
+class _FixedMask:
+    """Stands in for MaskNet: a fixed mask, and a record of what it was asked."""
+
+    def __init__(self, mask: np.ndarray):
+        self.mask = mask
+        self.calls: list[tuple[np.ndarray, np.ndarray, int | None, float | None]] = []
+
+    def predict_mask(self, template, source, k=None, threshold=None):
+        self.calls.append((template.copy(), source.copy(), k, threshold))
+        return self.mask
+
+
+def test_only_masked_template_points_take_part(pairs):
+    template, source = pairs.template.numpy(), pairs.source.numpy()
+    mask = pairs.mask.numpy()  # the true inliers
+    result = register(template, source, model=_FixedMask(mask), max_iterations=20)
+    np.testing.assert_array_equal(result.mask, mask)
+    # Replace the unmasked points by copies of source points, where they lure plain ICP
+    # into staying at the identity; the masked registration never sees them.
+    cluttered = template.copy()
+    for b in range(len(template)):
+        cluttered[b, ~mask[b]] = source[b, : int((~mask[b]).sum())]
+    moved = register(cluttered, source, model=_FixedMask(mask), max_iterations=20)
+    np.testing.assert_allclose(moved.transform, result.transform, atol=1e-12)
+    plain = register(cluttered, source, use_mask=False, max_iterations=20)
+    assert np.abs(plain.transform - result.transform).max() > 1e-3
+
+
+def test_each_round_masks_the_moved_source(pairs):
+    template, source = pairs.template.numpy(), pairs.source.numpy()
+    fake = _FixedMask(pairs.mask.numpy())
+    result = register(template, source, model=fake, iterations=3, k=500, max_iterations=2)
+    assert len(fake.calls) == 3
+    for i, (tpl, src, k, threshold) in enumerate(fake.calls):
+        np.testing.assert_array_equal(tpl, template)
+        assert k == 500 and threshold is None
+        if i == 0:
+            np.testing.assert_allclose(src, source)
+        else:
+            before = result.rounds[i - 1]
+            expected = source @ before[:, :3, :3].transpose(0, 2, 1) + before[:, None, :3, 3]
+            np.testing.assert_allclose(src, expected, atol=1e-12)
+
+
+def test_default_model_is_loaded_once(monkeypatch, pairs, model):
+    from masknet.registration import api
+
+    calls = []
+
+    def fake_pretrained(*args, **kwargs):
+        calls.append(1)
+        return model
+
+    api._default_model.cache_clear()
+    monkeypatch.setattr(MaskNet, "pretrained", staticmethod(fake_pretrained))
+    try:
+        register(pairs.template[0].numpy(), pairs.source[0].numpy(), max_iterations=1)
+        register(pairs.template[1].numpy(), pairs.source[1].numpy(), max_iterations=1)
+    finally:
+        api._default_model.cache_clear()
+    assert calls == [1]
+
+
+@pytest.mark.parametrize(
+    ("template", "source", "match"),
+    [
+        (np.zeros((10, 2)), np.zeros((5, 2)), "3 columns"),
+        (np.zeros((10, 3)), np.zeros((2, 5, 3)), "both be"),
+        (np.zeros((2, 10, 3)), np.zeros((3, 5, 3)), "batch sizes"),
+        (np.zeros((2, 3)), np.zeros((5, 3)), "at least 3"),
+        (np.full((10, 3), np.nan), np.zeros((5, 3)), "NaN"),
+        (np.array([["a", "b", "c"]] * 4), np.zeros((5, 3)), "numbers"),
+    ],
+)
+def test_bad_clouds_raise(template, source, match):
+    with pytest.raises(MaskNetError, match=match):
+        register(template, source, use_mask=False)
+
+
+def test_bad_arguments_raise(pairs, model):
+    template, source = pairs.template[0].numpy(), pairs.source[0].numpy()
+    with pytest.raises(MaskNetError, match="method"):
+        register(template, source, method="ndt", model=model)
+    with pytest.raises(MaskNetError, match="iterations"):
+        register(template, source, iterations=0, model=model)
+    with pytest.raises(MaskNetError, match="unknown option"):
+        register(template, source, model=model, max_iters=3)
+    with pytest.raises(MaskNetError, match="either k or threshold"):
+        register(template, source, model=model, k=10, threshold=0.5)
+    with pytest.raises(MaskNetError, match="k must be"):
+        register(template, source, model=model, k=0)
+    with pytest.raises(MaskNetError, match="use_mask"):
+        register(template, source, use_mask=False, k=10)
+    with pytest.raises(MaskNetError, match="max_correspondence_distance"):
+        register(template, source, use_mask=False, max_correspondence_distance=-1.0)
+
+
+def test_open3d_icp_method(pairs, full_pairs, model):
+    _open3d_or_skip()
+    template, source = full_pairs.template.numpy(), full_pairs.source.numpy()
+    theirs = register(template, source, method="open3d-icp", use_mask=False, max_iterations=50)
+    ours = register(template, source, use_mask=False, max_iterations=50)
+    assert theirs.transform.shape == (2, 4, 4)
+    np.testing.assert_allclose(theirs.transform, ours.transform, atol=1e-6)
+    assert (theirs.info["iterations"] == -1).all()
+    # Mask-ICP through Open3D: the same fixed number of steps as ours on the same mask.
+    template, source = pairs.template.numpy(), pairs.source.numpy()
+    kwargs = {"model": model, "max_iterations": 4, "max_correspondence_distance": 0.2}
+    theirs = register(
+        template, source, method="open3d-icp", relative_fitness=0, relative_rmse=0, **kwargs
+    )
+    ours = register(template, source, tolerance=0, **kwargs)
+    np.testing.assert_array_equal(theirs.mask, ours.mask)
+    np.testing.assert_allclose(theirs.transform, ours.transform, atol=1e-9)
+    np.testing.assert_allclose(theirs.info["fitness"], ours.info["fitness"], atol=1e-12)
+    single = register(template[0], source[0], method="open3d-icp", **kwargs)
+    assert single.transform.shape == (4, 4) and single.mask.shape == (template.shape[1],)
+
+
+def test_open3d_icp_method_without_open3d(monkeypatch, pairs):
+    def broken():
+        raise ImportError("No module named 'open3d'")
+
+    monkeypatch.setattr(mio, "_load_open3d", broken)
+    with pytest.raises(MaskNetError, match="open3d ICP backend needs Open3D"):
+        register(
+            pairs.template[0].numpy(), pairs.source[0].numpy(), method="open3d-icp", use_mask=False
+        )

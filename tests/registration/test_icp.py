@@ -1,0 +1,231 @@
+"""Tests for masknet.registration.icp (batched torch ICP) and the Open3D backend."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial import cKDTree
+
+from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
+from masknet.errors import MaskNetError
+from masknet.geometry import make_transform, so3_exp, transform_points
+from masknet.io import require_open3d
+from masknet.registration import ICPSolution, icp, open3d_icp
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _one_thread():
+    """Small problems: one thread is faster and avoids contention on busy machines."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+@pytest.fixture(scope="module")
+def shapes() -> np.ndarray:
+    return load_modelnet40(bundled_sample_path()).points
+
+
+def _pairs(shapes, num: int, seed: int, **config):
+    config = {"max_angle_deg": 10, "max_translation": 0.1, **config}
+    return make_test_pairs(shapes, num, PairConfig(**config), seed=seed)
+
+
+def _angle(r1: torch.Tensor, r2: torch.Tensor) -> torch.Tensor:
+    """Rotation angle between (..., 3, 3) rotations, accurate near zero (unlike arccos)."""
+    return 2 * torch.arcsin(((r1 - r2).flatten(-2).norm(dim=-1) / 8**0.5).clamp(max=1))
+
+
+def _open3d_or_skip():
+    try:
+        return require_open3d("these tests")
+    except MaskNetError as exc:
+        pytest.skip(str(exc))
+
+
+def test_recovers_known_transform_on_full_overlap(shapes):
+    pairs = _pairs(shapes, 4, seed=0, keep_ratio=1.0)
+    sol = icp(pairs.source.double(), pairs.template.double(), max_iterations=50, tolerance=1e-12)
+    assert isinstance(sol, ICPSolution)
+    truth = pairs.transform.double()
+    assert (_angle(sol.transform[:, :3, :3], truth[:, :3, :3]) < 1e-4).all()
+    assert ((sol.transform[:, :3, 3] - truth[:, :3, 3]).norm(dim=-1) < 1e-4).all()
+    assert sol.converged.all() and (sol.iterations < 50).all()
+    assert torch.equal(sol.fitness, torch.ones(4, dtype=torch.float64))
+    assert (sol.inlier_rmse < 1e-6).all()
+
+
+def test_init_near_truth_is_refined(shapes):
+    pairs = _pairs(shapes, 2, seed=1, keep_ratio=1.0, max_angle_deg=45, max_translation=1.0)
+    truth = pairs.transform.double()
+    g = torch.Generator().manual_seed(1)
+    # 10 degrees about a random axis, plus a small shift, away from the truth.
+    axis = torch.nn.functional.normalize(
+        torch.randn(2, 3, generator=g, dtype=torch.float64), dim=-1
+    )
+    offset = make_transform(so3_exp(axis * np.radians(10)), torch.full((2, 3), 0.05).double())
+    init = offset @ truth
+    sol = icp(pairs.source.double(), pairs.template.double(), init=init, max_iterations=60)
+    assert (_angle(sol.transform[:, :3, :3], truth[:, :3, :3]) < 1e-4).all()
+    assert ((sol.transform[:, :3, 3] - truth[:, :3, 3]).norm(dim=-1) < 1e-4).all()
+
+
+def test_shapes_and_dtypes(shapes):
+    pairs = _pairs(shapes, 3, seed=2)
+    sol = icp(pairs.source, pairs.template, max_iterations=3)
+    assert sol.transform.shape == (3, 4, 4) and sol.transform.dtype == torch.float32
+    assert sol.converged.shape == (3,) and sol.converged.dtype == torch.bool
+    assert sol.iterations.shape == (3,) and sol.iterations.dtype == torch.int64
+    assert sol.fitness.shape == (3,) and sol.fitness.dtype == torch.float32
+    assert sol.inlier_rmse.shape == (3,) and sol.inlier_rmse.dtype == torch.float32
+    assert (sol.iterations <= 3).all()
+    sol64 = icp(pairs.source.double(), pairs.template.double(), max_iterations=3)
+    torch.testing.assert_close(sol.transform.double(), sol64.transform, atol=1e-5, rtol=0)
+
+
+def test_batched_equals_per_pair(shapes):
+    pairs = _pairs(shapes, 3, seed=3, max_angle_deg=30, max_translation=0.3)
+    src, tpl = pairs.source.double(), pairs.template.double()
+    kwargs = {"max_iterations": 30, "tolerance": 1e-6, "max_correspondence_distance": 0.2}
+    batched = icp(src, tpl, **kwargs)
+    for b in range(3):
+        single = icp(src[b : b + 1], tpl[b : b + 1], **kwargs)
+        for got, want in zip(batched, single, strict=True):
+            torch.testing.assert_close(got[b : b + 1], want, atol=1e-12, rtol=0)
+    assert len(set(batched.iterations.tolist())) > 1  # pairs really stopped separately
+
+
+def test_max_iterations_zero_evaluates_init(shapes):
+    pairs = _pairs(shapes, 2, seed=4)
+    init = pairs.transform.double()
+    sol = icp(pairs.source.double(), pairs.template.double(), init=init, max_iterations=0)
+    torch.testing.assert_close(sol.transform, init)
+    assert (sol.iterations == 0).all() and not sol.converged.any()
+    assert (sol.inlier_rmse < 1e-6).all()
+
+
+def test_single_init_broadcasts(shapes):
+    pairs = _pairs(shapes, 2, seed=5)
+    src, tpl = pairs.source.double(), pairs.template.double()
+    init = torch.eye(4, dtype=torch.float64)
+    init[:3, 3] = 0.02
+    a = icp(src, tpl, init=init, max_iterations=4)
+    b = icp(src, tpl, init=init.expand(2, 4, 4), max_iterations=4)
+    torch.testing.assert_close(a.transform, b.transform)
+
+
+def test_template_valid_equals_icp_on_the_subset(shapes):
+    pairs = _pairs(shapes, 2, seed=6)
+    src, tpl = pairs.source.double(), pairs.template.double()
+    g = torch.Generator().manual_seed(6)
+    valid = torch.rand(tpl.shape[:2], generator=g) < 0.6
+    masked = icp(src, tpl, template_valid=valid, max_iterations=8, max_correspondence_distance=0.3)
+    for b in range(2):
+        subset = tpl[b : b + 1, valid[b]]
+        want = icp(src[b : b + 1], subset, max_iterations=8, max_correspondence_distance=0.3)
+        for got, exp in zip(masked, want, strict=True):
+            torch.testing.assert_close(got[b : b + 1], exp, atol=1e-12, rtol=0)
+    # The masked-out points really are excluded: moving them far away changes nothing.
+    far = torch.where(valid[..., None], tpl, tpl + 100.0)
+    again = icp(src, far, template_valid=valid, max_iterations=8, max_correspondence_distance=0.3)
+    torch.testing.assert_close(again.transform, masked.transform, atol=1e-12, rtol=0)
+
+
+def test_no_valid_template_point_gives_identity(shapes):
+    pairs = _pairs(shapes, 2, seed=7)
+    valid = torch.ones(pairs.template.shape[:2], dtype=torch.bool)
+    valid[1] = False
+    sol = icp(pairs.source.double(), pairs.template.double(), template_valid=valid)
+    torch.testing.assert_close(sol.transform[1], torch.eye(4, dtype=torch.float64))
+    assert sol.fitness[1] == 0 and sol.inlier_rmse[1] == 0
+    assert not sol.converged[1] and sol.iterations[1] == 0
+    assert sol.fitness[0] == 1 and sol.iterations[0] > 0
+
+
+def test_fitness_and_inlier_rmse_match_direct_computation(shapes):
+    pairs = _pairs(shapes, 3, seed=8, max_angle_deg=20, max_translation=0.2)
+    max_dist = 0.05
+    sol = icp(
+        pairs.source.double(),
+        pairs.template.double(),
+        max_iterations=5,
+        max_correspondence_distance=max_dist,
+    )
+    moved = transform_points(sol.transform, pairs.source.double()).numpy()
+    for b in range(3):
+        d, _ = cKDTree(pairs.template[b].double().numpy()).query(moved[b])
+        inlier = d <= max_dist
+        assert 0 < inlier.mean() < 1  # the threshold really rejects some pairs
+        np.testing.assert_allclose(sol.fitness[b].item(), inlier.mean(), rtol=1e-12)
+        rmse = np.sqrt(np.mean(d[inlier] ** 2))
+        np.testing.assert_allclose(sol.inlier_rmse[b].item(), rmse, rtol=1e-9)
+
+
+def test_bad_arguments_raise(shapes):
+    pairs = _pairs(shapes, 2, seed=9)
+    src, tpl = pairs.source, pairs.template
+    with pytest.raises(ValueError):
+        icp(src[0], tpl[0])
+    with pytest.raises(ValueError):
+        icp(src, tpl[:1])
+    with pytest.raises(ValueError, match="dtype"):
+        icp(src, tpl.double())
+    with pytest.raises(ValueError, match="init"):
+        icp(src, tpl, init=torch.eye(3))
+    with pytest.raises(ValueError, match="max_correspondence_distance"):
+        icp(src, tpl, max_correspondence_distance=0.0)
+    with pytest.raises(ValueError, match="max_iterations"):
+        icp(src, tpl, max_iterations=-1)
+
+
+@pytest.mark.parametrize("max_dist", [None, 0.1])
+def test_agrees_with_open3d_step_by_step(shapes, max_dist):
+    """Same iterations, same correspondences, same closed-form step: same result."""
+    _open3d_or_skip()
+    pairs = _pairs(shapes, 2, seed=10, max_angle_deg=30, max_translation=0.3)
+    src, tpl = pairs.source.double(), pairs.template.double()
+    ours = icp(src, tpl, max_iterations=5, tolerance=0, max_correspondence_distance=max_dist)
+    assert (ours.iterations == 5).all()
+    for b in range(2):
+        theirs = open3d_icp(
+            src[b].numpy(),
+            tpl[b].numpy(),
+            max_iterations=5,
+            max_correspondence_distance=max_dist,
+            relative_fitness=0,
+            relative_rmse=0,
+        )
+        torch.testing.assert_close(ours.transform[b], theirs.transform[0], atol=1e-10, rtol=0)
+        torch.testing.assert_close(ours.fitness[b], theirs.fitness[0], atol=1e-12, rtol=0)
+        torch.testing.assert_close(ours.inlier_rmse[b], theirs.inlier_rmse[0], atol=1e-10, rtol=0)
+
+
+def test_agrees_with_open3d_when_converged(shapes):
+    _open3d_or_skip()
+    pairs = _pairs(shapes, 2, seed=11, keep_ratio=1.0)
+    truth = pairs.transform.double()
+    ours = icp(pairs.source.double(), pairs.template.double(), max_iterations=50)
+    for b in range(2):
+        theirs = open3d_icp(pairs.source[b].numpy(), pairs.template[b].numpy(), max_iterations=50)
+        assert theirs.transform.shape == (1, 4, 4) and theirs.iterations.item() == -1
+        torch.testing.assert_close(ours.transform[b], theirs.transform[0], atol=1e-6, rtol=0)
+        assert _angle(theirs.transform[0, :3, :3], truth[b, :3, :3]) < 1e-4
+
+
+def test_open3d_icp_empty_template_and_init():
+    _open3d_or_skip()
+    g = np.random.default_rng(0)
+    source = g.normal(size=(30, 3))
+    init = np.eye(4)
+    init[:3, 3] = [0.1, 0.2, 0.3]
+    sol = open3d_icp(source, np.empty((0, 3)), init=init)
+    np.testing.assert_array_equal(sol.transform[0].numpy(), init)
+    assert sol.fitness.item() == 0
+    moved = source @ init[:3, :3].T + init[:3, 3]
+    sol = open3d_icp(source, moved, init=init, max_iterations=1)  # already aligned
+    np.testing.assert_allclose(sol.transform[0].numpy(), init, atol=1e-12)
+    assert sol.fitness.item() == 1 and sol.inlier_rmse.item() < 1e-12
+    with pytest.raises(ValueError, match="init"):
+        open3d_icp(source, moved, init=np.eye(3))
