@@ -12,14 +12,7 @@ from masknet import MaskNet, MaskNetError, RegistrationResult, register
 from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
 from masknet.io import require_open3d
 
-
-@pytest.fixture(scope="module", autouse=True)
-def _one_thread():
-    """Small problems: one thread is faster and avoids contention on busy machines."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 @pytest.fixture(scope="module")

@@ -13,14 +13,7 @@ from masknet.geometry import make_transform, so3_exp, transform_points
 from masknet.io import require_open3d
 from masknet.registration import ICPSolution, icp, open3d_icp
 
-
-@pytest.fixture(scope="module", autouse=True)
-def _one_thread():
-    """Small problems: one thread is faster and avoids contention on busy machines."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 @pytest.fixture(scope="module")
