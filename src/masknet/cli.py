@@ -126,7 +126,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=_seed, default=0)
     p.add_argument("--device", default="auto")
     p.add_argument("--threads", type=_positive_int, help="torch CPU threads")
-    p.add_argument("--max-minutes", type=float, help="stop at the first epoch end past this budget")
+    p.add_argument(
+        "--max-minutes",
+        type=float,
+        help="minutes for this invocation: no epoch starts that would end past it",
+    )
     p.add_argument("--resume", action="store_true", help="continue the checkpoint in --out")
     p.add_argument("--init", help="start from these weights (.safetensors), e.g. to fine-tune")
     _add_pair_options(p)

@@ -13,7 +13,7 @@ from masknet.data.pairs import PairConfig, Pairs, make_test_pairs
 from masknet.evaluation.metrics import MaskMetrics, mask_metrics
 from masknet.models.masknet import MaskNet, select_mask
 
-__all__ = ["MaskEvaluation", "evaluate_masknet", "format_table", "mask_agreement"]
+__all__ = ["MaskEvaluation", "evaluate_masknet", "format_table", "mask_agreement", "score_pairs"]
 
 
 @dataclass
@@ -45,6 +45,27 @@ class MaskEvaluation:
         }
 
 
+def score_pairs(
+    model: MaskNet,
+    pairs: Pairs,
+    precision: str = "fp32",
+    batch_size: int = 64,
+    progress: bool = False,
+) -> torch.Tensor:
+    """MaskNet's fused-path scores (P, N) float32 on CPU for every pair, in batches."""
+    fused = model.fused(precision)
+    device = next(model.parameters()).device
+    total = pairs.template.shape[0]
+    scores = []
+    for i in tqdm(
+        range(0, total, batch_size), desc="evaluating", disable=not progress, leave=False
+    ):
+        t = pairs.template[i : i + batch_size].to(device)
+        s = pairs.source[i : i + batch_size].to(device)
+        scores.append(fused(t, s).float().cpu())
+    return torch.cat(scores)
+
+
 def evaluate_masknet(
     model: MaskNet,
     points: np.ndarray,
@@ -65,18 +86,9 @@ def evaluate_masknet(
     """
     pair_config = pair_config or PairConfig()
     pairs = make_test_pairs(points, num_pairs, pair_config, seed)
-    fused = model.fused(precision)
-    device = next(model.parameters()).device
-    scores = []
     start = time.perf_counter()
-    for i in tqdm(
-        range(0, num_pairs, batch_size), desc="evaluating", disable=not progress, leave=False
-    ):
-        t = pairs.template[i : i + batch_size].to(device)
-        s = pairs.source[i : i + batch_size].to(device)
-        scores.append(fused(t, s).float().cpu())
+    all_scores = score_pairs(model, pairs, precision, batch_size, progress)
     elapsed = time.perf_counter() - start
-    all_scores = torch.cat(scores)
     m = pairs.source.shape[1]
     random_scores = torch.rand(all_scores.shape, generator=torch.Generator().manual_seed(seed))
     rules: dict[str, MaskMetrics] = {
@@ -125,16 +137,10 @@ def mask_agreement(
     """
     pairs = make_test_pairs(points, num_pairs, PairConfig(), seed)
     k = pairs.source.shape[1]
-    masks = {}
-    for mode in ("fp32", precision):
-        fused = model.fused(mode)
-        scores = torch.cat(
-            [
-                fused(pairs.template[i : i + batch_size], pairs.source[i : i + batch_size]).float()
-                for i in range(0, num_pairs, batch_size)
-            ]
-        )
-        masks[mode] = select_mask(scores, k=k)
+    masks = {
+        mode: select_mask(score_pairs(model, pairs, mode, batch_size), k=k)
+        for mode in ("fp32", precision)
+    }
     same = masks["fp32"] == masks[precision]
     prec = {m: mask_metrics(v, pairs.mask).precision.mean().item() for m, v in masks.items()}
     return {

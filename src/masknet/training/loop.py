@@ -111,14 +111,7 @@ def default_precision(device: torch.device) -> str:
 RESUMABLE_CHANGES = {"epochs", "max_minutes", "threads", "device"}
 
 
-def _check_config(config: TrainConfig, num_shapes: int) -> None:
-    if config.batch_size < 1 or config.epochs < 1:
-        raise MaskNetError("--batch-size and --epochs must be at least 1")
-    if not 0 <= config.val_fraction < 1:
-        raise MaskNetError(f"--val-fraction must be in [0, 1), got {config.val_fraction}")
-    n_train = num_shapes - (
-        max(1, round(config.val_fraction * num_shapes)) if config.val_fraction else 0
-    )
+def _check_config(config: TrainConfig, n_train: int) -> None:
     if n_train < config.batch_size:
         raise MaskNetError(
             f"{n_train} training shapes are fewer than one batch of {config.batch_size}; "
@@ -190,7 +183,12 @@ def fit(
     validation shapes. ``init_weights`` optionally starts from another model's
     weights (fine-tuning); it is ignored when resuming.
     """
-    _check_config(config, len(train_points))
+    if config.batch_size < 1 or config.epochs < 1:
+        raise MaskNetError("--batch-size and --epochs must be at least 1")
+    if not 0 <= config.val_fraction < 1:
+        raise MaskNetError(f"--val-fraction must be in [0, 1), got {config.val_fraction}")
+    train_idx, val_idx = split_train_val(len(train_points), config.val_fraction, config.seed)
+    _check_config(config, len(train_idx))
     out = Path(config.out_dir)
     if out.exists() and not out.is_dir():
         raise MaskNetError(f"{out}: exists and is not a folder; choose another --out")
@@ -204,7 +202,6 @@ def fit(
     if config.threads:
         torch.set_num_threads(config.threads)
 
-    train_idx, val_idx = split_train_val(len(train_points), config.val_fraction, config.seed)
     run_info = {
         "task": task.describe(),
         "train": {k: v for k, v in asdict(config).items() if k != "out_dir"}
@@ -268,13 +265,14 @@ def fit(
         for batch in bar:
             with autocast:
                 loss, metrics = task.step(model, batch, device)
-            if not math.isfinite(loss.item()):
-                raise MaskNetError(f"training diverged at epoch {epoch + 1}: loss is {loss.item()}")
+            loss_value = loss.item()
+            if not math.isfinite(loss_value):
+                raise MaskNetError(f"training diverged at epoch {epoch + 1}: loss is {loss_value}")
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
             count += 1
-            for key, value in {"loss": loss.item(), **metrics}.items():
+            for key, value in {"loss": loss_value, **metrics}.items():
                 sums[key] = sums.get(key, 0.0) + value
             bar.set_postfix(
                 loss=f"{sums['loss'] / count:.4f}",
