@@ -12,6 +12,7 @@ import torch
 
 from masknet.cli import main
 from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
+from masknet.io import read_points
 from masknet.models import MaskNet
 
 
@@ -165,3 +166,60 @@ def test_bad_numbers_are_rejected_by_the_parser(args, capsys):
         main(args)
     assert exc.value.code == 2
     assert "error: argument" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------------- register
+
+
+def _read_transform(path) -> np.ndarray:
+    lines = path.read_text().splitlines()
+    assert lines[0].startswith("source -> template")
+    return np.array([[float(v) for v in line.split()] for line in lines[1:]])
+
+
+@pytest.mark.parametrize("extension", [".ply", ".xyz", ".npy"])
+def test_register_round_trip_through_the_files(tmp_path, weights, extension, capsys):
+    """A source made from the template by a known motion comes back through the files:
+    the transform file maps the source onto the template (template ~= R source + t)
+    and the written cloud is the source moved by it."""
+    rng = np.random.default_rng(0)
+    template = load_modelnet40(bundled_sample_path(), "test").points[5].astype(np.float64)
+    angle = np.radians(12.0)
+    rot = np.array(
+        [[np.cos(angle), -np.sin(angle), 0], [np.sin(angle), np.cos(angle), 0], [0, 0, 1]]
+    )
+    shift = np.array([0.3, -0.2, 0.1])
+    source = rng.permutation(template) @ rot.T + shift  # the template moved: source frame
+    np.savetxt(tmp_path / "template.xyz", template)
+    np.save(tmp_path / "source.npy", source)
+    out = tmp_path / f"registered{extension}"
+    args = ["register", str(tmp_path / "template.xyz"), str(tmp_path / "source.npy")]
+    assert main([*args, "-o", str(out), "--weights", str(weights), "--max-iterations", "50"]) == 0
+    transform = _read_transform(tmp_path / "registered_transform.txt")
+    np.testing.assert_allclose(transform[:3, :3], rot.T, atol=1e-5)
+    np.testing.assert_allclose(transform[:3, 3], -rot.T @ shift, atol=1e-5)
+    moved = np.load(out) if extension == ".npy" else read_points(out)
+    np.testing.assert_allclose(moved, source @ transform[:3, :3].T + transform[:3, 3], atol=1e-5)
+    inliers = tmp_path / f"registered_inliers{extension}"
+    assert inliers.exists()
+    assert "Mask-ICP" in capsys.readouterr().out
+
+
+def test_register_no_mask_writes_no_inliers(tmp_path, pair_files, capsys):
+    template, source, _ = pair_files
+    out = tmp_path / "moved.xyz"
+    assert main(["register", str(template), str(source), "-o", str(out), "--no-mask"]) == 0
+    assert out.exists() and (tmp_path / "moved_transform.txt").exists()
+    assert not (tmp_path / "moved_inliers.xyz").exists()
+    assert capsys.readouterr().out.startswith("ICP:")
+
+
+def test_register_bad_source_is_one_line_and_writes_nothing(tmp_path, pair_files, capsys):
+    template, _, _ = pair_files
+    bad = tmp_path / "flat.xyz"
+    np.savetxt(bad, np.zeros((10, 2)))
+    out = tmp_path / "moved.ply"
+    assert main(["register", str(template), str(bad), "-o", str(out), "--no-mask"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "flat.xyz" in err[0]
+    assert list(tmp_path.iterdir()) == [bad]

@@ -10,6 +10,7 @@ import argparse
 import json
 import math
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 from masknet.errors import MaskNetError
@@ -48,7 +49,11 @@ def _add_pair_options(p: argparse.ArgumentParser) -> None:
         "official: the authors' code (768 points, twist <= 0.8)",
     )
     g.add_argument(
-        "--keep-ratio", type=float, default=0.7, help="fraction of template points the source keeps"
+        "--keep-ratio",
+        type=float,
+        default=None,
+        help="fraction of template points the source keeps (default 0.7; "
+        "1.0 when training pointnetlk, which trains on full clouds)",
     )
     g.add_argument("--max-angle", type=float, default=45.0, help="maximum rotation, degrees")
     g.add_argument("--max-translation", type=float, default=1.0, help="translation range per axis")
@@ -68,12 +73,13 @@ def _add_pair_options(p: argparse.ArgumentParser) -> None:
     )
 
 
-def _pair_config(args: argparse.Namespace):
+def _pair_config(args: argparse.Namespace, default_keep_ratio: float = 0.7):
     from masknet.data import PairConfig
 
+    keep = default_keep_ratio if args.keep_ratio is None else args.keep_ratio
     try:
         return PairConfig(
-            keep_ratio=args.keep_ratio,
+            keep_ratio=keep,
             max_angle_deg=args.max_angle,
             max_translation=args.max_translation,
             noise_sigma=args.noise,
@@ -95,7 +101,15 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"masknet {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    p = sub.add_parser("train", help="train MaskNet on ModelNet40 (CPU or GPU), resumable")
+    p = sub.add_parser(
+        "train", help="train MaskNet or PointNetLK on ModelNet40 (CPU or GPU), resumable"
+    )
+    p.add_argument(
+        "--model",
+        choices=["masknet", "pointnetlk"],
+        default="masknet",
+        help="masknet (partial pairs) or pointnetlk (full-cloud pairs, as its paper trains)",
+    )
     p.add_argument("--data", help="ModelNet40 folder or .npz (default: $MASKNET_DATA)")
     p.add_argument(
         "--out", required=True, help="run folder: checkpoint.pt, log.csv, best.safetensors"
@@ -104,12 +118,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--batch-size", type=_positive_int, default=32)
     p.add_argument("--lr", type=float, default=1e-4)
     p.add_argument("--lr-schedule", choices=["constant", "cosine"], default="constant")
-    p.add_argument("--loss", choices=["mse", "bce"], default="mse")
+    p.add_argument("--loss", choices=["mse", "bce"], default="mse", help="masknet only")
+    p.add_argument(
+        "--feature-size",
+        type=_positive_int,
+        help="PointNet feature size K (last encoder width); default 1024",
+    )
+    p.add_argument(
+        "--lk-iterations",
+        type=_positive_int,
+        default=10,
+        help="pointnetlk only: LK iterations per training pair",
+    )
     p.add_argument(
         "--precision",
         choices=["auto", "fp32", "bf16"],
         default="auto",
-        help="autocast dtype; auto = bf16 where the hardware has it",
+        help="autocast dtype; auto = bf16 where the hardware has it (masknet; pointnetlk's "
+        "finite differences always train in fp32)",
     )
     p.add_argument(
         "--num-points", type=_positive_int, default=1024, help="template points per training pair"
@@ -170,6 +196,50 @@ def build_parser() -> argparse.ArgumentParser:
     _add_model_options(p)
 
     p = sub.add_parser(
+        "register",
+        help="align SOURCE to TEMPLATE (Mask-X, or plain X with --no-mask); write the "
+        "moved source, the 4x4 transform and the inlier template",
+    )
+    p.add_argument("template", help="full cloud: .ply .pcd .xyz .txt .npy .bin")
+    p.add_argument("source", help="partial cloud of the same object, any pose")
+    p.add_argument(
+        "-o",
+        "--output",
+        required=True,
+        help="the registered source (format from the extension); beside it "
+        "<stem>_transform.txt (4x4, source -> template) and, with a mask, "
+        "<stem>_inliers<ext> (the template points used)",
+    )
+    p.add_argument("--method", choices=["icp", "open3d-icp", "pointnetlk"], default="icp")
+    p.add_argument("--no-mask", action="store_true", help="plain X instead of Mask-X")
+    p.add_argument("--iterations", type=_positive_int, default=1, help="rounds of mask -> register")
+    p.add_argument(
+        "--max-iterations",
+        type=_positive_int,
+        default=10,
+        help="iterations of the method per round (the paper's 10)",
+    )
+    p.add_argument(
+        "--refine",
+        type=int,
+        default=0,
+        metavar="N",
+        help="end with N iterations of plain ICP on the whole template (default 0)",
+    )
+    p.add_argument("--init", choices=["centroid", "identity"], default="centroid")
+    p.add_argument(
+        "--max-points",
+        type=_positive_int,
+        default=1024,
+        help="larger clouds are farthest-point sampled to this for the networks and "
+        "ICP; the transform is applied to the full source",
+    )
+    p.add_argument(
+        "--drop-nonfinite", action="store_true", help="drop NaN/inf rows instead of failing"
+    )
+    _add_model_options(p)
+
+    p = sub.add_parser(
         "demo", help="run the shipped model on the bundled sample: metrics and a picture"
     )
     p.add_argument("--out", default="masknet_demo", help="folder for the picture and metrics")
@@ -194,33 +264,68 @@ def _add_model_options(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--pretrained", default="modelnet40", help="name of shipped weights (default modelnet40)"
     )
-    g.add_argument("--inference-precision", choices=["fp32", "bf16"], default="fp32")
+    g.add_argument(
+        "--inference-precision",
+        choices=["auto", "fp32", "bf16"],
+        default="auto",
+        help="auto: bf16 where the CPU/GPU runs it natively (mask agreement 99.7%% with fp32), "
+        "else fp32",
+    )
 
 
 def _load_model(args: argparse.Namespace):
     from masknet.models import MaskNet
+    from masknet.runtime import default_precision
+
+    if args.inference_precision == "auto":
+        args.inference_precision = default_precision("cpu")
 
     return MaskNet.from_file(args.weights) if args.weights else MaskNet.pretrained(args.pretrained)
 
 
 def cmd_train(args: argparse.Namespace) -> None:
     from masknet.data import load_modelnet40
-    from masknet.models import MaskNet
-    from masknet.training import MaskNetTask, TrainConfig, fit
+    from masknet.models import MaskNet, PointNetLK
+    from masknet.training import MaskNetTask, PointNetLKTask, TrainConfig, fit
 
     data = load_modelnet40(args.data, "train").subset(args.categories)
     if not 16 <= args.num_points <= data.points.shape[1]:
         raise MaskNetError(
             f"--num-points must be in [16, {data.points.shape[1]}], got {args.num_points}"
         )
-    task = MaskNetTask(pairs=_pair_config(args), num_points=args.num_points, loss=args.loss)
+    encoder = {}
+    if args.feature_size:
+        encoder = {"encoder_channels": [64, 64, 64, 128, args.feature_size]}
+    precision = args.precision
+    if args.model == "masknet":
+        task = MaskNetTask(
+            pairs=_pair_config(args),
+            num_points=args.num_points,
+            loss=args.loss,
+            model_config=encoder,
+        )
+        model_class = MaskNet
+    else:
+        task = PointNetLKTask(
+            pairs=_pair_config(args, default_keep_ratio=1.0),
+            num_points=args.num_points,
+            iterations=args.lk_iterations,
+            model_config=encoder,
+        )
+        model_class = PointNetLK
+        if precision == "bf16":
+            raise MaskNetError(
+                "--precision bf16 does not suit pointnetlk: its finite-difference Jacobian "
+                "needs fp32"
+            )
+        precision = "fp32"
     config = TrainConfig(
         out_dir=args.out,
         epochs=args.epochs,
         batch_size=args.batch_size,
         lr=args.lr,
         lr_schedule=args.lr_schedule,
-        precision=args.precision,
+        precision=precision,
         seed=args.seed,
         val_fraction=args.val_fraction,
         val_pairs=args.val_pairs,
@@ -229,7 +334,7 @@ def cmd_train(args: argparse.Namespace) -> None:
         max_minutes=args.max_minutes,
         extra={"categories": args.categories},
     )
-    init = MaskNet.from_file(args.init) if args.init else None
+    init = model_class.from_file(args.init) if args.init else None
     history = fit(task, data.points, config, resume=args.resume, init_weights=init)
     if history:
         last = history[-1]
@@ -300,6 +405,75 @@ def cmd_mask(args: argparse.Namespace) -> None:
     print(f"wrote {out} and {mask_path}")
 
 
+def _write_all(writers: list[tuple[Path, Callable[[Path], None]]]) -> None:
+    """Write every output or none: on a failure, remove those already written."""
+    done: list[Path] = []
+    try:
+        for path, write in writers:
+            write(path)
+            done.append(path)
+    except Exception:
+        for path in done:
+            path.unlink(missing_ok=True)
+        raise
+
+
+def cmd_register(args: argparse.Namespace) -> None:
+    import numpy as np
+
+    from masknet.io import read_points, write_points, write_text_atomic
+    from masknet.registration import register
+
+    if args.refine < 0:
+        raise MaskNetError(f"--refine must be >= 0, got {args.refine}")
+    template = read_points(args.template, drop_nonfinite=args.drop_nonfinite)
+    source = read_points(args.source, drop_nonfinite=args.drop_nonfinite)
+    model = None if args.no_mask else _load_model(args)
+    result = register(
+        template,
+        source,
+        method=args.method,
+        use_mask=not args.no_mask,
+        iterations=args.iterations,
+        model=model,
+        precision=getattr(args, "inference_precision", "auto"),
+        init=args.init,
+        refine_iterations=args.refine,
+        max_points=args.max_points,
+        max_iterations=args.max_iterations,
+    )
+    moved = source @ result.R.T + result.t
+    out = Path(args.output)
+    transform_path = out.with_name(out.stem + "_transform.txt")
+    header = "source -> template: template ~= R @ source + t, [[R, t], [0, 0, 0, 1]]"
+    text = header + "\n" + "\n".join(" ".join(f"{v:.10g}" for v in row) for row in result.transform)
+    writers = [
+        (out, lambda p: write_points(p, moved)),
+        (transform_path, lambda p: write_text_atomic(p, text + "\n")),
+    ]
+    if result.mask is not None:
+        inliers_path = out.with_name(out.stem + "_inliers" + out.suffix)
+        writers.append((inliers_path, lambda p: write_points(p, template[result.mask])))
+    _write_all(writers)
+
+    pretty = {"icp": "ICP", "open3d-icp": "Open3D-ICP", "pointnetlk": "PointNetLK"}
+    name = ("" if args.no_mask else "Mask-") + pretty[args.method]
+    n, m = result.sampled
+    sampled = "" if (n, m) == (len(template), len(source)) else f" (sampled to {n} and {m})"
+    print(f"{name}: template {len(template)} points, source {len(source)}{sampled}")
+    if result.mask is not None:
+        print(f"inliers: {int(result.mask.sum())} of {len(template)} template points")
+    angle = float(np.degrees(np.arccos(np.clip((np.trace(result.R) - 1) / 2, -1, 1))))
+    print(
+        f"rotation {angle:.2f} deg, translation {np.linalg.norm(result.t):.4g} "
+        f"(input units); {1e3 * result.times['total']:.1f} ms"
+    )
+    print(
+        "reported: " + ", ".join(f"{k} {np.asarray(v).item():.4g}" for k, v in result.info.items())
+    )
+    print(f"wrote {', '.join(str(p) for p, _ in writers)}")
+
+
 def cmd_demo(args: argparse.Namespace) -> None:
     import torch
 
@@ -352,6 +526,7 @@ COMMANDS = {
     "train": cmd_train,
     "evaluate": cmd_evaluate,
     "mask": cmd_mask,
+    "register": cmd_register,
     "demo": cmd_demo,
     "make-sample": cmd_make_sample,
 }

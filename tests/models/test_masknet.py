@@ -201,23 +201,27 @@ def test_source_content_matters(model, clouds):
 def test_predict_single_and_batched(model, clouds):
     template, source = clouds
     t, s = template.numpy(), source.numpy()
-    single = model.predict(t[0], s[0])
+    single = model.predict(t[0], s[0], precision="fp32")
     assert single.shape == (96,) and single.dtype == np.float32
-    batched = model.predict(t, s)
+    batched = model.predict(t, s, precision="fp32")
     assert batched.shape == (3, 96) and batched.dtype == np.float32
     np.testing.assert_allclose(batched[0], single, atol=1e-6)
     with torch.no_grad():
-        raw = model.predict(t, s, normalize=False)
+        raw = model.predict(t, s, normalize=False, precision="fp32")
         np.testing.assert_allclose(raw, model(template, source).numpy(), atol=1e-5)
         # normalize=True scales each pair by its template's bounding-box radius.
         r = unit_radius(template)[:, None, None]
         np.testing.assert_allclose(batched, model(template / r, source / r).numpy(), atol=1e-5)
     # float64 and list-like inputs are accepted.
     np.testing.assert_allclose(
-        model.predict(t[0].astype(np.float64), s[0].tolist()), single, atol=1e-6
+        model.predict(t[0].astype(np.float64), s[0].tolist(), precision="fp32"), single, atol=1e-6
     )
-    np.testing.assert_allclose(model.predict(t, s, chunk_size=10), batched, atol=1e-6)
-    np.testing.assert_allclose(model.predict(t, s, chunk_size=None), batched, atol=1e-6)
+    np.testing.assert_allclose(
+        model.predict(t, s, chunk_size=10, precision="fp32"), batched, atol=1e-6
+    )
+    np.testing.assert_allclose(
+        model.predict(t, s, chunk_size=None, precision="fp32"), batched, atol=1e-6
+    )
 
 
 def test_unit_radius():
@@ -366,10 +370,10 @@ def test_from_file_wrong_architecture_raises(model, tmp_path):
 def test_fused_cache_invalidated_by_in_place_weight_change(model, clouds):
     net = _fresh(model)
     t, s = (c.numpy() for c in clouds)
-    before = net.predict(t, s, normalize=False)
+    before = net.predict(t, s, normalize=False, precision="fp32")
     with torch.no_grad():
         net.head[-1].bias += 1
-    after = net.predict(t, s, normalize=False)
+    after = net.predict(t, s, normalize=False, precision="fp32")
     assert (after > before + 1e-4).all()  # sigmoid of a larger logit
     with torch.no_grad():
         expected = net(*clouds)
@@ -379,11 +383,11 @@ def test_fused_cache_invalidated_by_in_place_weight_change(model, clouds):
 def test_fused_cache_invalidated_by_load_state_dict(model, clouds):
     net = _fresh(model)
     t, s = (c.numpy() for c in clouds)
-    before = net.predict(t, s, normalize=False)
+    before = net.predict(t, s, normalize=False, precision="fp32")
     state = {k: v.clone() for k, v in net.state_dict().items()}
     state["encoder.norms.0.running_mean"] += 0.5
     net.load_state_dict(state)
-    after = net.predict(t, s, normalize=False)
+    after = net.predict(t, s, normalize=False, precision="fp32")
     assert np.abs(after - before).max() > 1e-4
     with torch.no_grad():
         np.testing.assert_allclose(after, net(*clouds).numpy(), atol=1e-5)
@@ -405,3 +409,11 @@ def test_select_mask_accepts_one_cloud():
     scores = torch.tensor([0.1, 0.9, 0.5, 0.7])
     assert select_mask(scores, k=2).tolist() == [False, True, False, True]
     assert select_mask(scores, threshold=0.6).shape == (4,)
+
+
+def test_auto_precision_is_the_hardware_default(model, clouds):
+    from masknet.runtime import default_precision
+
+    t, s = (c.numpy() for c in clouds)
+    expected = model.predict(t, s, precision=default_precision("cpu"))
+    np.testing.assert_array_equal(model.predict(t, s), expected)

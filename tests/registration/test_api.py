@@ -124,7 +124,7 @@ def test_rounds_are_cumulative(pairs, model, iterations):
 
 def test_times_keys(pairs, model):
     result = register(pairs.template[0].numpy(), pairs.source[0].numpy(), model=model)
-    assert set(result.times) == {"mask", "register", "total"}
+    assert set(result.times) == {"sample", "mask", "register", "refine", "total"}
     assert all(v >= 0 for v in result.times.values())
     assert result.times["total"] >= result.times["mask"] + result.times["register"]
     plain = register(pairs.template[0].numpy(), pairs.source[0].numpy(), use_mask=False)
@@ -151,7 +151,7 @@ class _FixedMask:
         self.mask = mask
         self.calls: list[tuple[np.ndarray, np.ndarray, int | None, float | None]] = []
 
-    def predict_mask(self, template, source, k=None, threshold=None):
+    def predict_mask(self, template, source, k=None, threshold=None, precision="auto"):
         self.calls.append((template.copy(), source.copy(), k, threshold))
         return self.mask
 
@@ -162,13 +162,13 @@ def test_only_masked_template_points_take_part(pairs):
     result = register(template, source, model=_FixedMask(mask), max_iterations=20)
     np.testing.assert_array_equal(result.mask, mask)
     # Replace the unmasked points by copies of source points, where they lure plain ICP
-    # into staying at the identity; the masked registration never sees them.
+    # (started at the identity) into staying there; the masked registration never sees them.
     cluttered = template.copy()
     for b in range(len(template)):
         cluttered[b, ~mask[b]] = source[b, : int((~mask[b]).sum())]
     moved = register(cluttered, source, model=_FixedMask(mask), max_iterations=20)
     np.testing.assert_allclose(moved.transform, result.transform, atol=1e-12)
-    plain = register(cluttered, source, use_mask=False, max_iterations=20)
+    plain = register(cluttered, source, use_mask=False, init="identity", max_iterations=20)
     assert np.abs(plain.transform - result.transform).max() > 1e-3
 
 
@@ -272,3 +272,98 @@ def test_open3d_icp_method_without_open3d(monkeypatch, pairs):
         register(
             pairs.template[0].numpy(), pairs.source[0].numpy(), method="open3d-icp", use_mask=False
         )
+
+
+# --------------------------------------------------------------------- PointNetLK, init, refine
+
+
+@pytest.fixture(scope="module")
+def lk_network():
+    from masknet.models import PointNetLK
+
+    torch.manual_seed(0)
+    return PointNetLK(encoder_channels=(64, 64, 64, 128, 256)).eval()
+
+
+def test_pointnetlk_recovers_a_known_transform(full_pairs, lk_network):
+    template, source = full_pairs.template.numpy(), full_pairs.source.numpy()
+    truth = full_pairs.transform.double().numpy()
+    result = register(
+        template, source, method="pointnetlk", use_mask=False, network=lk_network, max_iterations=20
+    )
+    assert _angle(result.R, truth[:, :3, :3]).max() < 0.2
+    np.testing.assert_allclose(result.t, truth[:, :3, 3], atol=5e-3)
+    assert set(result.info) == {"converged", "iterations", "feature_residual"}
+
+
+def test_pointnetlk_scale_does_not_matter(full_pairs, lk_network):
+    """Clouds in millimetres give the same rotation and 1000x the translation."""
+    template, source = full_pairs.template[0].numpy(), full_pairs.source[0].numpy()
+    metres = register(template, source, method="pointnetlk", use_mask=False, network=lk_network)
+    mm = register(
+        template * 1000, source * 1000, method="pointnetlk", use_mask=False, network=lk_network
+    )
+    np.testing.assert_allclose(mm.R, metres.R, atol=1e-4)
+    np.testing.assert_allclose(mm.t, 1000 * metres.t, atol=0.1)
+
+
+def test_mask_pointnetlk_uses_the_mask(pairs, lk_network):
+    template, source = pairs.template.numpy(), pairs.source.numpy()
+    mask = pairs.mask.numpy()
+    result = register(
+        template, source, method="pointnetlk", model=_FixedMask(mask), network=lk_network
+    )
+    cluttered = template.copy()
+    cluttered[~mask] = 7.0  # far away; masked out, so they cannot matter
+    moved = register(
+        cluttered, source, method="pointnetlk", model=_FixedMask(mask), network=lk_network
+    )
+    np.testing.assert_allclose(moved.transform, result.transform, atol=1e-4)
+
+
+def test_centroid_init_beats_identity_on_a_large_translation(full_pairs):
+    template = full_pairs.template[0].numpy()
+    source = template[::-1] + np.array([3.0, -2.0, 1.0])  # pure translation, far away
+    far = register(template, source, use_mask=False, init="identity", max_iterations=3)
+    near = register(template, source, use_mask=False, max_iterations=3)
+    np.testing.assert_allclose(near.t, [-3.0, 2.0, -1.0], atol=1e-6)
+    assert np.abs(far.t - [-3.0, 2.0, -1.0]).max() > 0.1
+
+
+def test_refinement_runs_on_the_whole_template(pairs):
+    template, source = pairs.template.numpy(), pairs.source.numpy()
+    truth = pairs.transform.double().numpy()
+    mask = pairs.mask.numpy().copy()
+    mask[:, ::2] = False  # a poor mask leaves ICP off the truth
+    coarse = register(template, source, model=_FixedMask(mask), max_iterations=5)
+    refined = register(
+        template, source, model=_FixedMask(mask), max_iterations=5, refine_iterations=30
+    )
+    assert refined.times["refine"] > 0 and coarse.times["refine"] == 0
+    assert _angle(refined.R, truth[:, :3, :3]).mean() < _angle(coarse.R, truth[:, :3, :3]).mean()
+
+
+def test_large_single_pair_is_sampled_and_the_mask_covers_every_point(model):
+    rng = np.random.default_rng(0)
+    template = rng.normal(size=(5000, 3))
+    template /= np.linalg.norm(template, axis=1, keepdims=True)  # a dense sphere
+    source = template[template[:, 2] > -0.3] + 0.05
+    result = register(template, source, model=model, max_points=256)
+    n, m = result.sampled
+    assert n == 256 and 100 < m < 256  # the source at the template's spacing
+    assert result.mask.shape == (5000,) and result.mask.any() and not result.mask.all()
+    assert result.times["sample"] > 0
+
+
+def test_large_batches_are_refused(model):
+    template = np.zeros((2, 2000, 3)) + np.random.default_rng(0).normal(size=(2, 2000, 3))
+    with pytest.raises(MaskNetError, match="one pair at a time"):
+        register(template, template, model=model)
+
+
+def test_unknown_init_and_bad_refine_are_refused(pairs, model):
+    template, source = pairs.template.numpy(), pairs.source.numpy()
+    with pytest.raises(MaskNetError, match="unknown init"):
+        register(template, source, model=model, init="ransac")
+    with pytest.raises(MaskNetError, match="refine_iterations"):
+        register(template, source, model=model, refine_iterations=-1)

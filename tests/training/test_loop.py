@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import signal
 import subprocess
 import sys
@@ -175,3 +176,25 @@ def test_corrupt_checkpoint_is_one_clear_error(tmp_path, shapes):
     (tmp_path / "checkpoint.pt").write_bytes(b"not a checkpoint")
     with pytest.raises(MaskNetError, match="cannot resume"):
         fit(_task(), shapes, _config(tmp_path, 2), resume=True)
+
+
+def test_pointnetlk_trains_and_exports_loadable_weights(tmp_path):
+    from masknet.models import PointNetLK
+    from masknet.training import PointNetLKTask
+
+    shapes = load_modelnet40(bundled_sample_path()).points[:40]
+    task = PointNetLKTask(num_points=64, iterations=2, model_config={"encoder_channels": [16, 32]})
+    config = TrainConfig(
+        out_dir=str(tmp_path), epochs=2, batch_size=8, precision="fp32", val_pairs=8, lr=1e-3
+    )
+    history = fit(task, shapes, config)
+    assert [row["epoch"] for row in history] == [1, 2]
+    assert all(np.isfinite(row["val_rotation_error_deg"]) for row in history)
+    model = PointNetLK.from_file(tmp_path / "best.safetensors")
+    assert model.config["encoder_channels"] == [16, 32]
+    # best = lowest validation error (the task minimises its metric)
+    best_epoch = min(history, key=lambda row: row["val_rotation_error_deg"])["epoch"]
+    from safetensors import safe_open
+
+    with safe_open(str(tmp_path / "best.safetensors"), framework="pt") as f:
+        assert json.loads(f.metadata()["epoch"]) == best_epoch

@@ -1,6 +1,6 @@
 """Geometry: the SE(3) module, the k-NN helper and rigid alignment."""
 
-from masknet.geometry.align import rigid_align
+from masknet.geometry.align import centroid, centroid_alignment, rigid_align
 from masknet.geometry.knn import KNN, knn_points
 from masknet.geometry.se3 import (
     invert_transform,
@@ -16,6 +16,8 @@ from masknet.geometry.se3 import (
 
 __all__ = [
     "KNN",
+    "centroid",
+    "centroid_alignment",
     "knn_points",
     "invert_transform",
     "make_transform",

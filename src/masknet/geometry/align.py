@@ -9,7 +9,29 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-__all__ = ["rigid_align"]
+__all__ = ["centroid", "centroid_alignment", "rigid_align"]
+
+
+def centroid(points: Tensor, valid: Tensor | None = None) -> Tensor:
+    """Mean of each cloud's points, only the ``valid`` ones if given: (B, N, 3) -> (B, 3).
+
+    ``valid`` is (B, N) bool; a cloud with no valid point gets the origin.
+    """
+    if valid is None:
+        return points.mean(1)
+    w = valid.to(points.dtype)[..., None]
+    return (points * w).sum(1) / w.sum(1).clamp_min(1)
+
+
+def centroid_alignment(
+    source: Tensor, template: Tensor, template_valid: Tensor | None = None
+) -> Tensor:
+    """The translation-only transform (B, 4, 4), float64, that moves each source
+    centroid onto its (valid) template centroid: a registration initialisation."""
+    shift = centroid(template.double(), template_valid) - centroid(source.double())
+    out = torch.eye(4, dtype=torch.float64, device=source.device).repeat(source.shape[0], 1, 1)
+    out[:, :3, 3] = shift
+    return out
 
 
 def rigid_align(

@@ -14,19 +14,29 @@ class PointNetEncoder(nn.Module):
     """Shared per-point MLP: 3-64-64-64-128-1024 with BatchNorm and ReLU after every layer.
 
     The layers are ``nn.Linear`` applied to (B, N, C) tensors, the same maps as the
-    paper's 1x1 convolutions on (B, C, N) but one GEMM each on CPU. Linear layers
-    carry no bias: the BatchNorm that follows makes it redundant.
+    paper's 1x1 convolutions on (B, C, N) but one GEMM each on CPU. With
+    ``batch_norm=True`` linear layers carry no bias (the BatchNorm that follows
+    makes it redundant); with ``batch_norm=False`` they do, and a cloud's features
+    depend on that cloud alone, in training too (PointNetLK's finite differences
+    need that).
 
     forward: points (B, N, 3) -> per-point features (B, N, channels[-1]).
     """
 
-    def __init__(self, channels: Sequence[int] = (64, 64, 64, 128, 1024), in_channels: int = 3):
+    def __init__(
+        self,
+        channels: Sequence[int] = (64, 64, 64, 128, 1024),
+        in_channels: int = 3,
+        batch_norm: bool = True,
+    ):
         super().__init__()
         dims = [in_channels, *channels]
         self.linears = nn.ModuleList(
-            nn.Linear(a, b, bias=False) for a, b in zip(dims[:-1], dims[1:], strict=True)
+            nn.Linear(a, b, bias=not batch_norm) for a, b in zip(dims[:-1], dims[1:], strict=True)
         )
-        self.norms = nn.ModuleList(nn.BatchNorm1d(c) for c in channels)
+        self.norms = nn.ModuleList(
+            nn.BatchNorm1d(c) if batch_norm else nn.Identity() for c in channels
+        )
 
     @property
     def out_channels(self) -> int:

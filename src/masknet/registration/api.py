@@ -1,9 +1,20 @@
-"""``masknet.register``: registration (ICP) with or without MaskNet's inlier mask.
+"""``masknet.register``: one call for every registration method, with or without MaskNet.
 
-``register(template, source)`` runs *Mask-ICP*: MaskNet predicts which template
-points the partial source sees, and only those take part in ICP. With
-``use_mask=False`` it is plain ICP. ``iterations=n`` repeats {mask on the moved
-source -> register -> move the source}, composing the transforms.
+``register(template, source, method=X)`` runs *Mask-X*: MaskNet predicts which
+template points the partial source sees, and only those take part in X. With
+``use_mask=False`` it is plain X, so X and Mask-X compare in one call.
+
+One round is: (optionally) predict the mask for the source as it stands, move the
+source by the initialisation (``init="centroid"``: its centroid onto the centroid
+of the template points in use), run the method, compose. ``iterations=n`` repeats
+rounds on the moved source (the paper's iterative scheme); ``refine_iterations``
+ends with plain ICP against the whole template from the estimate reached.
+
+Clouds larger than ``max_points`` (single pairs) are brought to the network's
+size by farthest point sampling, the source at the template's spacing (see
+:mod:`masknet.geometry.sampling`); the transform applies to the full clouds, and
+the returned mask covers every template point (each takes the label of its
+nearest sampled point).
 """
 
 from __future__ import annotations
@@ -12,19 +23,23 @@ import functools
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
 
 from masknet.errors import MaskNetError
-from masknet.models.masknet import MaskNet, _as_batch
-from masknet.registration.icp import ICPSolution, icp
+from masknet.geometry.align import centroid_alignment
+from masknet.geometry.knn import knn_points
+from masknet.geometry.sampling import farthest_point_sample
+from masknet.models.masknet import MaskNet, _as_batch, unit_radius
+from masknet.models.pointnetlk import PointNetLK
+from masknet.registration.icp import icp
 from masknet.registration.open3d_icp import open3d_icp
 
 __all__ = ["RegistrationResult", "register", "METHODS"]
 
-METHODS = ("icp", "open3d-icp")
+METHODS = ("icp", "open3d-icp", "pointnetlk")
 _OPTIONS = {
     "icp": ("max_iterations", "tolerance", "max_correspondence_distance"),
     "open3d-icp": (
@@ -33,8 +48,10 @@ _OPTIONS = {
         "relative_fitness",
         "relative_rmse",
     ),
+    "pointnetlk": ("max_iterations", "tolerance", "network"),
 }
-_DEFAULT_MAX_ITERATIONS = 10
+_DEFAULT_MAX_ITERATIONS = 10  # the paper's budget for ICP and PointNetLK
+INITS = ("centroid", "identity")
 
 
 @dataclass
@@ -47,18 +64,19 @@ class RegistrationResult:
 
     Attributes:
         R: (3, 3) or (B, 3, 3) rotation.
-        t: (3,) or (B, 3) translation.
+        t: (3,) or (B, 3) translation, in the input's units.
         transform: (4, 4) or (B, 4, 4), ``[[R, t], [0, 1]]``.
-        mask: (N,) or (B, N) bool, the template points used in the last round;
-            None without a mask.
-        times: seconds per stage, summed over rounds: ``"mask"`` (MaskNet),
-            ``"register"`` (the method) and ``"total"`` (the whole call).
-        info: what the method reported in the last round, as numpy:
-            ``converged`` (bool), ``fitness``, ``inlier_rmse`` (Open3D's definitions,
-            measured against the template points used), ``iterations`` (int; -1 where
-            the method does not report it), each () or (B,).
-        rounds: the cumulative transform after each round, (4, 4) or (B, 4, 4) each;
-            ``rounds[-1]`` equals ``transform``.
+        mask: (N,) or (B, N) bool over the input template, the inliers used in the
+            last round; None without a mask.
+        times: seconds per stage, summed over rounds: ``"sample"`` (subsampling large
+            clouds), ``"mask"`` (MaskNet), ``"register"`` (the method), ``"refine"``
+            and ``"total"`` (the whole call).
+        info: what the method reported in its last run, as numpy arrays, () or (B,)
+            each. ICP methods: ``converged``, ``iterations`` (-1 where not reported),
+            ``fitness`` and ``inlier_rmse`` (Open3D's definitions). PointNetLK:
+            ``converged``, ``iterations``, ``feature_residual``.
+        rounds: the cumulative transform after each round, (4, 4) or (B, 4, 4) each.
+        sampled: (template, source) sizes the method ran on, for single pairs.
     """
 
     R: np.ndarray
@@ -68,12 +86,24 @@ class RegistrationResult:
     times: dict[str, float] = field(default_factory=dict)
     info: dict[str, np.ndarray] = field(default_factory=dict)
     rounds: list[np.ndarray] = field(default_factory=list)
+    sampled: tuple[int, int] | None = None
+
+
+class _Run(NamedTuple):
+    transform: np.ndarray  # (B, 4, 4) float64, source -> template
+    info: dict[str, np.ndarray]  # (B,) each
 
 
 @functools.lru_cache(maxsize=1)
 def _default_model() -> MaskNet:
     """The shipped MaskNet weights, loaded once per process."""
     return MaskNet.pretrained()
+
+
+@functools.lru_cache(maxsize=1)
+def _default_pointnetlk() -> PointNetLK:
+    """The shipped PointNetLK weights, loaded once per process."""
+    return PointNetLK.pretrained()
 
 
 def register(
@@ -85,36 +115,115 @@ def register(
     model: MaskNet | None = None,
     k: int | None = None,
     threshold: float | None = None,
+    precision: str = "auto",
+    init: str = "centroid",
+    refine_iterations: int = 0,
+    max_points: int = 1024,
     **options: Any,
 ) -> RegistrationResult:
     """Register a partial source to a full template, optionally through MaskNet's mask.
 
     Args:
-        template: (N, 3) or (B, N, 3) full template cloud(s).
-        source: (M, 3) or (B, M, 3) partial source cloud(s), in original
-            coordinates (MaskNet scales each pair internally).
-        method: ``"icp"`` (batched torch ICP, :func:`masknet.registration.icp`) or
-            ``"open3d-icp"`` (Open3D's point-to-point ICP, one pair at a time).
+        template: (N, 3) or (B, N, 3) full template cloud(s), any units.
+        source: (M, 3) or (B, M, 3) partial source cloud(s), same units.
+        method: ``"icp"`` (batched torch ICP), ``"open3d-icp"`` (Open3D's
+            point-to-point ICP, pair by pair) or ``"pointnetlk"`` (the shipped
+            PointNetLK unless ``network=`` is given).
         use_mask: Mask-X (True) or plain X (False).
-        iterations: rounds of {mask -> register -> move the source}.
-        model: the MaskNet to use; None loads the shipped weights once
-            (``MaskNet.pretrained()``).
-        k, threshold: inlier selection, passed to :meth:`MaskNet.predict_mask`
-            (default top-k with k = M); only with ``use_mask=True``.
-        **options: passed to the method. ``"icp"``: ``max_iterations`` (default 10),
+        iterations: rounds of {mask -> initialise -> register -> move the source}.
+        model: the MaskNet to use; None loads the shipped weights once.
+        k, threshold: inlier selection, as :meth:`MaskNet.predict_mask` (default
+            top-k with k = M); only with ``use_mask=True``.
+        precision: MaskNet's inference precision, as :meth:`MaskNet.predict`
+            (``"auto"``: bf16 where the hardware runs it natively).
+        init: ``"centroid"`` (default: translate the source centroid onto the
+            centroid of the template points in use, i.e. the masked ones for Mask-X)
+            or ``"identity"``. PointNetLK centres both clouds itself either way.
+        refine_iterations: after the rounds, this many iterations of plain ICP
+            against the whole template (0: none).
+        max_points: single pairs larger than this are subsampled for the method
+            (farthest point sampling); batches must already fit.
+        **options: for the method. ``"icp"``: ``max_iterations`` (default 10),
             ``tolerance``, ``max_correspondence_distance``. ``"open3d-icp"``:
             ``max_iterations`` (default 10), ``max_correspondence_distance``,
-            ``relative_fitness``, ``relative_rmse``.
+            ``relative_fitness``, ``relative_rmse``. ``"pointnetlk"``:
+            ``max_iterations`` (default 10), ``tolerance``, ``network`` (a
+            :class:`~masknet.models.PointNetLK`).
 
     Returns:
         RegistrationResult (source -> template, see :mod:`masknet.geometry.se3`).
 
     Raises:
         MaskNetError: bad clouds (shape, NaN/inf, fewer than 3 points, batch sizes),
-            an unknown method or option, bad iterations/k/threshold, or (for
+            an unknown method, option or init, bad iterations/k/threshold, or (for
             ``"open3d-icp"``) no Open3D.
     """
     start = time.perf_counter()
+    _check_arguments(method, options, iterations, k, threshold, use_mask, init, refine_iterations)
+    tpl_full, src_full, single = _as_numpy_batch(template, source)
+    options.setdefault("max_iterations", _DEFAULT_MAX_ITERATIONS)
+    if use_mask and model is None:
+        model = _default_model()
+    if method == "pointnetlk" and options.get("network") is None:
+        options["network"] = _default_pointnetlk()
+
+    times = {"sample": 0.0, "mask": 0.0, "register": 0.0, "refine": 0.0}
+    tic = time.perf_counter()
+    tpl, src, template_index = _fit_to_network(tpl_full, src_full, single, max_points)
+    times["sample"] = time.perf_counter() - tic
+
+    b = tpl.shape[0]
+    total = np.broadcast_to(np.eye(4), (b, 4, 4)).copy()
+    rounds: list[np.ndarray] = []
+    mask: np.ndarray | None = None
+    run: _Run | None = None
+    for _ in range(iterations):
+        moved = _apply(total, src)
+        if use_mask:
+            tic = time.perf_counter()
+            mask = model.predict_mask(tpl, moved, k=k, threshold=threshold, precision=precision)
+            times["mask"] += time.perf_counter() - tic
+        tic = time.perf_counter()
+        start_tf = _initial_transform(init, moved, tpl, mask)
+        run = _METHOD_RUNNERS[method](tpl, _apply(start_tf, moved), mask, options)
+        times["register"] += time.perf_counter() - tic
+        total = run.transform @ start_tf @ total
+        rounds.append(total[0].copy() if single else total.copy())
+    if refine_iterations:
+        tic = time.perf_counter()
+        refine_options = {"max_iterations": refine_iterations}
+        total = _run_icp(tpl, _apply(total, src), None, refine_options).transform @ total
+        times["refine"] = time.perf_counter() - tic
+
+    if mask is not None and template_index is not None:
+        mask = _spread_mask(tpl_full[0], template_index, mask[0])[None]
+
+    def out(a: np.ndarray) -> np.ndarray:
+        return a[0] if single else a
+
+    times["total"] = time.perf_counter() - start
+    return RegistrationResult(
+        R=out(total[:, :3, :3].copy()),
+        t=out(total[:, :3, 3].copy()),
+        transform=out(total),
+        mask=None if mask is None else out(mask),
+        times=times,
+        info={key: out(value) for key, value in run.info.items()},
+        rounds=rounds,
+        sampled=(tpl.shape[1], src.shape[1]) if single else None,
+    )
+
+
+def _check_arguments(
+    method: str,
+    options: dict,
+    iterations: Any,
+    k: Any,
+    threshold: Any,
+    use_mask: bool,
+    init: str,
+    refine_iterations: Any,
+) -> None:
     if method not in METHODS:
         raise MaskNetError(f"unknown registration method {method!r}; choose from {METHODS}")
     unknown = sorted(set(options) - set(_OPTIONS[method]))
@@ -123,58 +232,20 @@ def register(
             f"unknown option(s) for method {method!r}: {', '.join(unknown)} "
             f"(accepted: {', '.join(_OPTIONS[method])})"
         )
-    if isinstance(iterations, bool) or not isinstance(iterations, int | np.integer):
-        raise MaskNetError(f"iterations must be an integer >= 1, got {iterations!r}")
-    if iterations < 1:
-        raise MaskNetError(f"iterations must be >= 1, got {iterations}")
+    for name, value, low in (
+        ("iterations", iterations, 1),
+        ("refine_iterations", refine_iterations, 0),
+    ):
+        if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < low:
+            raise MaskNetError(f"{name} must be an integer >= {low}, got {value!r}")
+    if init not in INITS:
+        raise MaskNetError(f"unknown init {init!r}; choose from {INITS}")
     if k is not None and threshold is not None:
         raise MaskNetError("give either k or threshold, not both")
     if k is not None and (isinstance(k, bool) or not isinstance(k, int | np.integer) or k < 1):
         raise MaskNetError(f"k must be an integer >= 1, got {k!r}")
     if not use_mask and (k is not None or threshold is not None):
         raise MaskNetError("k and threshold select MaskNet's inliers; they need use_mask=True")
-    tpl, src, single = _as_numpy_batch(template, source)
-    options.setdefault("max_iterations", _DEFAULT_MAX_ITERATIONS)
-    if use_mask and model is None:
-        model = _default_model()
-
-    b = tpl.shape[0]
-    total = np.broadcast_to(np.eye(4), (b, 4, 4)).copy()
-    times = {"mask": 0.0, "register": 0.0}
-    rounds: list[np.ndarray] = []
-    mask: np.ndarray | None = None
-    solution: ICPSolution | None = None
-    for _ in range(iterations):
-        moved = src @ total[:, :3, :3].transpose(0, 2, 1) + total[:, None, :3, 3]
-        if use_mask:
-            tic = time.perf_counter()
-            mask = model.predict_mask(tpl, moved, k=k, threshold=threshold)
-            times["mask"] += time.perf_counter() - tic
-        tic = time.perf_counter()
-        solution = _METHOD_RUNNERS[method](tpl, moved, mask, options)
-        times["register"] += time.perf_counter() - tic
-        total = solution.transform.double().numpy() @ total
-        rounds.append(total[0].copy() if single else total.copy())
-
-    def out(a: np.ndarray) -> np.ndarray:
-        return a[0] if single else a
-
-    info = {
-        "converged": solution.converged.numpy(),
-        "fitness": solution.fitness.double().numpy(),
-        "inlier_rmse": solution.inlier_rmse.double().numpy(),
-        "iterations": solution.iterations.numpy(),
-    }
-    times["total"] = time.perf_counter() - start
-    return RegistrationResult(
-        R=out(total[:, :3, :3].copy()),
-        t=out(total[:, :3, 3].copy()),
-        transform=out(total),
-        mask=None if mask is None else out(mask),
-        times=times,
-        info={key: out(value) for key, value in info.items()},
-        rounds=rounds,
-    )
 
 
 def _as_numpy_batch(template: Any, source: Any) -> tuple[np.ndarray, np.ndarray, bool]:
@@ -188,21 +259,71 @@ def _as_numpy_batch(template: Any, source: Any) -> tuple[np.ndarray, np.ndarray,
     return (t[None], s[None], True) if single else (t, s, False)
 
 
+def _fit_to_network(
+    template: np.ndarray, source: np.ndarray, single: bool, max_points: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Subsample a single large pair; returns (template, source, template indices or None)."""
+    n, m = template.shape[1], source.shape[1]
+    if n <= max_points and m <= max_points:
+        return template, source, None
+    if not single:
+        raise MaskNetError(
+            f"batched clouds must have at most max_points={max_points} points "
+            f"(got template {n}, source {m}); pass large clouds one pair at a time"
+        )
+    kept = farthest_point_sample(template[0], max_points)
+    # The source at the template's spacing, so its size still reflects the overlap
+    # (top-k selection uses it).
+    src_idx = farthest_point_sample(source[0], max_points, min_spacing=kept.radius).indices
+    return template[:, kept.indices], source[:, src_idx], kept.indices
+
+
+def _spread_mask(template: np.ndarray, sampled: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Give every template point (N, 3) the mask label of its nearest sampled point."""
+    full = torch.from_numpy(template)[None]
+    nearest = knn_points(full, full[:, sampled], 1).idx[0, :, 0].numpy()
+    return mask[nearest]
+
+
+def _apply(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(B, 4, 4) transforms applied to (B, P, 3) points."""
+    return points @ transform[:, :3, :3].transpose(0, 2, 1) + transform[:, None, :3, 3]
+
+
+def _initial_transform(
+    init: str, source: np.ndarray, template: np.ndarray, mask: np.ndarray | None
+) -> np.ndarray:
+    if init == "identity":
+        return np.broadcast_to(np.eye(4), (source.shape[0], 4, 4)).copy()
+    valid = None if mask is None else torch.from_numpy(mask)
+    return centroid_alignment(torch.from_numpy(source), torch.from_numpy(template), valid).numpy()
+
+
 def _run_icp(
     template: np.ndarray, source: np.ndarray, mask: np.ndarray | None, options: dict
-) -> ICPSolution:
+) -> _Run:
     valid = None if mask is None else torch.from_numpy(mask)
     try:
-        return icp(
+        solution = icp(
             torch.from_numpy(source), torch.from_numpy(template), template_valid=valid, **options
         )
     except ValueError as exc:
         raise MaskNetError(f"icp: {exc}") from exc
+    return _Run(solution.transform.double().numpy(), _icp_info(solution))
+
+
+def _icp_info(solution: Any) -> dict[str, np.ndarray]:
+    return {
+        "converged": solution.converged.numpy(),
+        "fitness": solution.fitness.double().numpy(),
+        "inlier_rmse": solution.inlier_rmse.double().numpy(),
+        "iterations": solution.iterations.numpy(),
+    }
 
 
 def _run_open3d_icp(
     template: np.ndarray, source: np.ndarray, mask: np.ndarray | None, options: dict
-) -> ICPSolution:
+) -> _Run:
     parts = []
     for i in range(template.shape[0]):
         target = template[i] if mask is None else template[i][mask[i]]
@@ -210,9 +331,39 @@ def _run_open3d_icp(
             parts.append(open3d_icp(source[i], target, **options))
         except (ValueError, TypeError) as exc:
             raise MaskNetError(f"open3d-icp: {exc}") from exc
-    return ICPSolution(*(torch.cat(field_parts) for field_parts in zip(*parts, strict=True)))
+    solution = type(parts[0])(*(torch.cat(field_parts) for field_parts in zip(*parts, strict=True)))
+    return _Run(solution.transform.double().numpy(), _icp_info(solution))
 
 
-_METHOD_RUNNERS: dict[
-    str, Callable[[np.ndarray, np.ndarray, np.ndarray | None, dict], ICPSolution]
-] = {"icp": _run_icp, "open3d-icp": _run_open3d_icp}
+@torch.inference_mode()
+def _run_pointnetlk(
+    template: np.ndarray, source: np.ndarray, mask: np.ndarray | None, options: dict
+) -> _Run:
+    network: PointNetLK = options["network"]
+    # The network saw unit-radius shapes: scale each pair by its template's radius.
+    tpl = torch.from_numpy(template).float()
+    radius = unit_radius(tpl)[:, None, None]
+    valid = None if mask is None else torch.from_numpy(mask)
+    device = next(network.parameters()).device
+    solution = network(
+        (tpl / radius).to(device),
+        (torch.from_numpy(source).float() / radius).to(device),
+        template_valid=None if valid is None else valid.to(device),
+        max_iterations=options["max_iterations"],
+        tolerance=options.get("tolerance", 1e-5),
+    )
+    transform = solution.transform.double().cpu().numpy()
+    transform[:, :3, 3] *= radius[:, 0].double().numpy()
+    info = {
+        "converged": solution.converged.cpu().numpy(),
+        "iterations": solution.iterations.cpu().numpy(),
+        "feature_residual": solution.residual.double().cpu().numpy(),
+    }
+    return _Run(transform, info)
+
+
+_METHOD_RUNNERS: dict[str, Callable[[np.ndarray, np.ndarray, np.ndarray | None, dict], _Run]] = {
+    "icp": _run_icp,
+    "open3d-icp": _run_open3d_icp,
+    "pointnetlk": _run_pointnetlk,
+}

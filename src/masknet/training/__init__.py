@@ -2,5 +2,15 @@
 
 from masknet.training.loop import Task, TrainConfig, fit, split_train_val
 from masknet.training.masknet_task import MaskNetTask
+from masknet.training.pair_task import PairTask
+from masknet.training.pointnetlk_task import PointNetLKTask
 
-__all__ = ["Task", "TrainConfig", "fit", "split_train_val", "MaskNetTask"]
+__all__ = [
+    "Task",
+    "TrainConfig",
+    "fit",
+    "split_train_val",
+    "MaskNetTask",
+    "PairTask",
+    "PointNetLKTask",
+]

@@ -35,15 +35,17 @@ from torch import Tensor, nn
 from tqdm.auto import tqdm
 
 from masknet.errors import MaskNetError
+from masknet.runtime import default_precision, resolve_device
 
-__all__ = ["Task", "TrainConfig", "fit", "split_train_val", "resolve_device", "default_precision"]
+__all__ = ["Task", "TrainConfig", "fit", "split_train_val"]
 
 
 class Task(Protocol):
     """What the loop needs to know about one model family."""
 
     name: str
-    metric: str  # validation metric to maximise, a key of step()'s metrics
+    metric: str  # validation metric that picks best.safetensors, a key of step()'s metrics
+    maximize: bool  # True: higher metric is better (precision); False: lower (an error)
 
     def build_model(self) -> nn.Module: ...
 
@@ -82,28 +84,6 @@ class TrainConfig:
     threads: int | None = None
     max_minutes: float | None = None  # per invocation: no epoch starts that would end past it
     extra: dict = field(default_factory=dict)
-
-
-def resolve_device(device: str) -> torch.device:
-    if device == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if device.startswith("cuda") and not torch.cuda.is_available():
-        raise MaskNetError(f"device {device!r} requested but CUDA is not available")
-    try:
-        return torch.device(device)
-    except RuntimeError:
-        raise MaskNetError(f"unknown device {device!r}; use auto, cpu, cuda or cuda:N") from None
-
-
-def default_precision(device: torch.device) -> str:
-    """bf16 autocast where the hardware runs it natively, else fp32."""
-    if device.type == "cuda":
-        return "bf16" if torch.cuda.is_bf16_supported() else "fp32"
-    try:
-        flags = Path("/proc/cpuinfo").read_text()
-    except OSError:
-        return "fp32"
-    return "bf16" if ("avx512_bf16" in flags or "amx_bf16" in flags) else "fp32"
 
 
 # Settings that may change between a run and its --resume; any other change is refused,
@@ -293,6 +273,7 @@ def fit(
         history.append(row)
 
         score = row[f"val_{task.metric}"] if val_batches else row[f"train_{task.metric}"]
+        score = score if task.maximize else -score
         if score > best:
             best = score
             task.export(

@@ -6,51 +6,34 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-import numpy as np
 import torch
 from torch import Tensor, nn
 
-from masknet.data.pairs import PairConfig, Pairs, iterate_pairs, make_test_pairs
+from masknet.data.pairs import Pairs
 from masknet.evaluation.metrics import mask_metrics
 from masknet.models.masknet import MaskNet, select_mask
+from masknet.training.pair_task import PairTask
 
 __all__ = ["MaskNetTask"]
 
 
 @dataclass
-class MaskNetTask:
+class MaskNetTask(PairTask):
     """Train MaskNet to score template points seen by the source.
 
-    num_points: template points per training pair (a fresh random subset of each
-        shape every epoch when smaller than the stored 1,024).
+    pairs, num_points: see :class:`PairTask` (default: the paper's protocol).
     loss: ``"mse"`` (the paper's) or ``"bce"``.
     model_config: keyword arguments of :class:`MaskNet` (default: the paper's sizes).
     """
 
-    pairs: PairConfig = field(default_factory=PairConfig)
-    num_points: int = 1024
     loss: Literal["mse", "bce"] = "mse"
     model_config: dict = field(default_factory=dict)
     name: str = "masknet"
     metric: str = "precision"
+    maximize: bool = True
 
     def build_model(self) -> nn.Module:
         return MaskNet(**self.model_config)
-
-    def train_batches(self, points: np.ndarray, batch_size: int, seed: int, epoch: int):
-        return iterate_pairs(
-            points, self.pairs, batch_size, seed, epoch, self.num_points, drop_last=True
-        )
-
-    def val_batches(
-        self, points: np.ndarray, num_pairs: int, batch_size: int, seed: int
-    ) -> list[Pairs]:
-        # Validation always uses the full stored resolution, like the test set.
-        pairs = make_test_pairs(points, num_pairs, self.pairs, seed=seed + 7919)
-        return [
-            Pairs(*(x[i : i + batch_size] for x in pairs))
-            for i in range(0, len(pairs.template), batch_size)
-        ]
 
     def step(
         self, model: nn.Module, batch: Pairs, device: torch.device
