@@ -10,6 +10,7 @@ import argparse
 import json
 import math
 import sys
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -238,6 +239,34 @@ def build_parser() -> argparse.ArgumentParser:
         "--drop-nonfinite", action="store_true", help="drop NaN/inf rows instead of failing"
     )
     _add_model_options(p)
+
+    p = sub.add_parser(
+        "benchmark",
+        help="reproduce the paper's experiments on seeded ModelNet40 test pairs: "
+        "table (JSON, CSV), plot (PNG) and docs/RESULTS.md",
+    )
+    p.add_argument(
+        "experiment",
+        help="registration, iterations, precision-vs-missing, rotation-sweep, noise, "
+        "generalization, timing, or all",
+    )
+    p.add_argument("--data", help="ModelNet40 folder or .npz (default: $MASKNET_DATA)")
+    p.add_argument("--pairs", type=_positive_int, help="pairs per setting (default 1000)")
+    p.add_argument("--seed", type=_seed, default=0)
+    p.add_argument(
+        "--quick",
+        action="store_true",
+        help="a small run (20 pairs, fewer settings; the bundled sample when no data is "
+        "given); leaves docs/RESULTS.md alone",
+    )
+    p.add_argument("--out", default="masknet_benchmark", help="folder for JSON, CSV and PNG")
+    p.add_argument(
+        "--results",
+        default="docs/RESULTS.md",
+        help="markdown file whose benchmark blocks are rewritten (default docs/RESULTS.md, "
+        "when it exists); 'none' to skip",
+    )
+    p.add_argument("--threads", type=_positive_int, help="torch CPU threads")
 
     p = sub.add_parser(
         "demo", help="run the shipped model on the bundled sample: metrics and a picture"
@@ -474,6 +503,53 @@ def cmd_register(args: argparse.Namespace) -> None:
     print(f"wrote {', '.join(str(p) for p, _ in writers)}")
 
 
+def cmd_benchmark(args: argparse.Namespace) -> None:
+    import os
+    import shlex
+
+    import torch
+
+    from masknet.data import bundled_sample_path, load_modelnet40
+    from masknet.evaluation.benchmark import EXPERIMENTS, BenchmarkContext, run_benchmark
+
+    names = list(EXPERIMENTS) if args.experiment == "all" else [args.experiment]
+    if names[0] not in EXPERIMENTS:
+        raise MaskNetError(
+            f"unknown experiment {args.experiment!r}; choose from {', '.join(EXPERIMENTS)} or all"
+        )
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    data_path = args.data
+    if args.quick and data_path is None and not os.environ.get("MASKNET_DATA"):
+        data_path = bundled_sample_path()
+    test = load_modelnet40(data_path, "test")
+    results = None
+    if not args.quick and args.results != "none" and Path(args.results).exists():
+        results = Path(args.results)
+    argv = ["masknet", "benchmark", *sys.argv[2:]] if sys.argv[1:2] == ["benchmark"] else []
+    ctx = BenchmarkContext(
+        points=test.points,
+        categories=test.labels,
+        pairs=args.pairs or (20 if args.quick else 1000),
+        seed=args.seed,
+        quick=args.quick,
+        out=Path(args.out),
+        progress=sys.stderr.isatty(),
+        command=shlex.join(argv) if argv else f"masknet benchmark {args.experiment}",
+    )
+    start = time.perf_counter()
+    for name in names:
+        tic = time.perf_counter()
+        result = run_benchmark(name, ctx, results)
+        print(f"== {name} ({time.perf_counter() - tic:.0f} s): {result.summary}")
+        from masknet.evaluation.benchmark import markdown_table
+
+        print(markdown_table(result.rows))
+    where = f" and {results}" if results else ""
+    print(f"wrote {ctx.out}/{{{','.join(names)}}}.{{json,csv,png}}{where}")
+    print(f"wall time {time.perf_counter() - start:.0f} s")
+
+
 def cmd_demo(args: argparse.Namespace) -> None:
     import torch
 
@@ -527,6 +603,7 @@ COMMANDS = {
     "evaluate": cmd_evaluate,
     "mask": cmd_mask,
     "register": cmd_register,
+    "benchmark": cmd_benchmark,
     "demo": cmd_demo,
     "make-sample": cmd_make_sample,
 }

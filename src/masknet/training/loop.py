@@ -10,7 +10,13 @@ compute the loss and export weights). The loop owns the rest:
   file then renamed), so a kill at any moment loses at most the current epoch,
   and ``resume=True`` continues where it stopped;
 * a CSV log (``log.csv``) and the best weights by validation metric
-  (``best.safetensors``, via the task's exporter).
+  (``best.safetensors``, via the task's exporter);
+* several processes under ``torchrun`` (DistributedDataParallel; gloo on CPU,
+  NCCL on GPUs): ``batch_size`` stays the *global* batch, each of the W processes
+  takes its 1/W slice of every batch, and the averaged gradients equal
+  single-process training on the same pairs (exactly so for models without
+  BatchNorm; with BatchNorm each process normalises over its own slice, except on
+  GPUs where SyncBatchNorm is used). Rank 0 validates, logs and writes files.
 
 Pairs are a pure function of (seed, epoch, batch), so a resumed run sees the
 same data it would have seen without the interruption.
@@ -161,7 +167,8 @@ def fit(
 
     ``train_points`` is split by :func:`split_train_val` into training and
     validation shapes. ``init_weights`` optionally starts from another model's
-    weights (fine-tuning); it is ignored when resuming.
+    weights (fine-tuning); it is ignored when resuming. Under torchrun only rank 0
+    returns the log rows (the others return an empty list).
     """
     if config.batch_size < 1 or config.epochs < 1:
         raise MaskNetError("--batch-size and --epochs must be at least 1")
@@ -178,6 +185,14 @@ def fit(
             f"{ckpt_path} exists: pass --resume to continue it, or choose another --out"
         )
     device = resolve_device(config.device)
+    rank, world = _init_distributed(device)
+    if world > 1 and device.type == "cuda":
+        device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
+    if config.batch_size % world:
+        raise MaskNetError(
+            f"--batch-size {config.batch_size} must be divisible by the {world} processes"
+        )
+    lead = rank == 0
     precision = default_precision(device) if config.precision == "auto" else config.precision
     if config.threads:
         torch.set_num_threads(config.threads)
@@ -196,6 +211,11 @@ def fit(
             model.load_state_dict(init_weights.state_dict())
         except RuntimeError as exc:
             raise MaskNetError(f"--init weights do not fit this model ({exc})") from None
+    train_model: nn.Module = model
+    if world > 1:
+        if device.type == "cuda":
+            model = nn.SyncBatchNorm.convert_sync_batchnorm(model)
+        train_model = nn.parallel.DistributedDataParallel(model)
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
     history: list[dict] = []
     best = -math.inf
@@ -209,7 +229,8 @@ def fit(
             raise MaskNetError(f"{ckpt_path}: cannot resume from it ({exc})") from None
         _check_resumable(ckpt_path, state.get("run_info"), run_info)
         history, best, start_epoch = state["history"], state["best"], state["epoch"]
-        print(f"resuming {ckpt_path} at epoch {start_epoch + 1}", file=sys.stderr)
+        if lead:
+            print(f"resuming {ckpt_path} at epoch {start_epoch + 1}", file=sys.stderr)
 
     train_set = train_points[train_idx]
     val_batches = (
@@ -217,8 +238,9 @@ def fit(
         if len(val_idx)
         else []
     )
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "run.json").write_text(json.dumps(run_info, indent=2))
+    if lead:
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "run.json").write_text(json.dumps(run_info, indent=2))
     autocast = torch.autocast(device.type, dtype=torch.bfloat16, enabled=precision == "bf16")
     interactive = sys.stderr.isatty()
     started = time.perf_counter()
@@ -228,7 +250,7 @@ def fit(
         lr = _learning_rate(config, epoch)
         for group in optimizer.param_groups:
             group["lr"] = lr
-        model.train()
+        train_model.train()
         epoch_start = time.perf_counter()
         sums: dict[str, float] = {}
         count = 0
@@ -241,10 +263,13 @@ def fit(
             leave=interactive,
             mininterval=0.5 if interactive else 60,
             file=sys.stderr,
+            disable=not lead,
         )
         for batch in bar:
+            if world > 1:
+                batch = type(batch)(*(x.tensor_split(world)[rank] for x in batch))
             with autocast:
-                loss, metrics = task.step(model, batch, device)
+                loss, metrics = task.step(train_model, batch, device)
             loss_value = loss.item()
             if not math.isfinite(loss_value):
                 raise MaskNetError(f"training diverged at epoch {epoch + 1}: loss is {loss_value}")
@@ -260,50 +285,92 @@ def fit(
                 refresh=False,
             )
         bar.close()
+        if world > 1:
+            sums = _mean_over_processes(sums, device)
         row = {"epoch": epoch + 1, "lr": lr}
         row.update({f"train_{k}": v / max(count, 1) for k, v in sums.items()})
-        row.update(
-            {
-                f"val_{k}": v
-                for k, v in _validate(task, model, val_batches, device, autocast).items()
-            }
-        )
-        row["epoch_min"] = (time.perf_counter() - epoch_start) / 60
-        row["elapsed_min"] = elapsed_before + (time.perf_counter() - started) / 60
-        history.append(row)
-
-        score = row[f"val_{task.metric}"] if val_batches else row[f"train_{task.metric}"]
-        score = score if task.maximize else -score
-        if score > best:
-            best = score
-            task.export(
-                model, out / "best.safetensors", {"epoch": epoch + 1, **run_info, "val": row}
+        stop = False
+        if lead:
+            row.update(
+                {
+                    f"val_{k}": v
+                    for k, v in _validate(task, model, val_batches, device, autocast).items()
+                }
             )
-        task.export(model, out / "last.safetensors", {"epoch": epoch + 1, **run_info, "val": row})
-        _atomic_torch_save(
-            {
-                "model": model.state_dict(),
-                "optimizer": optimizer.state_dict(),
-                "epoch": epoch + 1,
-                "history": history,
-                "best": best,
-                "run_info": run_info,
-            },
-            ckpt_path,
-        )
-        _write_csv(history, out / "log.csv")
-        print(
-            f"epoch {epoch + 1}: "
-            + ", ".join(f"{k} {v:.4f}" for k, v in row.items() if k != "epoch"),
-            file=sys.stderr,
-            flush=True,
-        )
-        if config.max_minutes is not None:
-            spent = (time.perf_counter() - started) / 60
-            if spent + row["epoch_min"] > config.max_minutes:
-                print(f"stopping: time budget of {config.max_minutes} min reached", file=sys.stderr)
-                break
+            row["epoch_min"] = (time.perf_counter() - epoch_start) / 60
+            row["elapsed_min"] = elapsed_before + (time.perf_counter() - started) / 60
+            history.append(row)
+
+            score = row[f"val_{task.metric}"] if val_batches else row[f"train_{task.metric}"]
+            score = score if task.maximize else -score
+            meta = {"epoch": epoch + 1, **run_info, "val": row}
+            if score > best:
+                best = score
+                task.export(model, out / "best.safetensors", meta)
+            task.export(model, out / "last.safetensors", meta)
+            _atomic_torch_save(
+                {
+                    "model": model.state_dict(),
+                    "optimizer": optimizer.state_dict(),
+                    "epoch": epoch + 1,
+                    "history": history,
+                    "best": best,
+                    "run_info": run_info,
+                },
+                ckpt_path,
+            )
+            _write_csv(history, out / "log.csv")
+            print(
+                f"epoch {epoch + 1}: "
+                + ", ".join(f"{k} {v:.4f}" for k, v in row.items() if k != "epoch"),
+                file=sys.stderr,
+                flush=True,
+            )
+            if config.max_minutes is not None:
+                spent = (time.perf_counter() - started) / 60
+                if spent + row["epoch_min"] > config.max_minutes:
+                    print(
+                        f"stopping: time budget of {config.max_minutes} min reached",
+                        file=sys.stderr,
+                    )
+                    stop = True
+        if world > 1:
+            stop = _broadcast_flag(stop, device)
+        if stop:
+            break
     return history
+
+
+def _init_distributed(device: torch.device) -> tuple[int, int]:
+    """(rank, world size); joins the process group when started by torchrun."""
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if world == 1:
+        return 0, 1
+    import torch.distributed as dist
+
+    if not dist.is_initialized():
+        dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
+    return dist.get_rank(), dist.get_world_size()
+
+
+def _mean_over_processes(sums: dict[str, float], device: torch.device) -> dict[str, float]:
+    """Average per-process metric sums, so rank 0 logs the whole batch."""
+    import torch.distributed as dist
+
+    keys = sorted(sums)
+    on = device if device.type == "cuda" else "cpu"
+    values = torch.tensor([sums[k] for k in keys], dtype=torch.float64, device=on)
+    dist.all_reduce(values)
+    return {k: float(v) / dist.get_world_size() for k, v in zip(keys, values, strict=True)}
+
+
+def _broadcast_flag(flag: bool, device: torch.device) -> bool:
+    """Rank 0's decision, on every rank (so all stop at the same epoch)."""
+    import torch.distributed as dist
+
+    value = torch.tensor([int(flag)], device=device if device.type == "cuda" else "cpu")
+    dist.broadcast(value, src=0)
+    return bool(value.item())
 
 
 @torch.no_grad()

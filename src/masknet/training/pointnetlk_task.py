@@ -47,13 +47,15 @@ class PointNetLKTask(PairTask):
     def step(
         self, model: nn.Module, batch: Pairs, device: torch.device
     ) -> tuple[Tensor, dict[str, float]]:
-        template, source = batch.template.to(device), batch.source.to(device)
-        truth = batch.transform.to(device)
+        dtype = next(model.parameters()).dtype  # float32, or float64 for exact tests
+        template = batch.template.to(device, dtype)
+        source = batch.source.to(device, dtype)
+        truth = batch.transform.to(device, dtype)
         solution = model(template, source, max_iterations=self.iterations)
-        estimate = solution.transform.float()
-        eye = torch.eye(4, device=device)
+        estimate = solution.transform
+        eye = torch.eye(4, device=device, dtype=dtype)
         transform_loss = (estimate @ invert_transform(truth) - eye).square().sum((1, 2)).mean()
-        feature_loss = solution.residual.float().square().mean()
+        feature_loss = solution.residual.square().mean()
         loss = transform_loss + self.feature_weight * feature_loss
         with torch.no_grad():
             error = rotation_error_deg(estimate[:, :3, :3].double(), truth[:, :3, :3].double())

@@ -1,0 +1,454 @@
+"""``masknet benchmark EXPERIMENT``: the paper's experiments, seeded, one command each.
+
+Every experiment builds its pairs from the ModelNet40 test split with a seed,
+runs the methods on the same pairs, and writes ``<out>/<experiment>.json``,
+``.csv`` and ``.png``. With ``results=`` it also rewrites the experiment's block
+in docs/RESULTS.md (between ``<!-- benchmark:NAME -->`` markers), so the
+document always shows what the last run measured and the command that did it.
+
+Registration methods run with the paper's budget (10 iterations) and the shipped
+weights. Errors: rotation in degrees (angle of R_est^T R_true), translation as
+||t_est - t_true|| in units of the unit-radius shapes.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import platform
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from masknet.data.pairs import PairConfig, Pairs, make_test_pairs
+from masknet.errors import MaskNetError
+from masknet.evaluation.evaluate import evaluate_masknet
+from masknet.evaluation.registration import (
+    PIPELINES,
+    benchmark_registration,
+    iteration_errors,
+    pose_errors,
+    summarize_errors,
+)
+from masknet.geometry.se3 import invert_transform, make_transform, so3_exp
+from masknet.io import write_text_atomic
+from masknet.models.masknet import MaskNet
+from masknet.registration.api import register
+from masknet.runtime import default_precision
+
+__all__ = ["EXPERIMENTS", "BenchmarkContext", "run_benchmark"]
+
+# X and Mask-X for each method that has shipped weights (the sweeps' lines).
+SWEEP_PIPELINES = {
+    "ICP": {"method": "icp", "use_mask": False},
+    "Mask-ICP": {"method": "icp", "use_mask": True},
+    "PointNetLK": {"method": "pointnetlk", "use_mask": False},
+    "Mask-PointNetLK": {"method": "pointnetlk", "use_mask": True},
+}
+# The paper's Table (GTX 1070), ms per pair: X, Mask-X.
+PAPER_TIMING_MS = {
+    "ICP": (6.82, 9.83),
+    "PointNetLK": (52.30, 58.15),
+    "DCP": (23.99, 24.68),
+    "PRNet": (68.52, 82.18),
+}
+
+
+@dataclass
+class BenchmarkContext:
+    """What every experiment gets: test shapes, seed, size and where to write."""
+
+    points: np.ndarray  # (S, N, 3) ModelNet40 test shapes
+    categories: np.ndarray  # (S,) category index of each shape
+    pairs: int = 1000
+    seed: int = 0
+    quick: bool = False
+    out: Path = Path("masknet_benchmark")
+    progress: bool = True
+    command: str = ""
+    notes: list[str] = field(default_factory=list)
+
+    def test_pairs(self, config: PairConfig | None = None, count: int | None = None) -> Pairs:
+        return make_test_pairs(self.points, count or self.pairs, config or PairConfig(), self.seed)
+
+
+@dataclass
+class ExperimentResult:
+    """A table (list of rows with the same keys), a plot, and a few lines of context."""
+
+    rows: list[dict]
+    summary: str
+    plot: Callable[[Path], None] | None = None
+
+
+def _batched_errors(pairs: Pairs, **kwargs: object) -> dict[str, float]:
+    """Errors of one pipeline over every pair, in one batched register call."""
+    result = register(pairs.template.double().numpy(), pairs.source.double().numpy(), **kwargs)
+    return summarize_errors(*pose_errors(result.transform, pairs.transform.double().numpy()))
+
+
+def _line_plot(
+    path: Path,
+    x: list[float],
+    lines: dict[str, list[float]],
+    xlabel: str,
+    ylabel: str,
+    title: str,
+    baseline: tuple[str, list[float]] | None = None,
+) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=110)
+    for name, ys in lines.items():
+        style = "-" if "Mask" in name else "--"  # Mask-X solid, plain X dashed
+        ax.plot(x, ys, style, marker="o", label=name)
+    if baseline is not None:
+        ax.plot(x, baseline[1], ":", color="grey", label=baseline[0])
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def _bar_plot(
+    path: Path, names: list[str], series: dict[str, list[float]], ylabel: str, title: str
+) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7.5, 4.2), dpi=110)
+    width = 0.8 / len(series)
+    for i, (label, values) in enumerate(series.items()):
+        ax.bar(np.arange(len(names)) + i * width, values, width, label=label)
+    ax.set_xticks(np.arange(len(names)) + width * (len(series) - 1) / 2)
+    ax.set_xticklabels(names, rotation=20, ha="right")
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(axis="y", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+# ------------------------------------------------------------------------- experiments
+
+
+def exp_registration(ctx: BenchmarkContext) -> ExperimentResult:
+    """X against Mask-X (and refinements) on the default protocol, pair by pair."""
+    pairs = ctx.test_pairs()
+    table = benchmark_registration(pairs, PIPELINES, progress=ctx.progress)
+    rows = [{"pipeline": name, **values} for name, values in table.items()]
+    best = min(rows, key=lambda r: r["rot_median"])
+
+    def plot(path: Path) -> None:
+        names = [r["pipeline"] for r in rows]
+        _bar_plot(
+            path,
+            names,
+            {"mean": [r["rot_mean"] for r in rows], "median": [r["rot_median"] for r in rows]},
+            "rotation error (degrees)",
+            f"Registration on {len(pairs.template)} ModelNet40 test pairs (30% missing, <=45 deg)",
+        )
+
+    summary = (
+        f"{len(pairs.template)} pairs, 30% missing, rotation <= 45 deg, translation in [-1, 1]^3; "
+        f"lowest median rotation error: {best['pipeline']} ({best['rot_median']:.2f} deg)."
+    )
+    return ExperimentResult(rows, summary, plot)
+
+
+def exp_iterations(ctx: BenchmarkContext) -> ExperimentResult:
+    """Errors after each round of mask -> register -> move the source."""
+    pairs = ctx.test_pairs()
+    rows = []
+    for name, method in (("Mask-ICP", "icp"), ("Mask-PointNetLK", "pointnetlk")):
+        for row in iteration_errors(pairs, 3, progress=ctx.progress, method=method):
+            rows.append({"pipeline": name, **row})
+
+    def plot(path: Path) -> None:
+        lines = {
+            f"{name} ({stat})": [r[f"rot_{stat}"] for r in rows if r["pipeline"] == name]
+            for name in ("Mask-ICP", "Mask-PointNetLK")
+            for stat in ("mean", "median")
+        }
+        _line_plot(
+            path,
+            [1, 2, 3],
+            lines,
+            "round",
+            "rotation error (degrees)",
+            "Iterative mask -> register",
+        )
+
+    return ExperimentResult(rows, f"{len(pairs.template)} pairs, default protocol, 3 rounds.", plot)
+
+
+def exp_precision_vs_missing(ctx: BenchmarkContext) -> ExperimentResult:
+    """MaskNet's top-k precision as the missing fraction grows (trained at 30%)."""
+    model = MaskNet.pretrained()
+    missing = [0.1, 0.3, 0.5] if ctx.quick else [0.1, 0.2, 0.3, 0.4, 0.5, 0.6]
+    rows = []
+    for miss in missing:
+        result = evaluate_masknet(
+            model, ctx.points, ctx.pairs, ctx.seed, PairConfig(keep_ratio=1 - miss), progress=False
+        )
+        top = result.rows["top-k (k=M)"]
+        rows.append(
+            {
+                "missing": miss,
+                "precision": top["precision"],
+                "recall": top["recall"],
+                "chance": 1 - miss,
+            }
+        )
+
+    def plot(path: Path) -> None:
+        _line_plot(
+            path,
+            [100 * r["missing"] for r in rows],
+            {"MaskNet top-k precision": [r["precision"] for r in rows]},
+            "missing points (%)",
+            "inlier precision",
+            "MaskNet precision vs missing points",
+            baseline=("chance (random top-k)", [r["chance"] for r in rows]),
+        )
+
+    return ExperimentResult(rows, f"{ctx.pairs} pairs per point, rotation <= 45 deg.", plot)
+
+
+def _rotated_by(pairs: Pairs, angle_deg: float, seed: int) -> Pairs:
+    """Pairs made without rotation, turned by exactly ``angle_deg`` about random axes.
+
+    The source is rotated about the origin, and the truth updated so that
+    ``template ~= T @ source`` still holds.
+    """
+    gen = torch.Generator().manual_seed(seed)
+    b = pairs.template.shape[0]
+    axes = torch.randn(b, 3, generator=gen, dtype=torch.float64)
+    rot = so3_exp(axes / axes.norm(dim=-1, keepdim=True) * np.radians(angle_deg))
+    source = pairs.source.double() @ rot.transpose(1, 2)
+    moving = make_transform(rot, torch.zeros(b, 3, dtype=torch.float64))
+    truth = pairs.transform.double() @ invert_transform(moving)
+    return pairs._replace(source=source.float(), transform=truth.float())
+
+
+def exp_rotation_sweep(ctx: BenchmarkContext) -> ExperimentResult:
+    """Errors against the initial rotation, 0-90 degrees, for X and Mask-X."""
+    angles = [0, 30, 60, 90] if ctx.quick else list(range(0, 91, 10))
+    base = ctx.test_pairs(PairConfig(max_angle_deg=0.0))
+    rows = []
+    for angle in angles:
+        pairs = _rotated_by(base, angle, ctx.seed + angle)
+        for name, kwargs in SWEEP_PIPELINES.items():
+            rows.append({"angle_deg": angle, "pipeline": name, **_batched_errors(pairs, **kwargs)})
+
+    def plot(path: Path) -> None:
+        lines = {n: [r["rot_mean"] for r in rows if r["pipeline"] == n] for n in SWEEP_PIPELINES}
+        _line_plot(
+            path,
+            angles,
+            lines,
+            "initial rotation (degrees)",
+            "mean rotation error (degrees)",
+            "Rotation sweep",
+        )
+
+    return ExperimentResult(
+        rows, f"{ctx.pairs} pairs per angle, 30% missing, translation in [-1, 1]^3.", plot
+    )
+
+
+def exp_noise(ctx: BenchmarkContext) -> ExperimentResult:
+    """Errors against Gaussian noise on the source (sigma 0-0.06, clipped at 0.05)."""
+    sigmas = [0.0, 0.02, 0.06] if ctx.quick else [0.0, 0.01, 0.02, 0.03, 0.04, 0.05, 0.06]
+    rows = []
+    for sigma in sigmas:
+        pairs = ctx.test_pairs(PairConfig(noise_sigma=sigma))
+        for name, kwargs in SWEEP_PIPELINES.items():
+            rows.append({"sigma": sigma, "pipeline": name, **_batched_errors(pairs, **kwargs)})
+
+    def plot(path: Path) -> None:
+        lines = {n: [r["rot_mean"] for r in rows if r["pipeline"] == n] for n in SWEEP_PIPELINES}
+        _line_plot(
+            path,
+            sigmas,
+            lines,
+            "noise sigma (unit-radius shapes)",
+            "mean rotation error (degrees)",
+            "Noise",
+        )
+
+    return ExperimentResult(rows, f"{ctx.pairs} pairs per sigma, default protocol otherwise.", plot)
+
+
+def exp_generalization(ctx: BenchmarkContext) -> ExperimentResult:
+    """The model trained on the first 20 categories, on seen and unseen test shapes."""
+    model = MaskNet.pretrained("modelnet40_seen20")
+    rows = []
+    for subset, keep in (("seen", ctx.categories < 20), ("unseen", ctx.categories >= 20)):
+        points = ctx.points[keep]
+        mask_result = evaluate_masknet(model, points, ctx.pairs, ctx.seed, progress=False)
+        pairs = make_test_pairs(points, ctx.pairs, PairConfig(), ctx.seed)
+        errors = _batched_errors(pairs, method="pointnetlk", model=model)
+        rows.append(
+            {
+                "categories": subset,
+                "precision": mask_result.rows["top-k (k=M)"]["precision"],
+                **errors,
+            }
+        )
+    return ExperimentResult(
+        rows, f"{ctx.pairs} pairs per subset; Mask-PointNetLK with the seen-20 MaskNet."
+    )
+
+
+def time_pipeline(
+    pairs: Pairs, repeats: int, warmup: int = 5, **kwargs: object
+) -> dict[str, float]:
+    """Median wall time (ms) of single-pair :func:`register` calls, cycling over the pairs,
+    with the median time of each stage."""
+    template, source = pairs.template.double().numpy(), pairs.source.double().numpy()
+    totals, stages = [], {"mask": [], "register": []}
+    for call in range(warmup + repeats):
+        i = call % len(template)
+        start = time.perf_counter()
+        result = register(template[i], source[i], **kwargs)
+        elapsed = time.perf_counter() - start
+        if call >= warmup:
+            totals.append(elapsed)
+            for key, values in stages.items():
+                values.append(result.times[key])
+    return {
+        "ms_per_pair": 1e3 * float(np.median(totals)),
+        **{f"ms_{key}": 1e3 * float(np.median(values)) for key, values in stages.items()},
+    }
+
+
+def exp_timing(ctx: BenchmarkContext) -> ExperimentResult:
+    """Milliseconds per pair at batch 1 for X and Mask-X, median of many calls."""
+    pairs = ctx.test_pairs(count=8)
+    repeats = 5 if ctx.quick else 100
+    rows = []
+    for label, kwargs in SWEEP_PIPELINES.items():
+        method = label.removeprefix("Mask-")
+        paper = PAPER_TIMING_MS[method][label.startswith("Mask-")]
+        rows.append(
+            {
+                "pipeline": label,
+                **time_pipeline(pairs, repeats, **kwargs),
+                "paper_gtx1070_ms": paper,
+            }
+        )
+    summary = (
+        f"batch 1, N=1024, M=717, median of {repeats} single-pair register() calls after 5 "
+        f"warm-up calls, {torch.get_num_threads()} threads, {platform.machine()} CPU, "
+        f"torch {torch.__version__}; MaskNet in {default_precision('cpu')} (the default)."
+    )
+    return ExperimentResult(rows, summary)
+
+
+EXPERIMENTS: dict[str, Callable[[BenchmarkContext], ExperimentResult]] = {
+    "registration": exp_registration,
+    "iterations": exp_iterations,
+    "precision-vs-missing": exp_precision_vs_missing,
+    "rotation-sweep": exp_rotation_sweep,
+    "noise": exp_noise,
+    "generalization": exp_generalization,
+    "timing": exp_timing,
+}
+
+
+# ------------------------------------------------------------------------- output
+
+
+def _format(value: object) -> str:
+    if isinstance(value, float):
+        return f"{value:.4g}" if abs(value) < 1e4 else f"{value:.0f}"
+    return str(value)
+
+
+def markdown_table(rows: list[dict]) -> str:
+    keys = list(rows[0])
+    lines = ["| " + " | ".join(keys) + " |", "|" + "---|" * len(keys)]
+    lines += ["| " + " | ".join(_format(r[k]) for k in keys) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def _csv_text(rows: list[dict]) -> str:
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=list(rows[0]))
+    writer.writeheader()
+    writer.writerows(rows)
+    return buffer.getvalue()
+
+
+def update_results(path: Path, name: str, block: str) -> None:
+    """Replace (or append) the ``<!-- benchmark:name -->`` block of a markdown file."""
+    start, end = f"<!-- benchmark:{name} -->", f"<!-- /benchmark:{name} -->"
+    text = path.read_text() if path.exists() else ""
+    new = f"{start}\n{block.rstrip()}\n{end}"
+    if start in text and end in text:
+        text = text[: text.index(start)] + new + text[text.index(end) + len(end) :]
+    else:
+        text = text.rstrip() + "\n\n" + new + "\n"
+    write_text_atomic(path, text)
+
+
+def run_benchmark(
+    name: str, ctx: BenchmarkContext, results: Path | None = None
+) -> ExperimentResult:
+    """Run one experiment, write its files, and update ``results`` (markdown) if given."""
+    if name not in EXPERIMENTS:
+        raise MaskNetError(
+            f"unknown experiment {name!r}; choose from {', '.join(EXPERIMENTS)} or all"
+        )
+    ctx.out.mkdir(parents=True, exist_ok=True)
+    start = time.perf_counter()
+    result = EXPERIMENTS[name](ctx)
+    wall = time.perf_counter() - start
+    stem = ctx.out / name
+    payload = {
+        "experiment": name,
+        "pairs": ctx.pairs,
+        "seed": ctx.seed,
+        "quick": ctx.quick,
+        "wall_time_s": wall,
+        "threads": torch.get_num_threads(),
+        "machine": f"{platform.machine()}, {os.cpu_count()} CPUs, torch {torch.__version__}",
+        "summary": result.summary,
+        "rows": result.rows,
+    }
+    write_text_atomic(stem.with_suffix(".json"), json.dumps(payload, indent=2) + "\n")
+    write_text_atomic(stem.with_suffix(".csv"), _csv_text(result.rows))
+    if result.plot is not None:
+        result.plot(stem.with_suffix(".png"))
+    if results is not None:
+        lines = [
+            f"`{ctx.command}` ({wall / 60:.1f} min, {payload['machine']}, "
+            f"{payload['threads']} threads)",
+            "",
+            result.summary,
+            "",
+            markdown_table(result.rows),
+        ]
+        if result.plot is not None:
+            rel = os.path.relpath(stem.with_suffix(".png"), results.parent)
+            lines += ["", f"![{name}]({rel})"]
+        update_results(results, name, "\n".join(lines))
+    return result
