@@ -23,6 +23,7 @@ demo: install
 	$(BIN)/masknet demo --out masknet_demo
 
 test: install
+	@bash scripts/install-system-deps.sh --test
 	$(BIN)/python -m pytest -q
 
 lint: install

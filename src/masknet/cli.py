@@ -194,6 +194,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--drop-nonfinite", action="store_true", help="drop NaN/inf rows instead of failing"
     )
+    _add_html_option(p)
     _add_model_options(p)
 
     p = sub.add_parser(
@@ -238,7 +239,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--drop-nonfinite", action="store_true", help="drop NaN/inf rows instead of failing"
     )
+    _add_html_option(p)
     _add_model_options(p)
+
+    p = sub.add_parser(
+        "show",
+        help="write an interactive 3D view (one offline HTML file) and a PNG of clouds",
+    )
+    p.add_argument("clouds", nargs="+", help="point cloud files, one layer each")
+    p.add_argument("-o", "--output", required=True, help="the .html file; the PNG goes beside it")
+    p.add_argument("--title", default=None)
+    p.add_argument(
+        "--drop-nonfinite", action="store_true", help="drop NaN/inf rows instead of failing"
+    )
 
     p = sub.add_parser(
         "benchmark",
@@ -283,6 +296,28 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True)
     p.add_argument("--per-class", type=_positive_int, default=3)
     return parser
+
+
+def _add_html_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--html",
+        metavar="PATH",
+        help="also write an interactive 3D view (offline HTML) here, and a PNG beside it",
+    )
+
+
+def _write_views(path: str, layers: dict, title: str) -> list[Path]:
+    """The HTML viewer and its static PNG twin, for --html and show."""
+    from masknet.viewer import LAYER_COLOURS, write_viewer
+    from masknet.viz import plot_clouds
+
+    html = write_viewer(path, layers, title=title)
+    coloured = {
+        name: layer if isinstance(layer, tuple) else (layer, LAYER_COLOURS.get(name, "#1f77b4"))
+        for name, layer in layers.items()
+    }
+    png = plot_clouds(coloured, Path(path).with_suffix(".png"), title=title)
+    return [html, png]
 
 
 def _add_model_options(p: argparse.ArgumentParser) -> None:
@@ -432,6 +467,13 @@ def cmd_mask(args: argparse.Namespace) -> None:
         f"mean score {float(np.mean(scores)):.3f}"
     )
     print(f"wrote {out} and {mask_path}")
+    if args.html:
+        views = _write_views(
+            args.html,
+            {"template": template, "source": source, "inliers": template[mask]},
+            title=f"MaskNet inliers: {Path(args.template).name} seen by {Path(args.source).name}",
+        )
+        print(f"wrote {views[0]} and {views[1]}")
 
 
 def _write_all(writers: list[tuple[Path, Callable[[Path], None]]]) -> None:
@@ -501,6 +543,30 @@ def cmd_register(args: argparse.Namespace) -> None:
         "reported: " + ", ".join(f"{k} {np.asarray(v).item():.4g}" for k, v in result.info.items())
     )
     print(f"wrote {', '.join(str(p) for p, _ in writers)}")
+    if args.html:
+        layers = {"template": template, "source": source, "registered": moved}
+        if result.mask is not None:
+            layers["inliers"] = template[result.mask]
+        views = _write_views(
+            args.html,
+            layers,
+            title=f"{name}: {Path(args.source).name} -> {Path(args.template).name}",
+        )
+        print(f"wrote {views[0]} and {views[1]}")
+
+
+def cmd_show(args: argparse.Namespace) -> None:
+    from masknet.io import read_points
+
+    layers: dict = {}
+    for file in args.clouds:
+        name = Path(file).stem
+        while name in layers:
+            name += "'"
+        layers[name] = read_points(file, drop_nonfinite=args.drop_nonfinite)
+    title = args.title or ", ".join(Path(f).name for f in args.clouds)
+    views = _write_views(args.output, layers, title)
+    print(f"wrote {views[0]} and {views[1]}")
 
 
 def cmd_benchmark(args: argparse.Namespace) -> None:
@@ -604,6 +670,7 @@ COMMANDS = {
     "mask": cmd_mask,
     "register": cmd_register,
     "benchmark": cmd_benchmark,
+    "show": cmd_show,
     "demo": cmd_demo,
     "make-sample": cmd_make_sample,
 }

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["plot_mask"]
+__all__ = ["plot_clouds", "plot_mask"]
 
 GREY, BLUE = "#b0b0b0", "#1f77b4"
 TP, FP, FN = "#2ca02c", "#d62728", "#ff7f0e"
@@ -76,6 +76,57 @@ def plot_mask(
     ax.legend(loc="upper left", fontsize=7, markerscale=4)
     if title:
         fig.suptitle(title, fontsize=11)
+    return _save(fig, path)
+
+
+def plot_clouds(
+    layers: dict[str, tuple[np.ndarray, str]],
+    path: str | os.PathLike,
+    title: str | None = None,
+    max_points: int = 20_000,
+) -> Path:
+    """Write a PNG of named clouds, name -> ((P, 3) points, colour), from two viewpoints.
+
+    Clouds keep their relative pose (one shared, equal-aspect frame); layers larger
+    than ``max_points`` are subsampled evenly for drawing.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    clouds = {}
+    for name, (points, colour) in layers.items():
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        points = points[np.isfinite(points).all(1)]
+        if len(points) > max_points:
+            points = points[np.linspace(0, len(points) - 1, max_points).astype(int)]
+        clouds[name] = (points, colour)
+    every = np.concatenate([p for p, _ in clouds.values()])
+    mid = (every.max(0) + every.min(0)) / 2
+    half = max((every.max(0) - every.min(0)).max() / 2, 1e-12)
+    fig = plt.figure(figsize=(11, 5), dpi=110)
+    for i, (elev, azim) in enumerate(((20, -60), (70, 30))):
+        ax = fig.add_subplot(1, 2, i + 1, projection="3d")
+        for name, (points, colour) in clouds.items():
+            ax.scatter(*points.T, s=2, c=colour, label=f"{name} ({len(points)})")
+        for axis, centre in zip("xyz", mid, strict=True):
+            getattr(ax, f"set_{axis}lim")(centre - half, centre + half)
+            getattr(ax, f"set_{axis}label")(axis)
+        ax.set_box_aspect((1, 1, 1))
+        ax.view_init(elev=elev, azim=azim)
+        ax.set_title(f"view {i + 1}", fontsize=10)
+        if i == 0:
+            ax.legend(loc="upper left", fontsize=8, markerscale=4)
+    if title:
+        fig.suptitle(title, fontsize=11)
+    return _save(fig, path)
+
+
+def _save(fig, path: str | os.PathLike) -> Path:
+    """Write a figure atomically (temporary file, then rename) and close it."""
+    import matplotlib.pyplot as plt
+
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
