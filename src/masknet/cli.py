@@ -64,7 +64,12 @@ def _add_pair_options(p: argparse.ArgumentParser) -> None:
         default=0.0,
         help="Gaussian noise sigma on the source (clipped at 0.05)",
     )
-    g.add_argument("--outliers", type=float, default=0.0, help="fraction of uniform outliers added")
+    g.add_argument(
+        "--outliers",
+        type=float,
+        default=None,
+        help="fraction of uniform outliers added (default 0; 0.1 when training denoise)",
+    )
     g.add_argument("--outlier-target", choices=["source", "template"], default="source")
     g.add_argument(
         "--categories",
@@ -74,17 +79,20 @@ def _add_pair_options(p: argparse.ArgumentParser) -> None:
     )
 
 
-def _pair_config(args: argparse.Namespace, default_keep_ratio: float = 0.7):
+def _pair_config(
+    args: argparse.Namespace, default_keep_ratio: float = 0.7, default_outliers: float = 0.0
+):
     from masknet.data import PairConfig
 
     keep = default_keep_ratio if args.keep_ratio is None else args.keep_ratio
+    outliers = default_outliers if args.outliers is None else args.outliers
     try:
         return PairConfig(
             keep_ratio=keep,
             max_angle_deg=args.max_angle,
             max_translation=args.max_translation,
             noise_sigma=args.noise,
-            outlier_ratio=args.outliers,
+            outlier_ratio=outliers,
             outlier_target=args.outlier_target,
             protocol=args.protocol,
         )
@@ -107,9 +115,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--model",
-        choices=["masknet", "pointnetlk"],
+        choices=["masknet", "denoise", "pointnetlk"],
         default="masknet",
-        help="masknet (partial pairs) or pointnetlk (full-cloud pairs, as its paper trains)",
+        help="masknet (partial pairs), denoise (MaskNet scoring the points of a source "
+        "with outliers, 10%% by default) or pointnetlk (full-cloud pairs, as its paper trains)",
     )
     p.add_argument("--data", help="ModelNet40 folder or .npz (default: $MASKNET_DATA)")
     p.add_argument(
@@ -243,6 +252,29 @@ def build_parser() -> argparse.ArgumentParser:
     _add_model_options(p)
 
     p = sub.add_parser(
+        "denoise",
+        help="remove the points of NOISY that TEMPLATE (a clean cloud of the same object) "
+        "does not explain",
+    )
+    p.add_argument("noisy", help="the scan with outliers: .ply .pcd .xyz .txt .npy .bin")
+    p.add_argument("template", help="a clean cloud of the same object, roughly aligned")
+    p.add_argument(
+        "-o",
+        "--output",
+        required=True,
+        help="the kept points (format from the extension); <stem>_mask.txt beside it, "
+        "one 0/1 per noisy point",
+    )
+    p.add_argument(
+        "--threshold", type=_finite_float, default=0.5, help="keep points scoring >= this"
+    )
+    p.add_argument(
+        "--drop-nonfinite", action="store_true", help="drop NaN/inf rows instead of failing"
+    )
+    _add_html_option(p)
+    _add_model_options(p, default_pretrained="denoise_modelnet40")
+
+    p = sub.add_parser(
         "show",
         help="write an interactive 3D view (one offline HTML file) and a PNG of clouds",
     )
@@ -320,13 +352,15 @@ def _write_views(path: str, layers: dict, title: str) -> list[Path]:
     return [html, png]
 
 
-def _add_model_options(p: argparse.ArgumentParser) -> None:
+def _add_model_options(p: argparse.ArgumentParser, default_pretrained: str = "modelnet40") -> None:
     g = p.add_argument_group("model")
     g.add_argument(
         "--weights", help="a .safetensors file from masknet train (default: shipped weights)"
     )
     g.add_argument(
-        "--pretrained", default="modelnet40", help="name of shipped weights (default modelnet40)"
+        "--pretrained",
+        default=default_pretrained,
+        help=f"name of shipped MaskNet weights (default {default_pretrained})",
     )
     g.add_argument(
         "--inference-precision",
@@ -361,7 +395,15 @@ def cmd_train(args: argparse.Namespace) -> None:
     if args.feature_size:
         encoder = {"encoder_channels": [64, 64, 64, 128, args.feature_size]}
     precision = args.precision
-    if args.model == "masknet":
+    if args.model == "denoise":
+        task = MaskNetTask.denoising(
+            _pair_config(args, default_outliers=0.1),
+            num_points=args.num_points,
+            loss=args.loss,
+            model_config=encoder,
+        )
+        model_class = MaskNet
+    elif args.model == "masknet":
         task = MaskNetTask(
             pairs=_pair_config(args),
             num_points=args.num_points,
@@ -451,12 +493,12 @@ def cmd_mask(args: argparse.Namespace) -> None:
     mask = select_mask(torch.from_numpy(scores[None]), k=k, threshold=args.threshold)[0].numpy()
     out = Path(args.output)
     mask_path = out.with_name(out.stem + "_mask.txt")
-    write_points(out, template[mask])
-    try:
-        write_mask(mask_path, mask)
-    except Exception:
-        out.unlink(missing_ok=True)  # never leave one output without the other
-        raise
+    _write_all(
+        [
+            (out, lambda p: write_points(p, template[mask])),
+            (mask_path, lambda p: write_mask(p, mask)),
+        ]
+    )
     rule = (
         f"threshold {args.threshold}"
         if args.threshold is not None
@@ -552,6 +594,42 @@ def cmd_register(args: argparse.Namespace) -> None:
             layers,
             title=f"{name}: {Path(args.source).name} -> {Path(args.template).name}",
         )
+        print(f"wrote {views[0]} and {views[1]}")
+
+
+def cmd_denoise(args: argparse.Namespace) -> None:
+    from masknet.denoising import denoise
+    from masknet.io import read_points, write_mask, write_points
+
+    if not 0 <= args.threshold <= 1:
+        raise MaskNetError(f"--threshold must be in [0, 1], got {args.threshold}")
+    noisy = read_points(args.noisy, drop_nonfinite=args.drop_nonfinite)
+    template = read_points(args.template, drop_nonfinite=args.drop_nonfinite)
+    model = _load_model(args)
+    result = denoise(
+        noisy, template, model, threshold=args.threshold, precision=args.inference_precision
+    )
+    out = Path(args.output)
+    mask_path = out.with_name(out.stem + "_mask.txt")
+    _write_all(
+        [
+            (out, lambda p: write_points(p, result.points)),
+            (mask_path, lambda p: write_mask(p, result.mask)),
+        ]
+    )
+    removed = int((~result.mask).sum())
+    print(
+        f"kept {int(result.mask.sum())} of {len(noisy)} points, removed {removed} "
+        f"({100 * removed / len(noisy):.1f}%, threshold {args.threshold})"
+    )
+    print(f"wrote {out} and {mask_path}")
+    if args.html:
+        layers = {
+            "template": template,
+            "kept": result.points,
+            "removed": noisy[~result.mask],
+        }
+        views = _write_views(args.html, layers, title=f"MaskNet denoising: {Path(args.noisy).name}")
         print(f"wrote {views[0]} and {views[1]}")
 
 
@@ -671,6 +749,7 @@ COMMANDS = {
     "register": cmd_register,
     "benchmark": cmd_benchmark,
     "show": cmd_show,
+    "denoise": cmd_denoise,
     "demo": cmd_demo,
     "make-sample": cmd_make_sample,
 }

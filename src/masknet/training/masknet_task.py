@@ -9,7 +9,7 @@ from typing import Literal
 import torch
 from torch import Tensor, nn
 
-from masknet.data.pairs import Pairs
+from masknet.data.pairs import PairConfig, Pairs
 from masknet.evaluation.metrics import mask_metrics
 from masknet.models.masknet import MaskNet, select_mask
 from masknet.training.pair_task import PairTask
@@ -24,6 +24,10 @@ class MaskNetTask(PairTask):
     pairs, num_points: see :class:`PairTask` (default: the paper's protocol).
     loss: ``"mse"`` (the paper's) or ``"bce"``.
     model_config: keyword arguments of :class:`MaskNet` (default: the paper's sizes).
+    role: ``"template"`` (the paper's main use: score template points seen by the
+        source, top-k precision) or ``"denoise"`` (score the points of a source
+        with outliers, given the clean template; threshold 0.5, F1 of the kept points).
+        Use :meth:`denoising` for the denoising task's defaults.
     """
 
     loss: Literal["mse", "bce"] = "mse"
@@ -31,6 +35,12 @@ class MaskNetTask(PairTask):
     name: str = "masknet"
     metric: str = "precision"
     maximize: bool = True
+    role: Literal["template", "denoise"] = "template"
+
+    @classmethod
+    def denoising(cls, pairs: PairConfig, **kwargs) -> MaskNetTask:
+        """The paper's denoising task: outliers in the source, masks predicted for it."""
+        return cls(pairs=pairs, role="denoise", metric="f1", name="masknet-denoise", **kwargs)
 
     def build_model(self) -> nn.Module:
         return MaskNet(**self.model_config)
@@ -38,16 +48,24 @@ class MaskNetTask(PairTask):
     def step(
         self, model: nn.Module, batch: Pairs, device: torch.device
     ) -> tuple[Tensor, dict[str, float]]:
-        scores = model(batch.template.to(device), batch.source.to(device)).float()
-        target = batch.mask.to(device).float()
+        if self.role == "denoise":
+            scores = model(batch.source.to(device), batch.template.to(device)).float()
+            target = batch.source_mask.to(device).float()
+        else:
+            scores = model(batch.template.to(device), batch.source.to(device)).float()
+            target = batch.mask.to(device).float()
         if self.loss == "mse":
             loss = nn.functional.mse_loss(scores, target)
         else:
             loss = nn.functional.binary_cross_entropy(scores.clamp(1e-6, 1 - 1e-6), target)
         with torch.no_grad():
-            predicted = select_mask(scores, k=batch.source.shape[1])
+            if self.role == "denoise":
+                predicted = scores >= 0.5
+            else:
+                predicted = select_mask(scores, k=batch.source.shape[1])
             metrics = mask_metrics(predicted, target.bool()).mean()
-        return loss, {"precision": metrics["precision"], "recall": metrics["recall"]}
+        keys = ("precision", "recall", "f1") if self.role == "denoise" else ("precision", "recall")
+        return loss, {key: metrics[key] for key in keys}
 
     def export(self, model: nn.Module, path: Path, metadata: dict) -> None:
         model.save(path, metadata)
@@ -59,4 +77,4 @@ class MaskNetTask(PairTask):
             "pairs": self.pairs.to_dict(),
             "num_points": self.num_points,
             "loss": self.loss,
-        }
+        } | ({"role": self.role} if self.role != "template" else {})

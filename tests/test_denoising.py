@@ -1,0 +1,94 @@
+"""masknet.denoise and the Open3D outlier-removal peers."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from masknet import MaskNetError
+from masknet.cli import main
+from masknet.denoising import (
+    denoise,
+    open3d_radius_outlier_removal,
+    open3d_statistical_outlier_removal,
+)
+from masknet.io import require_open3d
+from masknet.models import MaskNet
+
+
+@pytest.fixture(scope="module")
+def model() -> MaskNet:
+    torch.manual_seed(0)
+    return MaskNet(encoder_channels=(16, 32), head_channels=(32, 16)).eval()
+
+
+@pytest.fixture(scope="module")
+def clouds():
+    rng = np.random.default_rng(0)
+    sphere = rng.normal(size=(600, 3))
+    sphere /= np.linalg.norm(sphere, axis=1, keepdims=True)
+    noisy = np.concatenate([sphere[:400], rng.uniform(-1, 1, size=(40, 3)) * 3])
+    return sphere, noisy
+
+
+def test_denoise_keeps_points_scoring_above_threshold(model, clouds):
+    template, noisy = clouds
+    result = denoise(noisy, template, model, threshold=0.5, precision="fp32")
+    assert result.mask.shape == (440,) and result.scores.shape == (440,)
+    np.testing.assert_array_equal(result.mask, result.scores >= 0.5)
+    np.testing.assert_array_equal(result.points, noisy[result.mask])
+    everything = denoise(noisy, template, model, threshold=0.0)
+    assert everything.mask.all()
+
+
+def test_denoise_scale_comes_from_the_template(model, clouds):
+    """Outliers far away must not change the scores of the other points' scaling."""
+    template, noisy = clouds
+    a = denoise(noisy, template, model, precision="fp32").scores
+    b = denoise(noisy * 1000, template * 1000, model, precision="fp32").scores
+    np.testing.assert_allclose(a, b, atol=1e-5)
+
+
+def test_denoise_refuses_batches_and_bad_thresholds(model, clouds):
+    template, noisy = clouds
+    with pytest.raises(MaskNetError, match="one noisy cloud"):
+        denoise(noisy[None], template[None], model)
+    with pytest.raises(MaskNetError, match="threshold"):
+        denoise(noisy, template, model, threshold=2.0)
+
+
+def _has_open3d() -> bool:
+    try:
+        require_open3d("test")
+    except MaskNetError:
+        return False
+    return True
+
+
+@pytest.mark.skipif(not _has_open3d(), reason="Open3D unavailable")
+def test_open3d_filters_remove_an_isolated_cluster(clouds):
+    template, _ = clouds
+    far = np.array([[9.0, 9.0, 9.0], [-9.0, 9.0, 0.0], [0.0, -9.0, 9.0]])
+    cloud = np.concatenate([template, far])
+    for kept in (
+        open3d_statistical_outlier_removal(cloud),
+        open3d_radius_outlier_removal(cloud, nb_points=4, radius=0.3),
+    ):
+        assert kept.shape == (603,)
+        assert not kept[-3:].any() and kept[:600].mean() > 0.9
+
+
+def test_cli_denoise_writes_points_and_mask(tmp_path, model, clouds, capsys):
+    template, noisy = clouds
+    weights = tmp_path / "w.safetensors"
+    model.save(weights)
+    np.savetxt(tmp_path / "noisy.xyz", noisy)
+    np.save(tmp_path / "template.npy", template)
+    out = tmp_path / "clean.xyz"
+    args = ["denoise", str(tmp_path / "noisy.xyz"), str(tmp_path / "template.npy")]
+    assert main([*args, "-o", str(out), "--weights", str(weights), "--threshold", "0.5"]) == 0
+    mask = np.loadtxt(tmp_path / "clean_mask.txt").astype(bool)
+    assert mask.shape == (440,)
+    np.testing.assert_allclose(np.loadtxt(out).reshape(-1, 3), noisy[mask], atol=1e-6)
+    assert "kept" in capsys.readouterr().out
