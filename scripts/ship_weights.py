@@ -2,10 +2,14 @@
 
     python scripts/ship_weights.py runs/modelnet40 modelnet40 --data PATH
     python scripts/ship_weights.py runs/seen20 modelnet40_seen20 --data PATH
+    python scripts/ship_weights.py runs/ft modelnet40 --data PATH --previous OLD_CARD.json
+    python scripts/ship_weights.py runs/denoise denoise_modelnet40 --data PATH --kind denoise
+    python scripts/ship_weights.py runs/pointnetlk modelnet40 --data PATH --kind pointnetlk
 
 Every figure on the card comes from the run folder (run.json, log.csv) or is
-measured here on ``--pairs`` (default 1,000) seeded ModelNet40 *test* pairs for each
-of all, seen and unseen categories; nothing is typed by hand.
+measured here on ``--pairs`` (default 1,000) seeded ModelNet40 *test* pairs;
+nothing is typed by hand. ``--previous`` names the card of the weights a run was
+started from (``masknet train --init``), so the card states the whole training.
 """
 
 from __future__ import annotations
@@ -26,6 +30,30 @@ from masknet.models import MaskNet
 WEIGHTS = Path(__file__).resolve().parents[1] / "src" / "masknet" / "resources" / "weights"
 
 
+def read_run(run: Path) -> tuple[dict, list[dict]]:
+    """run.json and log.csv of a training run folder."""
+    info = json.loads((run / "run.json").read_text())
+    with open(run / "log.csv") as fh:
+        return info, list(csv.DictReader(fh))
+
+
+def machine() -> str:
+    return (
+        f"{platform.processor() or platform.machine()}, {torch.get_num_threads()} threads, "
+        f"torch {torch.__version__}"
+    )
+
+
+def install(run: Path, filename: str, card: dict, markdown: str) -> None:
+    """Copy the run's best weights into the package, with the card as JSON and markdown."""
+    WEIGHTS.mkdir(parents=True, exist_ok=True)
+    stem = Path(filename).stem
+    shutil.copyfile(run / "best.safetensors", WEIGHTS / filename)
+    (WEIGHTS / f"{stem}.json").write_text(json.dumps(card, indent=2) + "\n")
+    (WEIGHTS / f"{stem}.md").write_text(markdown)
+    print(f"wrote {WEIGHTS / filename} and its model card")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("run", type=Path)
@@ -33,11 +61,20 @@ def main() -> None:
     parser.add_argument("--data", required=True)
     parser.add_argument("--pairs", type=int, default=1000)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--kind", choices=["masknet", "denoise", "pointnetlk"], default="masknet")
+    parser.add_argument("--previous", type=Path, help="card (.json) of the --init weights")
     args = parser.parse_args()
+    previous = json.loads(args.previous.read_text()) if args.previous else None
+    if args.kind == "pointnetlk":
+        from ship_pointnetlk import ship_pointnetlk
 
-    run = json.loads((args.run / "run.json").read_text())
-    with open(args.run / "log.csv") as fh:
-        log = list(csv.DictReader(fh))
+        return ship_pointnetlk(args, previous)
+    if args.kind == "denoise":
+        from ship_denoise import ship_denoise
+
+        return ship_denoise(args, previous)
+
+    run, log = read_run(args.run)
     model = MaskNet.from_file(args.run / "best.safetensors")
     best = max(log, key=lambda row: float(row["val_precision"]))
     test = load_modelnet40(args.data, "test")
@@ -48,9 +85,6 @@ def main() -> None:
         evaluations[subset] = evaluate_masknet(model, points, args.pairs, args.seed, pair_config)
         print(subset, format_table(evaluations[subset].rows), sep="\n")
 
-    WEIGHTS.mkdir(parents=True, exist_ok=True)
-    target = WEIGHTS / f"masknet_{args.name}.safetensors"
-    shutil.copyfile(args.run / "best.safetensors", target)
     card = {
         "name": args.name,
         "architecture": model.config,
@@ -58,14 +92,27 @@ def main() -> None:
         "epochs_trained": len(log),
         "best_epoch": int(best["epoch"]),
         "training_minutes": float(log[-1]["elapsed_min"]),
-        "machine": f"{platform.processor() or platform.machine()}, {torch.get_num_threads()} threads, "
-        f"torch {torch.__version__}",
+        "machine": machine(),
         "log": log,
         "test": {subset: ev.to_dict() for subset, ev in evaluations.items()},
+        "previous": previous,
     }
-    (WEIGHTS / f"masknet_{args.name}.json").write_text(json.dumps(card, indent=2) + "\n")
-    (WEIGHTS / f"masknet_{args.name}.md").write_text(render_card(card))
-    print(f"wrote {target} and its model card")
+    install(args.run, f"masknet_{args.name}.safetensors", card, render_card(card))
+
+
+def previous_text(card: dict) -> str:
+    """The training of the weights this run started from, recursively."""
+    prev = card.get("previous")
+    if not prev:
+        return ""
+    val_key = next(k for k in prev["log"][-1] if k.startswith("val_") and "loss" not in k)
+    text = (
+        f"- **Started from** `{prev['name']}` weights (`masknet train --init`), which had "
+        f"{prev['epochs_trained']} epochs, {prev['training_minutes']:.0f} minutes (best "
+        f"{val_key} {max(float(r[val_key]) for r in prev['log']):.4f} on their own validation "
+        "split); the run above continued from them. Their card:\n"
+    )
+    return text + previous_text(prev).replace("- **Started", "  - earlier: started")
 
 
 def render_card(card: dict) -> str:
@@ -103,7 +150,7 @@ trained by `masknet train` in this repository. Load it with
   {train["batch_size"]}, {task["loss"].upper()} loss, {train["precision"]} autocast, seed {train["seed"]}.
 - Epochs: {card["epochs_trained"]} (best validation epoch {card["best_epoch"]}, the one shipped),
   {card["training_minutes"]:.0f} minutes on {card["machine"]}.
-
+{previous_text(card)}
 ## Test metrics
 {card["test"]["all"]["pairs"]} seeded pairs (seed {card["test"]["all"]["seed"]}) per row group from the
 ModelNet40 **test** split, same pair protocol as training, fp32 inference. Top-k uses k = M (number of source

@@ -653,7 +653,7 @@ def cmd_benchmark(args: argparse.Namespace) -> None:
 
     import torch
 
-    from masknet.data import bundled_sample_path, load_modelnet40
+    from masknet.data import bundled_sample_path
     from masknet.evaluation.benchmark import EXPERIMENTS, BenchmarkContext, run_benchmark
 
     names = list(EXPERIMENTS) if args.experiment == "all" else [args.experiment]
@@ -666,14 +666,12 @@ def cmd_benchmark(args: argparse.Namespace) -> None:
     data_path = args.data
     if args.quick and data_path is None and not os.environ.get("MASKNET_DATA"):
         data_path = bundled_sample_path()
-    test = load_modelnet40(data_path, "test")
     results = None
     if not args.quick and args.results != "none" and Path(args.results).exists():
         results = Path(args.results)
     argv = ["masknet", "benchmark", *sys.argv[2:]] if sys.argv[1:2] == ["benchmark"] else []
     ctx = BenchmarkContext(
-        points=test.points,
-        categories=test.labels,
+        data=data_path,
         pairs=args.pairs or (20 if args.quick else 1000),
         seed=args.seed,
         quick=args.quick,

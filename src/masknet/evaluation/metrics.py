@@ -8,10 +8,11 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import numpy as np
 import torch
 from torch import Tensor
 
-__all__ = ["MaskMetrics", "mask_metrics"]
+__all__ = ["outlier_removal_metrics", "MaskMetrics", "mask_metrics"]
 
 
 class MaskMetrics(NamedTuple):
@@ -45,3 +46,23 @@ def mask_metrics(predicted: Tensor, truth: Tensor) -> MaskMetrics:
         f1=_ratio(2 * tp, 2 * tp + fp + fn),
         iou=_ratio(tp, tp + fp + fn),
     )
+
+
+def outlier_removal_metrics(kept: np.ndarray, real: np.ndarray) -> dict[str, float]:
+    """How well a filter removed outliers, pooled over clouds.
+
+    Args:
+        kept: (P, K) or (K,) bool, the points the filter kept.
+        real: same shape, True for real points, False for the added outliers.
+
+    Returns:
+        ``outlier_precision`` (removed points that were outliers), ``outlier_recall``
+        (outliers removed) and ``inliers_kept`` (real points kept).
+    """
+    removed, outlier = ~np.asarray(kept, bool), ~np.asarray(real, bool)
+    hit = (removed & outlier).sum()
+    return {
+        "outlier_precision": float(hit / max(removed.sum(), 1)),
+        "outlier_recall": float(hit / max(outlier.sum(), 1)),
+        "inliers_kept": float((~removed & ~outlier).sum() / max((~outlier).sum(), 1)),
+    }
