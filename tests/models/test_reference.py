@@ -29,14 +29,21 @@ def test_median_ms_measures_time():
     assert 4 <= median_ms(lambda: time.sleep(0.005), repeats=3, warmup=1) < 50
 
 
-def test_mask_agreement_of_fp32_with_itself_is_total():
+def test_variant_agreement_and_timing_of_every_variant():
     from masknet.data import bundled_sample_path, load_modelnet40
-    from masknet.evaluation.evaluate import mask_agreement
+    from masknet.evaluation.timing import masknet_variants, time_variants, variant_agreement
 
     torch.manual_seed(0)
     model = MaskNet(encoder_channels=(16, 32), head_channels=(32, 16)).eval()
     points = load_modelnet40(bundled_sample_path(), "test").points[:8]
-    same = mask_agreement(model, points, "fp32", num_pairs=8)
-    assert same["point_agreement"] == 1.0 and same["precision_change"] == 0.0
-    bf16 = mask_agreement(model, points, "bf16", num_pairs=8)
-    assert 0.5 < bf16["point_agreement"] <= 1.0
+    variants = masknet_variants(model, extended=True)
+    variants.pop("torch.compile (split head, fp32)")  # compiling takes a minute; measured in docs
+    agreement = variant_agreement(variants, points, num_pairs=8)
+    assert agreement["split head, fp32"]["point_agreement"] == 1.0
+    assert agreement["fused, fp32"]["point_agreement"] > 0.999
+    assert agreement["split head, fp32"]["precision_change"] == 0.0
+    for name in ("fused, bf16", "dynamic int8 (Linear)"):
+        assert 0.5 < agreement[name]["point_agreement"] <= 1.0
+    times = time_variants({k: v for k, v in variants.items() if "int8" not in k}, 1, 2)
+    assert times["reference (Conv1d, concat, fp32)"]["speedup"] == 1.0
+    assert all(row["ms"] > 0 for row in times.values() if "ms" in row)

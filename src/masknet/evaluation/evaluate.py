@@ -13,7 +13,7 @@ from masknet.data.pairs import PairConfig, Pairs, make_test_pairs
 from masknet.evaluation.metrics import MaskMetrics, mask_metrics
 from masknet.models.masknet import MaskNet, select_mask
 
-__all__ = ["MaskEvaluation", "evaluate_masknet", "format_table", "mask_agreement", "score_pairs"]
+__all__ = ["MaskEvaluation", "evaluate_masknet", "format_table", "score_pairs"]
 
 
 @dataclass
@@ -119,34 +119,3 @@ def format_table(rows: dict[str, dict[str, float]]) -> str:
     for name, values in rows.items():
         lines.append(name.ljust(width) + "".join(f"{values[c]:11.4f}" for c in columns))
     return "\n".join(lines)
-
-
-def mask_agreement(
-    model: MaskNet,
-    points: np.ndarray,
-    precision: str,
-    num_pairs: int = 1000,
-    seed: int = 0,
-    batch_size: int = 64,
-) -> dict[str, float]:
-    """How far an inference precision changes MaskNet's output against fp32.
-
-    Returns the fraction of template points whose top-k (k = M) decision is the
-    same, the fraction of pairs whose mask is identical, and the change in mean
-    top-k precision, over ``num_pairs`` seeded pairs (default protocol).
-    """
-    pairs = make_test_pairs(points, num_pairs, PairConfig(), seed)
-    k = pairs.source.shape[1]
-    masks = {
-        mode: select_mask(score_pairs(model, pairs, mode, batch_size), k=k)
-        for mode in ("fp32", precision)
-    }
-    same = masks["fp32"] == masks[precision]
-    prec = {m: mask_metrics(v, pairs.mask).precision.mean().item() for m, v in masks.items()}
-    return {
-        "point_agreement": same.float().mean().item(),
-        "identical_masks": same.all(dim=1).float().mean().item(),
-        "precision_fp32": prec["fp32"],
-        f"precision_{precision}": prec[precision],
-        "precision_change": prec[precision] - prec["fp32"],
-    }

@@ -1,31 +1,53 @@
-"""Latency of MaskNet's forward paths, measured in one run so ratios are fair.
+"""Speed of MaskNet's inference variants, measured in one run so ratios are fair.
 
-    python -m masknet.evaluation.timing --batch 1 --threads 2 --repeats 100
+    python -m masknet.evaluation.timing --threads 2 --repeats 100 --data $DATA --json out.json
 
-Each variant gets warm-up calls, then the median of ``repeats`` timed calls on
-the same inputs. The reference is :class:`~masknet.models.reference.PaperMaskNet`.
-With ``--data``, the bf16 path's top-k mask agreement with fp32 is also measured
-on ``--agreement-pairs`` seeded ModelNet40 test pairs.
+Variants (each a function ``(template (B, N, 3), source (B, M, 3)) -> scores (B, N)``):
+
+* ``reference``: the paper's formulation, :class:`~masknet.models.reference.PaperMaskNet`
+  (Conv1d, concatenated global feature), fp32: the baseline of every ratio;
+* ``split head, fp32``: :meth:`MaskNet.forward` (first head layer split);
+* ``fused, fp32`` and ``fused, bf16``: :class:`~masknet.models.FusedMaskNet` (split head,
+  BatchNorm folded, channels-last GEMMs), the library's inference path;
+* ``dynamic int8``: ``torch.ao.quantization.quantize_dynamic`` on the Linear layers;
+* ``torch.compile``: the split-head forward compiled (inductor);
+* ``onnxruntime``: the split-head forward exported to ONNX, run by onnxruntime
+  (skipped, with a note, when onnx/onnxruntime are not installed).
+
+Each variant gets warm-up calls, then the median of ``repeats`` timed calls: at batch 1
+(latency) and batch 32 (throughput). With ``--data``, each variant's top-k mask
+agreement with fp32 and its change in top-k precision are measured on
+``--agreement-pairs`` seeded ModelNet40 test pairs; ``--scaling`` times the default
+path for N from 512 to 16,384 template points.
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import platform
 import statistics
+import tempfile
 import time
 from collections.abc import Callable
+from pathlib import Path
 
+import numpy as np
 import torch
+from torch import Tensor, nn
 
 from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
-from masknet.evaluation.evaluate import mask_agreement
+from masknet.evaluation.metrics import mask_metrics
 from masknet.io import write_text_atomic
 from masknet.models import MaskNet, select_mask
 from masknet.models.reference import PaperMaskNet
+from masknet.runtime import default_precision
 
-__all__ = ["median_ms", "time_masknet_variants"]
+__all__ = ["median_ms", "masknet_variants", "time_variants", "variant_agreement", "n_scaling"]
+
+Variant = Callable[[Tensor, Tensor], Tensor]
+REFERENCE = "reference (Conv1d, concat, fp32)"
 
 
 def median_ms(fn: Callable[[], object], repeats: int = 50, warmup: int = 5) -> float:
@@ -40,68 +62,191 @@ def median_ms(fn: Callable[[], object], repeats: int = 50, warmup: int = 5) -> f
     return 1000 * statistics.median(times)
 
 
-def time_masknet_variants(model: MaskNet, batch: int = 1, repeats: int = 50, seed: int = 0) -> dict:
-    """Time reference, split-head and fused paths on seeded sample pairs (N = 1024, M = 717).
+class _Forward(nn.Module):
+    """MaskNet's split-head forward as a plain two-input module (for export and compile)."""
 
-    Returns ms per call for each variant, the speed-up against the reference, and
-    the top-k mask agreement of each variant with the reference on those pairs.
-    """
+    def __init__(self, model: MaskNet):
+        super().__init__()
+        self.model = model
+
+    def forward(self, template: Tensor, source: Tensor) -> Tensor:
+        return self.model(template, source)
+
+
+def _onnx_variant(model: MaskNet, threads: int) -> Variant | str:
+    try:
+        import onnxruntime as ort
+    except ImportError:
+        return "skipped: pip install onnx onnxruntime to measure it"
+    path = Path(tempfile.mkdtemp()) / "masknet.onnx"
+    torch.onnx.export(
+        _Forward(model).eval(),
+        (torch.rand(1, 1024, 3), torch.rand(1, 717, 3)),
+        str(path),
+        input_names=["template", "source"],
+        output_names=["scores"],
+        dynamic_axes={"template": {0: "b", 1: "n"}, "source": {0: "b", 1: "m"}},
+        dynamo=False,
+    )
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = threads
+    session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+
+    def run(t: Tensor, s: Tensor) -> Tensor:
+        feed = {"template": t.numpy(), "source": s.numpy()}
+        return torch.from_numpy(session.run(None, feed)[0])
+
+    return run
+
+
+def masknet_variants(model: MaskNet, extended: bool = True) -> dict[str, Variant | str]:
+    """name -> scoring function, or a string saying why the variant was skipped."""
+    model = model.eval()
+    reference = PaperMaskNet(model).eval()
+    variants: dict[str, Variant | str] = {
+        REFERENCE: reference,
+        "split head, fp32": model,
+        "fused, fp32": lambda t, s: model.fused("fp32")(t, s),
+        "fused, bf16": lambda t, s: model.fused("bf16")(t, s),
+    }
+    if extended:
+        quantized = torch.ao.quantization.quantize_dynamic(
+            copy.deepcopy(model), {nn.Linear}, dtype=torch.qint8
+        )
+        variants["dynamic int8 (Linear)"] = quantized
+        variants["torch.compile (split head, fp32)"] = torch.compile(_Forward(model).eval())
+        variants["onnxruntime (split head, fp32)"] = _onnx_variant(model, torch.get_num_threads())
+    return variants
+
+
+def time_variants(
+    variants: dict[str, Variant | str], batch: int, repeats: int, seed: int = 0
+) -> dict[str, dict]:
+    """ms per call of each variant on seeded sample pairs (N = 1024, M = 717), and the
+    speed-up against the reference."""
     points = load_modelnet40(bundled_sample_path(), "test").points
     pairs = make_test_pairs(points, batch, PairConfig(), seed)
     t, s = pairs.template, pairs.source
-    reference = PaperMaskNet(model)
-    variants: dict[str, Callable[[], torch.Tensor]] = {
-        "reference (Conv1d, concat, fp32)": lambda: reference(t, s),
-        "split head, fp32": lambda: model(t, s),
-        "fused (split + folded BN), fp32": lambda: model.fused("fp32")(t, s),
-        "fused, bf16": lambda: model.fused("bf16")(t, s),
-    }
-    results = {}
+    results: dict[str, dict] = {}
     with torch.inference_mode():
-        ref_mask = select_mask(variants["reference (Conv1d, concat, fp32)"](), k=s.shape[1])
         for name, fn in variants.items():
-            ms = median_ms(fn, repeats=repeats)
-            agreement = (select_mask(fn().float(), k=s.shape[1]) == ref_mask).float().mean().item()
-            results[name] = {"ms": ms, "topk_agreement": agreement}
-    base = results["reference (Conv1d, concat, fp32)"]["ms"]
+            if isinstance(fn, str):
+                results[name] = {"note": fn}
+                continue
+            ms = median_ms(lambda fn=fn: fn(t, s), repeats=repeats)
+            results[name] = {"ms": ms, "pairs_per_s": 1000 * batch / ms}
+    base = results[REFERENCE]["ms"]
     for row in results.values():
-        row["speedup"] = base / row["ms"]
-    return {
-        "batch": batch,
-        "n": t.shape[1],
-        "m": s.shape[1],
-        "threads": torch.get_num_threads(),
-        "machine": f"{platform.machine()}, torch {torch.__version__}",
-        "variants": results,
-    }
+        if "ms" in row:
+            row["speedup"] = base / row["ms"]
+    return results
+
+
+def variant_agreement(
+    variants: dict[str, Variant | str], points: np.ndarray, num_pairs: int = 1000, seed: int = 0
+) -> dict[str, dict]:
+    """Top-k (k = M) mask agreement of each variant with fp32 (the split head), and its
+    change in mean top-k precision, on seeded test pairs (default protocol)."""
+    pairs = make_test_pairs(points, num_pairs, PairConfig(), seed)
+    k = pairs.source.shape[1]
+
+    def masks(fn: Variant) -> Tensor:
+        out = []
+        with torch.inference_mode():
+            for i in range(0, num_pairs, 50):
+                out.append(fn(pairs.template[i : i + 50], pairs.source[i : i + 50]).float())
+        return select_mask(torch.cat(out), k=k)
+
+    fp32 = masks(variants["split head, fp32"])
+    base = mask_metrics(fp32, pairs.mask).precision.mean().item()
+    results = {}
+    for name, fn in variants.items():
+        if isinstance(fn, str):
+            continue
+        mask = masks(fn)
+        precision = mask_metrics(mask, pairs.mask).precision.mean().item()
+        results[name] = {
+            "point_agreement": (mask == fp32).float().mean().item(),
+            "identical_masks": (mask == fp32).all(1).float().mean().item(),
+            "precision": precision,
+            "precision_change": precision - base,
+        }
+    return results
+
+
+def n_scaling(model: MaskNet, sizes: list[int], repeats: int = 10) -> list[dict]:
+    """Batch-1 latency of the default path and of the reference as the template grows
+    (source = 70% of the template, sampled from a sphere)."""
+    precision = default_precision("cpu")
+    reference = PaperMaskNet(model).eval()
+    rows = []
+    gen = torch.Generator().manual_seed(0)
+    with torch.inference_mode():
+        for n in sizes:
+            t = torch.randn(1, n, 3, generator=gen)
+            t = t / t.norm(dim=-1, keepdim=True)
+            s = t[:, : int(0.7 * n)] + 0.1
+            fast = median_ms(
+                lambda t=t, s=s: model.fused(precision)(t, s, chunk_size=8192), repeats
+            )
+            ref = median_ms(lambda t=t, s=s: reference(t, s), max(3, repeats // 3), warmup=1)
+            rows.append(
+                {"n": n, "m": s.shape[1], f"fused_{precision}_ms": fast, "reference_ms": ref,
+                 "speedup": ref / fast}
+            )  # fmt: skip
+    return rows
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--batch", type=int, default=1)
     parser.add_argument("--repeats", type=int, default=50)
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--json")
-    parser.add_argument(
-        "--data", help="ModelNet40 data: also measure bf16 mask agreement on its test split"
-    )
+    parser.add_argument("--data", help="ModelNet40 data: also measure mask agreement")
     parser.add_argument("--agreement-pairs", type=int, default=1000)
+    parser.add_argument("--scaling", action="store_true", help="also time N = 512 ... 16,384")
+    parser.add_argument("--basic", action="store_true", help="skip int8, compile and ONNX")
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
-    result = time_masknet_variants(MaskNet.pretrained(), args.batch, args.repeats)
-    print(f"batch {result['batch']}, N={result['n']}, M={result['m']}, {result['threads']} threads")
-    print(f"{'variant':36s}{'ms':>9s}{'speed-up':>10s}{'top-k agree':>13s}")
-    for name, row in result["variants"].items():
-        print(f"{name:36s}{row['ms']:9.2f}{row['speedup']:9.2f}x{row['topk_agreement']:13.4f}")
+    model = MaskNet.pretrained()
+    variants = masknet_variants(model, extended=not args.basic)
+    result: dict = {
+        "threads": torch.get_num_threads(),
+        "machine": f"{platform.machine()}, torch {torch.__version__}",
+        "n": 1024,
+        "m": 717,
+    }
+    for batch in (1, 32):
+        rows = time_variants(
+            variants, batch, args.repeats if batch == 1 else max(5, args.repeats // 5)
+        )
+        result[f"batch_{batch}"] = rows
+        print(f"batch {batch}, N=1024, M=717, {result['threads']} threads")
+        for name, row in rows.items():
+            if "ms" in row:
+                print(
+                    f"  {name:36s}{row['ms']:9.2f} ms {row['speedup']:6.2f}x {row['pairs_per_s']:8.0f} pairs/s"
+                )
+            else:
+                print(f"  {name:36s} {row['note']}")
     if args.data:
         test = load_modelnet40(args.data, "test").points
-        agreement = mask_agreement(MaskNet.pretrained(), test, "bf16", args.agreement_pairs)
-        result["bf16_agreement"] = agreement | {"pairs": args.agreement_pairs}
-        print(
-            f"bf16 vs fp32 on {args.agreement_pairs} ModelNet40 test pairs: "
-            + ", ".join(f"{k} {v:.4f}" for k, v in agreement.items())
-        )
+        result["agreement"] = variant_agreement(variants, test, args.agreement_pairs)
+        result["agreement_pairs"] = args.agreement_pairs
+        for name, row in result["agreement"].items():
+            print(
+                f"  {name:36s} agreement {row['point_agreement']:.4f}, precision change {row['precision_change']:+.4f}"
+            )
+    if args.scaling:
+        result["scaling"] = n_scaling(model, [512, 1024, 2048, 4096, 8192, 16384])
+        for row in result["scaling"]:
+            print(
+                "  "
+                + ", ".join(
+                    f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in row.items()
+                )
+            )
     if args.json:
         write_text_atomic(args.json, json.dumps(result, indent=2) + "\n")
 
