@@ -221,7 +221,12 @@ def build_parser() -> argparse.ArgumentParser:
         "<stem>_transform.txt (4x4, source -> template) and, with a mask, "
         "<stem>_inliers<ext> (the template points used)",
     )
-    p.add_argument("--method", choices=["icp", "open3d-icp", "pointnetlk"], default="icp")
+    p.add_argument(
+        "--method",
+        choices=["icp", "open3d-icp", "pointnetlk", "open3d-ransac", "open3d-fgr"],
+        default="icp",
+        help="icp (default), pointnetlk, or Open3D's icp / RANSAC / FGR on FPFH features",
+    )
     p.add_argument("--no-mask", action="store_true", help="plain X instead of Mask-X")
     p.add_argument("--iterations", type=_positive_int, default=1, help="rounds of mask -> register")
     p.add_argument(
@@ -553,7 +558,11 @@ def cmd_register(args: argparse.Namespace) -> None:
         init=args.init,
         refine_iterations=args.refine,
         max_points=args.max_points,
-        max_iterations=args.max_iterations,
+        **(
+            {}
+            if args.method in ("open3d-ransac", "open3d-fgr")
+            else {"max_iterations": args.max_iterations}
+        ),
     )
     moved = source @ result.R.T + result.t
     out = Path(args.output)
@@ -569,7 +578,13 @@ def cmd_register(args: argparse.Namespace) -> None:
         writers.append((inliers_path, lambda p: write_points(p, template[result.mask])))
     _write_all(writers)
 
-    pretty = {"icp": "ICP", "open3d-icp": "Open3D-ICP", "pointnetlk": "PointNetLK"}
+    pretty = {
+        "icp": "ICP",
+        "open3d-icp": "Open3D-ICP",
+        "pointnetlk": "PointNetLK",
+        "open3d-ransac": "Open3D-RANSAC",
+        "open3d-fgr": "Open3D-FGR",
+    }
     name = ("" if args.no_mask else "Mask-") + pretty[args.method]
     n, m = result.sampled
     sampled = "" if (n, m) == (len(template), len(source)) else f" (sampled to {n} and {m})"

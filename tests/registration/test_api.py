@@ -367,3 +367,23 @@ def test_unknown_init_and_bad_refine_are_refused(pairs, model):
         register(template, source, model=model, init="ransac")
     with pytest.raises(MaskNetError, match="refine_iterations"):
         register(template, source, model=model, refine_iterations=-1)
+
+
+@pytest.mark.parametrize("method", ["open3d-ransac", "open3d-fgr"])
+def test_open3d_global_methods_recover_a_clean_pair(full_pairs, method):
+    if not _open3d_available():
+        pytest.skip("Open3D unavailable")
+    template, source = full_pairs.template[0].numpy(), full_pairs.source[0].numpy()
+    truth = full_pairs.transform[0].double().numpy()
+    result = register(template, source, method=method, use_mask=False)
+    assert _angle(result.R, truth[:3, :3]) < 1.0
+    np.testing.assert_allclose(result.t, truth[:3, 3], atol=0.02)
+    assert result.info["fitness"] > 0.5
+
+
+def _open3d_available() -> bool:
+    try:
+        require_open3d("test")
+    except MaskNetError:
+        return False
+    return True

@@ -291,14 +291,26 @@ def exp_rotation_sweep(ctx: BenchmarkContext) -> ExperimentResult:
     )
 
 
+PEERS = {
+    "Open3D RANSAC (FPFH)": {"method": "open3d-ransac", "use_mask": False},
+    "Open3D FGR (FPFH)": {"method": "open3d-fgr", "use_mask": False},
+}
+PEER_PAIRS = 200  # the global methods take ~0.1 s a pair: sweeps run them on the first 200
+
+
 def exp_noise(ctx: BenchmarkContext) -> ExperimentResult:
     """Errors against Gaussian noise on the source (sigma 0-0.06, clipped at 0.05)."""
     sigmas = [0.0, 0.02, 0.06] if ctx.quick else [0.0, 0.01, 0.02, 0.03, 0.04, 0.05, 0.06]
     rows = []
     for sigma in sigmas:
-        pairs = ctx.test_pairs(PairConfig(noise_sigma=sigma))
+        config = PairConfig(noise_sigma=sigma, noise_clip=max(0.05, 2 * sigma))
+        pairs = ctx.test_pairs(config)
         for name, kwargs in SWEEP_PIPELINES.items():
             rows.append({"sigma": sigma, "pipeline": name, **_batched_errors(pairs, **kwargs)})
+        few = Pairs(*(x[:PEER_PAIRS] for x in pairs))
+        for name, kwargs in PEERS.items():
+            label = f"{name}, first {len(few.template)} pairs"
+            rows.append({"sigma": sigma, "pipeline": label, **_batched_errors(few, **kwargs)})
 
     def plot(path: Path) -> None:
         lines = {n: [r["rot_mean"] for r in rows if r["pipeline"] == n] for n in SWEEP_PIPELINES}

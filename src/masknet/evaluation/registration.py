@@ -38,6 +38,9 @@ PIPELINES: dict[str, dict] = {
     "Mask-ICP, 3 rounds": {"method": "icp", "use_mask": True, "iterations": 3},
     "Mask-ICP + 10 ICP refine": {"method": "icp", "use_mask": True, "refine_iterations": 10},
     "ICP, 20 iterations": {"method": "icp", "use_mask": False, "max_iterations": 20},
+    "Open3D ICP": {"method": "open3d-icp", "use_mask": False},
+    "Open3D RANSAC (FPFH)": {"method": "open3d-ransac", "use_mask": False},
+    "Open3D FGR (FPFH)": {"method": "open3d-fgr", "use_mask": False},
 }
 
 

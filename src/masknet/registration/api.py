@@ -39,7 +39,7 @@ from masknet.registration.open3d_icp import open3d_icp
 
 __all__ = ["RegistrationResult", "register", "METHODS"]
 
-METHODS = ("icp", "open3d-icp", "pointnetlk")
+METHODS = ("icp", "open3d-icp", "pointnetlk", "open3d-ransac", "open3d-fgr")
 _OPTIONS = {
     "icp": ("max_iterations", "tolerance", "max_correspondence_distance"),
     "open3d-icp": (
@@ -49,6 +49,8 @@ _OPTIONS = {
         "relative_rmse",
     ),
     "pointnetlk": ("max_iterations", "tolerance", "network"),
+    "open3d-ransac": ("max_iterations", "voxel_size", "confidence", "seed"),
+    "open3d-fgr": ("max_iterations", "voxel_size"),
 }
 _DEFAULT_MAX_ITERATIONS = 10  # the paper's budget for ICP and PointNetLK
 INITS = ("centroid", "identity")
@@ -127,8 +129,9 @@ def register(
         template: (N, 3) or (B, N, 3) full template cloud(s), any units.
         source: (M, 3) or (B, M, 3) partial source cloud(s), same units.
         method: ``"icp"`` (batched torch ICP), ``"open3d-icp"`` (Open3D's
-            point-to-point ICP, pair by pair) or ``"pointnetlk"`` (the shipped
-            PointNetLK unless ``network=`` is given).
+            point-to-point ICP, pair by pair), ``"pointnetlk"`` (the shipped
+            PointNetLK unless ``network=`` is given), ``"open3d-ransac"`` or
+            ``"open3d-fgr"`` (Open3D's global registration on FPFH features).
         use_mask: Mask-X (True) or plain X (False).
         iterations: rounds of {mask -> initialise -> register -> move the source}.
         model: the MaskNet to use; None loads the shipped weights once.
@@ -148,7 +151,11 @@ def register(
             ``max_iterations`` (default 10), ``max_correspondence_distance``,
             ``relative_fitness``, ``relative_rmse``. ``"pointnetlk"``:
             ``max_iterations`` (default 10), ``tolerance``, ``network`` (a
-            :class:`~masknet.models.PointNetLK`).
+            :class:`~masknet.models.PointNetLK`). ``"open3d-ransac"`` and ``"open3d-fgr"``
+            (Open3D's global registration on FPFH features, pair by pair):
+            ``voxel_size`` (feature scale as a fraction of the template's radius, default
+            0.05); RANSAC also ``max_iterations`` (default 100,000), ``confidence``,
+            ``seed``. They ignore ``init``.
 
     Returns:
         RegistrationResult (source -> template, see :mod:`masknet.geometry.se3`).
@@ -161,7 +168,8 @@ def register(
     start = time.perf_counter()
     _check_arguments(method, options, iterations, k, threshold, use_mask, init, refine_iterations)
     tpl_full, src_full, single = _as_numpy_batch(template, source)
-    options.setdefault("max_iterations", _DEFAULT_MAX_ITERATIONS)
+    if method not in ("open3d-ransac", "open3d-fgr"):
+        options.setdefault("max_iterations", _DEFAULT_MAX_ITERATIONS)
     if use_mask and model is None:
         model = _default_model()
     if method == "pointnetlk" and options.get("network") is None:
@@ -362,8 +370,39 @@ def _run_pointnetlk(
     return _Run(transform, info)
 
 
+def _run_open3d_global(method: str):
+    from masknet.registration.open3d_global import open3d_fgr, open3d_fpfh_ransac
+
+    solver = open3d_fpfh_ransac if method == "open3d-ransac" else open3d_fgr
+
+    def run(
+        template: np.ndarray, source: np.ndarray, mask: np.ndarray | None, options: dict
+    ) -> _Run:
+        options = dict(options)
+        relative_voxel = options.pop("voxel_size", 0.05)
+        transforms, fitness, rmse = [], [], []
+        for i in range(template.shape[0]):
+            target = template[i] if mask is None else template[i][mask[i]]
+            radius = float(unit_radius(torch.from_numpy(template[i][None]))[0])
+            tf, fit, err = solver(source[i], target, voxel_size=relative_voxel * radius, **options)
+            transforms.append(tf)
+            fitness.append(fit)
+            rmse.append(err)
+        info = {
+            "fitness": np.asarray(fitness),
+            "inlier_rmse": np.asarray(rmse),
+            "converged": np.zeros(len(fitness), bool),
+            "iterations": np.full(len(fitness), -1),
+        }
+        return _Run(np.stack(transforms), info)
+
+    return run
+
+
 _METHOD_RUNNERS: dict[str, Callable[[np.ndarray, np.ndarray, np.ndarray | None, dict], _Run]] = {
     "icp": _run_icp,
     "open3d-icp": _run_open3d_icp,
     "pointnetlk": _run_pointnetlk,
+    "open3d-ransac": _run_open3d_global("open3d-ransac"),
+    "open3d-fgr": _run_open3d_global("open3d-fgr"),
 }
