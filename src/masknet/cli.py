@@ -695,12 +695,18 @@ def cmd_benchmark(args: argparse.Namespace) -> None:
         command=shlex.join(argv) if argv else f"masknet benchmark {args.experiment}",
     )
     start = time.perf_counter()
+    from masknet.evaluation.benchmark import markdown_table
+
     for name in names:
         tic = time.perf_counter()
-        result = run_benchmark(name, ctx, results)
+        try:
+            result = run_benchmark(name, ctx, results)
+        except MaskNetError as exc:
+            if len(names) == 1:
+                raise
+            print(f"== {name}: skipped ({exc})")  # e.g. no scan folder: the others still run
+            continue
         print(f"== {name} ({time.perf_counter() - tic:.0f} s): {result.summary}")
-        from masknet.evaluation.benchmark import markdown_table
-
         print(markdown_table(result.rows))
     where = f" and {results}" if results else ""
     print(f"wrote {ctx.out}/{{{','.join(names)}}}.{{json,csv,png}}{where}")
