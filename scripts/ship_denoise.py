@@ -7,7 +7,7 @@ outliers, threshold 0.5, beside Open3D's statistical and radius outlier removal.
 from __future__ import annotations
 
 import numpy as np
-from ship_weights import install, machine, previous_text, read_run
+from ship_weights import epochs_text, install, machine, previous_text, read_run
 
 from masknet.data import PairConfig, load_modelnet40, make_test_pairs
 from masknet.denoising import open3d_radius_outlier_removal, open3d_statistical_outlier_removal
@@ -45,7 +45,7 @@ def ship_denoise(args, previous: dict | None) -> None:
         "epochs_trained": len(log),
         "best_epoch": int(best["epoch"]),
         "training_minutes": float(log[-1]["elapsed_min"]),
-        "machine": machine(),
+        "machine": machine(run),
         "log": log,
         "test": {"pairs": args.pairs, "seed": args.seed, "results": results},
         "previous": previous,
@@ -82,7 +82,7 @@ noisy source cloud given a clean template of the same object. Same architecture 
   [-{pairs["max_translation"]}, {pairs["max_translation"]}]^3. Target: 1 for real source points, 0 for outliers.
 - Adam, lr {train["lr"]} ({train["lr_schedule"]}), batch {train["batch_size"]}, {task["loss"].upper()} loss,
   {train["precision"]} autocast, seed {train["seed"]}.
-- Epochs: {card["epochs_trained"]} (best validation F1 at epoch {card["best_epoch"]}, shipped),
+- Epochs: {epochs_text(card)} (best validation F1 at epoch {card["best_epoch"]}, shipped),
   {card["training_minutes"]:.0f} minutes on {card["machine"]}.
 {previous_text(card)}
 ## Outlier removal on test pairs

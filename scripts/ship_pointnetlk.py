@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from ship_weights import install, machine, read_run
+from ship_weights import epochs_text, install, machine, read_run
 
 from masknet.data import PairConfig, load_modelnet40, make_test_pairs
 from masknet.evaluation.registration import pose_errors, summarize_errors
@@ -61,7 +61,7 @@ def ship_pointnetlk(args, previous: dict | None) -> None:
         "epochs_trained": len(log),
         "best_epoch": int(best["epoch"]),
         "training_minutes": float(log[-1]["elapsed_min"]),
-        "machine": machine(),
+        "machine": machine(run),
         "log": log,
         "test": {"pairs": args.pairs, "seed": args.seed, "results": results},
         "previous": previous,
@@ -103,7 +103,7 @@ training step cost 4.4x more here. Load it with `PointNetLK.pretrained("{card["n
   iteration and the Jacobian.
 - Loss: ||T_est T_gt^-1 - I||_F^2 + {task["feature_weight"]} x ||feature residual||^2.
 - Adam, lr {train["lr"]} ({train["lr_schedule"]}), batch {train["batch_size"]}, fp32, seed {train["seed"]}.
-- Epochs: {card["epochs_trained"]} (best validation epoch {card["best_epoch"]}, shipped),
+- Epochs: {epochs_text(card)} (best validation epoch {card["best_epoch"]}, shipped),
   {card["training_minutes"]:.0f} minutes on {card["machine"]}, sharing the 2 cores with another training run.
 
 ## Test errors

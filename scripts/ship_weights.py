@@ -37,11 +37,16 @@ def read_run(run: Path) -> tuple[dict, list[dict]]:
         return info, list(csv.DictReader(fh))
 
 
-def machine() -> str:
-    return (
-        f"{platform.processor() or platform.machine()}, {torch.get_num_threads()} threads, "
-        f"torch {torch.__version__}"
-    )
+def machine(run: dict) -> str:
+    """The training machine: this one, with the run's thread setting."""
+    threads = run["train"].get("threads") or torch.get_num_threads()
+    return f"{platform.processor() or platform.machine()}, {threads} threads, torch {torch.__version__}"
+
+
+def epochs_text(card: dict) -> str:
+    planned = card["training"]["train"]["epochs"]
+    done = card["epochs_trained"]
+    return f"{done} of {planned} planned" if done < planned else f"{done}"
 
 
 def install(run: Path, filename: str, card: dict, markdown: str) -> None:
@@ -92,7 +97,7 @@ def main() -> None:
         "epochs_trained": len(log),
         "best_epoch": int(best["epoch"]),
         "training_minutes": float(log[-1]["elapsed_min"]),
-        "machine": machine(),
+        "machine": machine(run),
         "log": log,
         "test": {subset: ev.to_dict() for subset, ev in evaluations.items()},
         "previous": previous,
@@ -148,7 +153,7 @@ trained by `masknet train` in this repository. Load it with
   {pairs["noise_sigma"]}, outliers {pairs["outlier_ratio"]}; {task["num_points"]} template points per pair.
 - Optimiser: Adam, lr {train["lr"]} ({train["lr_schedule"]} schedule, min {train["min_lr"]}), batch
   {train["batch_size"]}, {task["loss"].upper()} loss, {train["precision"]} autocast, seed {train["seed"]}.
-- Epochs: {card["epochs_trained"]} (best validation epoch {card["best_epoch"]}, the one shipped),
+- Epochs: {epochs_text(card)} (best validation epoch {card["best_epoch"]}, the one shipped),
   {card["training_minutes"]:.0f} minutes on {card["machine"]}.
 {previous_text(card)}
 ## Test metrics
