@@ -44,7 +44,14 @@ from masknet.models import MaskNet, select_mask
 from masknet.models.reference import PaperMaskNet
 from masknet.runtime import default_precision
 
-__all__ = ["median_ms", "masknet_variants", "time_variants", "variant_agreement", "n_scaling"]
+__all__ = [
+    "chunked_large_template",
+    "masknet_variants",
+    "median_ms",
+    "n_scaling",
+    "time_variants",
+    "variant_agreement",
+]
 
 Variant = Callable[[Tensor, Tensor], Tensor]
 REFERENCE = "reference (Conv1d, concat, fp32)"
@@ -197,6 +204,39 @@ def n_scaling(model: MaskNet, sizes: list[int], repeats: int = 10) -> list[dict]
     return rows
 
 
+def chunked_large_template(model: MaskNet, n: int = 100_000, chunk_size: int = 8192) -> dict:
+    """A template of ``n`` points scored in chunks and in one piece: the largest score
+    difference, the time of each, and the process's peak memory after each (chunked
+    first, since the peak only grows)."""
+    import resource
+
+    gen = torch.Generator().manual_seed(1)
+    t = torch.randn(1, n, 3, generator=gen)
+    t = t / t.norm(dim=-1, keepdim=True)
+    s = t[:, : int(0.7 * n) : 100] + 0.1  # a 700-point partial source
+    fused = model.fused("fp32")
+
+    def peak_mb() -> float:
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+    with torch.inference_mode():
+        start = time.perf_counter()
+        chunked = fused(t, s, chunk_size=chunk_size)
+        chunked_s, chunked_mb = time.perf_counter() - start, peak_mb()
+        start = time.perf_counter()
+        whole = fused(t, s, chunk_size=None)
+        whole_s, whole_mb = time.perf_counter() - start, peak_mb()
+    return {
+        "n": n,
+        "chunk_size": chunk_size,
+        "max_abs_difference": float((chunked - whole).abs().max()),
+        "chunked_s": chunked_s,
+        "unchunked_s": whole_s,
+        "peak_rss_mb_after_chunked": chunked_mb,
+        "peak_rss_mb_after_unchunked": whole_mb,
+    }
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=50)
@@ -247,6 +287,9 @@ def main() -> None:
                     f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in row.items()
                 )
             )
+    if args.scaling:
+        result["chunked_100k"] = chunked_large_template(model)
+        print("  100k-point template:", result["chunked_100k"])
     if args.json:
         write_text_atomic(args.json, json.dumps(result, indent=2) + "\n")
 
