@@ -7,7 +7,7 @@ outliers, threshold 0.5, beside Open3D's statistical and radius outlier removal.
 from __future__ import annotations
 
 import numpy as np
-from ship_weights import epochs_text, install, machine, previous_text, read_run
+from ship_weights import base_card, epochs_text, install, previous_text, read_run
 
 from masknet.data import PairConfig, load_modelnet40, make_test_pairs
 from masknet.denoising import open3d_radius_outlier_removal, open3d_statistical_outlier_removal
@@ -38,18 +38,8 @@ def ship_denoise(args, previous: dict | None) -> None:
         }
         print(ratio, results[f"{ratio:.0%}"])
     best = max(log, key=lambda row: float(row["val_f1"]))
-    card = {
-        "name": args.name,
-        "architecture": model.config,
-        "training": run,
-        "epochs_trained": len(log),
-        "best_epoch": int(best["epoch"]),
-        "training_minutes": float(log[-1]["elapsed_min"]),
-        "machine": machine(run),
-        "log": log,
-        "test": {"pairs": args.pairs, "seed": args.seed, "results": results},
-        "previous": previous,
-    }
+    test = {"pairs": args.pairs, "seed": args.seed, "results": results}
+    card = base_card(args, run, log, model.config, best, test, previous)
     install(args.run, f"masknet_{args.name}.safetensors", card, render(card))
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from ship_weights import epochs_text, install, machine, read_run
+from ship_weights import base_card, epochs_text, install, read_run
 
 from masknet.data import PairConfig, load_modelnet40, make_test_pairs
 from masknet.evaluation.registration import pose_errors, summarize_errors
@@ -54,18 +54,8 @@ def ship_pointnetlk(args, previous: dict | None) -> None:
         }
         print(label, results[label])
     best = min(log, key=lambda row: float(row["val_rotation_error_deg"]))
-    card = {
-        "name": args.name,
-        "architecture": trained.config,
-        "training": run,
-        "epochs_trained": len(log),
-        "best_epoch": int(best["epoch"]),
-        "training_minutes": float(log[-1]["elapsed_min"]),
-        "machine": machine(run),
-        "log": log,
-        "test": {"pairs": args.pairs, "seed": args.seed, "results": results},
-        "previous": previous,
-    }
+    test = {"pairs": args.pairs, "seed": args.seed, "results": results}
+    card = base_card(args, run, log, trained.config, best, test, previous)
     install(args.run, f"pointnetlk_{args.name}.safetensors", card, render(card))
 
 

@@ -49,6 +49,24 @@ def epochs_text(card: dict) -> str:
     return f"{done} of {planned} planned" if done < planned else f"{done}"
 
 
+def base_card(
+    args, run: dict, log: list[dict], config: dict, best: dict, test: dict, previous: dict | None
+) -> dict:
+    """The fields every model card has; ``test`` holds what the kind measured."""
+    return {
+        "name": args.name,
+        "architecture": config,
+        "training": run,
+        "epochs_trained": len(log),
+        "best_epoch": int(best["epoch"]),
+        "training_minutes": float(log[-1]["elapsed_min"]),
+        "machine": machine(run),
+        "log": log,
+        "test": test,
+        "previous": previous,
+    }
+
+
 def install(run: Path, filename: str, card: dict, markdown: str) -> None:
     """Copy the run's best weights into the package, with the card as JSON and markdown."""
     WEIGHTS.mkdir(parents=True, exist_ok=True)
@@ -90,18 +108,8 @@ def main() -> None:
         evaluations[subset] = evaluate_masknet(model, points, args.pairs, args.seed, pair_config)
         print(subset, format_table(evaluations[subset].rows), sep="\n")
 
-    card = {
-        "name": args.name,
-        "architecture": model.config,
-        "training": run,
-        "epochs_trained": len(log),
-        "best_epoch": int(best["epoch"]),
-        "training_minutes": float(log[-1]["elapsed_min"]),
-        "machine": machine(run),
-        "log": log,
-        "test": {subset: ev.to_dict() for subset, ev in evaluations.items()},
-        "previous": previous,
-    }
+    test_results = {subset: ev.to_dict() for subset, ev in evaluations.items()}
+    card = base_card(args, run, log, model.config, best, test_results, previous)
     install(args.run, f"masknet_{args.name}.safetensors", card, render_card(card))
 
 

@@ -200,10 +200,7 @@ def build_parser() -> argparse.ArgumentParser:
     sel.add_argument(
         "--threshold", type=_finite_float, help="keep scores >= this (the paper's epsilon)"
     )
-    p.add_argument(
-        "--drop-nonfinite", action="store_true", help="drop NaN/inf rows instead of failing"
-    )
-    _add_html_option(p)
+    _add_file_options(p)
     _add_model_options(p)
 
     p = sub.add_parser(
@@ -250,10 +247,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="larger clouds are farthest-point sampled to this for the networks and "
         "ICP; the transform is applied to the full source",
     )
-    p.add_argument(
-        "--drop-nonfinite", action="store_true", help="drop NaN/inf rows instead of failing"
-    )
-    _add_html_option(p)
+    _add_file_options(p)
     _add_model_options(p)
 
     p = sub.add_parser(
@@ -273,10 +267,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--threshold", type=_finite_float, default=0.5, help="keep points scoring >= this"
     )
-    p.add_argument(
-        "--drop-nonfinite", action="store_true", help="drop NaN/inf rows instead of failing"
-    )
-    _add_html_option(p)
+    _add_file_options(p)
     _add_model_options(p, default_pretrained="denoise_modelnet40")
 
     p = sub.add_parser(
@@ -286,9 +277,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("clouds", nargs="+", help="point cloud files, one layer each")
     p.add_argument("-o", "--output", required=True, help="the .html file; the PNG goes beside it")
     p.add_argument("--title", default=None)
-    p.add_argument(
-        "--drop-nonfinite", action="store_true", help="drop NaN/inf rows instead of failing"
-    )
+    _add_file_options(p, html=False)
 
     p = sub.add_parser(
         "benchmark",
@@ -335,12 +324,17 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _add_html_option(p: argparse.ArgumentParser) -> None:
+def _add_file_options(p: argparse.ArgumentParser, html: bool = True) -> None:
+    """Options of every command that reads clouds from files (and optionally shows them)."""
     p.add_argument(
-        "--html",
-        metavar="PATH",
-        help="also write an interactive 3D view (offline HTML) here, and a PNG beside it",
+        "--drop-nonfinite", action="store_true", help="drop NaN/inf rows instead of failing"
     )
+    if html:
+        p.add_argument(
+            "--html",
+            metavar="PATH",
+            help="also write an interactive 3D view (offline HTML) here, and a PNG beside it",
+        )
 
 
 def _write_views(path: str, layers: dict, title: str) -> list[Path]:

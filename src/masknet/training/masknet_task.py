@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Literal
 
 import torch
@@ -67,14 +66,5 @@ class MaskNetTask(PairTask):
         keys = ("precision", "recall", "f1") if self.role == "denoise" else ("precision", "recall")
         return loss, {key: metrics[key] for key in keys}
 
-    def export(self, model: nn.Module, path: Path, metadata: dict) -> None:
-        model.save(path, metadata)
-
-    def describe(self) -> dict:
-        return {
-            "model": dict(self.model_config),
-            "name": self.name,
-            "pairs": self.pairs.to_dict(),
-            "num_points": self.num_points,
-            "loss": self.loss,
-        } | ({"role": self.role} if self.role != "template" else {})
+    def describe_extra(self) -> dict:
+        return {"loss": self.loss} | ({"role": self.role} if self.role != "template" else {})

@@ -4,8 +4,10 @@ fixed validation set at the stored resolution."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
+from torch import nn
 
 from masknet.data.pairs import PairConfig, Pairs, iterate_pairs, make_test_pairs
 
@@ -38,3 +40,19 @@ class PairTask:
             Pairs(*(x[i : i + batch_size] for x in pairs))
             for i in range(0, len(pairs.template), batch_size)
         ]
+
+    def export(self, model: nn.Module, path: Path, metadata: dict) -> None:
+        model.save(path, metadata)
+
+    def describe(self) -> dict:
+        """The settings that define the run (compared on --resume): shared ones plus
+        the subclass's :meth:`describe_extra`."""
+        return {
+            "model": dict(getattr(self, "model_config", {})),
+            "name": getattr(self, "name", ""),
+            "pairs": self.pairs.to_dict(),
+            "num_points": self.num_points,
+        } | self.describe_extra()
+
+    def describe_extra(self) -> dict:
+        return {}

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import torch
 from torch import Tensor, nn
@@ -64,15 +63,5 @@ class PointNetLKTask(PairTask):
             "transform_loss": transform_loss.item(),
         }
 
-    def export(self, model: nn.Module, path: Path, metadata: dict) -> None:
-        model.save(path, metadata)
-
-    def describe(self) -> dict:
-        return {
-            "model": dict(self.model_config),
-            "name": self.name,
-            "pairs": self.pairs.to_dict(),
-            "num_points": self.num_points,
-            "iterations": self.iterations,
-            "feature_weight": self.feature_weight,
-        }
+    def describe_extra(self) -> dict:
+        return {"iterations": self.iterations, "feature_weight": self.feature_weight}
