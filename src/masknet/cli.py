@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 import time
 from collections.abc import Callable
@@ -778,6 +779,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("masknet: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # e.g. `masknet ... | head`: stop quietly, as Unix tools do
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     return 0
 
 
