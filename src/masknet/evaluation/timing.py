@@ -237,6 +237,37 @@ def chunked_large_template(model: MaskNet, n: int = 100_000, chunk_size: int = 8
     }
 
 
+def training_step_ms(batch: int = 32, repeats: int = 5) -> dict[str, float]:
+    """ms per training step (forward, backward, Adam) at batch 32, N = 1024: the paper's
+    concatenated head in fp32 against the split head with bf16 autocast (where native)."""
+    points = load_modelnet40(bundled_sample_path(), "test").points
+    pairs = make_test_pairs(points, batch, PairConfig(), 0)
+    t, s, target = pairs.template, pairs.source, pairs.mask.float()
+    torch.manual_seed(0)
+    model = MaskNet().train()
+    optimizer = torch.optim.Adam(model.parameters(), lr=1e-4)
+    bf16 = default_precision("cpu") == "bf16"
+
+    def step(forward: Callable[[Tensor, Tensor], Tensor], autocast: bool) -> None:
+        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=autocast):
+            loss = nn.functional.mse_loss(forward(t, s).float(), target)
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+
+    rows = {
+        "concat head, fp32": median_ms(
+            lambda: step(model.forward_reference, False), repeats, warmup=1
+        ),
+        "split head, fp32": median_ms(lambda: step(model.forward, False), repeats, warmup=1),
+    }
+    if bf16:
+        rows["split head, bf16 autocast"] = median_ms(
+            lambda: step(model.forward, True), repeats, warmup=1
+        )
+    return rows
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=50)
@@ -246,6 +277,7 @@ def main() -> None:
     parser.add_argument("--agreement-pairs", type=int, default=1000)
     parser.add_argument("--scaling", action="store_true", help="also time N = 512 ... 16,384")
     parser.add_argument("--basic", action="store_true", help="skip int8, compile and ONNX")
+    parser.add_argument("--training", action="store_true", help="also time a training step")
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -287,6 +319,9 @@ def main() -> None:
                     f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in row.items()
                 )
             )
+    if args.training:
+        result["training_step_ms_batch32"] = training_step_ms()
+        print("  training step, batch 32:", result["training_step_ms_batch32"])
     if args.scaling:
         result["chunked_100k"] = chunked_large_template(model)
         print("  100k-point template:", result["chunked_100k"])
