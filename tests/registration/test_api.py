@@ -257,7 +257,9 @@ def test_open3d_icp_method(pairs, full_pairs, model):
     )
     ours = register(template, source, tolerance=0, **kwargs)
     np.testing.assert_array_equal(theirs.mask, ours.mask)
-    np.testing.assert_allclose(theirs.transform, ours.transform, atol=1e-9)
+    # register() runs our ICP in float32 (centred); icp() itself matches Open3D to 1e-15
+    # in float64 (tests/registration/test_icp.py).
+    np.testing.assert_allclose(theirs.transform, ours.transform, atol=1e-6)
     np.testing.assert_allclose(theirs.info["fitness"], ours.info["fitness"], atol=1e-12)
     single = register(template[0], source[0], method="open3d-icp", **kwargs)
     assert single.transform.shape == (4, 4) and single.mask.shape == (template.shape[1],)

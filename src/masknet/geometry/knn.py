@@ -70,7 +70,10 @@ def knn_points(
         d2 = d2.clamp_min_(0)
         if reference_valid is not None:
             d2 = d2.masked_fill_(invalid, float("inf"))
-        d, i = torch.topk(d2, k, dim=-1, largest=False, sorted=True)
+        if k == 1:  # the common case (ICP, mask spreading): a min is cheaper than a top-k
+            d, i = d2.min(dim=-1, keepdim=True)
+        else:
+            d, i = torch.topk(d2, k, dim=-1, largest=False, sorted=True)
         if reference_valid is not None:
             i = i.masked_fill_(torch.isinf(d), -1)
         dists.append(d)

@@ -310,14 +310,30 @@ def _initial_transform(
 def _run_icp(
     template: np.ndarray, source: np.ndarray, mask: np.ndarray | None, options: dict
 ) -> _Run:
+    """ICP in float32 about the template's centroid: about twice as fast as float64, and
+    exact enough wherever the clouds sit (far from the origin float32 alone would not be)."""
     valid = None if mask is None else torch.from_numpy(mask)
+    if mask is None:
+        shift = template.mean(axis=1, keepdims=True)  # (B, 1, 3)
+    else:  # the points in use only, so that masked-out points cannot change anything
+        weights = mask[..., None].astype(np.float64)
+        shift = (template * weights).sum(1, keepdims=True) / np.maximum(
+            weights.sum(1, keepdims=True), 1
+        )
     try:
         solution = icp(
-            torch.from_numpy(source), torch.from_numpy(template), template_valid=valid, **options
+            torch.from_numpy(source - shift).float(),
+            torch.from_numpy(template - shift).float(),
+            template_valid=valid,
+            **options,
         )
     except ValueError as exc:
         raise MaskNetError(f"icp: {exc}") from exc
-    return _Run(solution.transform.double().numpy(), _icp_info(solution))
+    centred = solution.transform.double().numpy()
+    # T = Shift(c) @ T_centred @ Shift(-c): R unchanged, t = t_centred + c - R c.
+    c = shift[:, 0]
+    centred[:, :3, 3] += c - np.einsum("bij,bj->bi", centred[:, :3, :3], c)
+    return _Run(centred, _icp_info(solution))
 
 
 def _icp_info(solution: Any) -> dict[str, np.ndarray]:
