@@ -257,7 +257,10 @@ def build_parser() -> argparse.ArgumentParser:
         "does not explain",
     )
     p.add_argument("noisy", help="the scan with outliers: .ply .pcd .xyz .txt .npy .bin")
-    p.add_argument("template", help="a clean cloud of the same object, roughly aligned")
+    p.add_argument(
+        "template",
+        help="a clean cloud of the same object, aligned with NOISY (e.g. after register)",
+    )
     p.add_argument(
         "-o",
         "--output",

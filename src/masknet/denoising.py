@@ -3,7 +3,7 @@
 Given a noisy cloud Y (a scan with outliers) and a clean template X of the same
 object, :func:`denoise` scores every point of Y: does X see it? Points scoring at
 least ``threshold`` are kept. The shipped ``"denoise_modelnet40"`` weights were
-trained so (10% uniform outliers in the source; its model card says how).
+trained so (10% uniform outliers in the source, aligned pairs; its model card says how).
 
 Open3D's statistical and radius outlier removal are wrapped here too, as the
 peers the benchmark compares against (they need no template).
@@ -52,8 +52,9 @@ def denoise(
 
     Both clouds are scaled by the template's radius (the outliers must not set
     the scale); every noisy point is scored, in chunks, so large scans work at
-    full resolution. The clouds should be roughly aligned (within the training
-    range: rotation <= 45 degrees, translation within the object's size).
+    full resolution. The clouds should be aligned (the shipped model was trained on
+    aligned pairs): denoise after a registration, e.g. ``register`` then this on the
+    moved source.
 
     Args:
         model: a MaskNet trained for denoising; None loads the shipped

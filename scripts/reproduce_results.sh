@@ -1,0 +1,13 @@
+#!/bin/bash
+# Every figure in docs/RESULTS.md, in the order it was measured (about 1 hour on 2 CPU cores).
+# Needs the ModelNet40 data (MASKNET_DATA) and, for the scans experiment, ../shared/data/scans.
+set -e
+cd "$(dirname "$0")/.."
+export MASKNET_DATA=${MASKNET_DATA:-../shared/data/modelnet40/modelnet40_1024_int16.npz}
+M=.venv/bin/masknet
+$M evaluate --pairs 1000 --seed 0 --inference-precision fp32 --json docs/results/eval_modelnet40.json
+$M evaluate --pairs 1000 --seed 0 --inference-precision bf16 --json docs/results/eval_modelnet40_bf16.json
+$M evaluate --pairs 1000 --seed 0 --pretrained modelnet40_seen20 --categories unseen --inference-precision fp32 --json docs/results/eval_seen20_unseen.json
+$M evaluate --pairs 1000 --seed 0 --pretrained modelnet40_seen20 --categories seen --inference-precision fp32 --json docs/results/eval_seen20_seen.json
+.venv/bin/python -m masknet.evaluation.timing --threads 2 --repeats 100 --data "$MASKNET_DATA" --scaling --training --json docs/results/timing.json
+$M benchmark all --threads 2 --out docs/results/benchmark
