@@ -11,6 +11,10 @@ $M train --out runs/modelnet40 --epochs 14 --lr 1e-4 --lr-schedule cosine --max-
 $M train --out runs/seen20 --categories seen --epochs 11 --lr 1e-4 --lr-schedule cosine --max-minutes 30 $(resume runs/seen20)
 $M train --out runs/modelnet40_ft --init runs/modelnet40/best.safetensors --epochs 16 --lr 1e-4 \
     --lr-schedule cosine --seed 1 --max-minutes 85 --threads 2 $(resume runs/modelnet40_ft)
+# (stopped by hand after epoch 7 and resumed with a shorter schedule, so that the last epochs
+#  run at a decayed learning rate within the session)
+$M train --out runs/modelnet40_ft --init runs/modelnet40/best.safetensors --epochs 10 --lr 1e-4 \
+    --lr-schedule cosine --seed 1 --max-minutes 40 --threads 2 --resume
 $M train --model pointnetlk --feature-size 256 --num-points 512 --out runs/pointnetlk --epochs 3 \
     --lr 1e-4 --lr-schedule cosine --val-pairs 256 --threads 1 --max-minutes 40 $(resume runs/pointnetlk)
 # (stopped by hand after epoch 2 of 3: validation rotation error rose, 1.40 -> 1.57 deg)

@@ -34,28 +34,28 @@ def clouds():
 
 def test_denoise_keeps_points_scoring_above_threshold(model, clouds):
     template, noisy = clouds
-    result = denoise(noisy, template, model, threshold=0.5, precision="fp32")
+    result = denoise(noisy, template, model=model, threshold=0.5, precision="fp32")
     assert result.mask.shape == (440,) and result.scores.shape == (440,)
     np.testing.assert_array_equal(result.mask, result.scores >= 0.5)
     np.testing.assert_array_equal(result.points, noisy[result.mask])
-    everything = denoise(noisy, template, model, threshold=0.0)
+    everything = denoise(noisy, template, model=model, threshold=0.0)
     assert everything.mask.all()
 
 
 def test_denoise_scale_comes_from_the_template(model, clouds):
     """Outliers far away must not change the scores of the other points' scaling."""
     template, noisy = clouds
-    a = denoise(noisy, template, model, precision="fp32").scores
-    b = denoise(noisy * 1000, template * 1000, model, precision="fp32").scores
+    a = denoise(noisy, template, model=model, precision="fp32").scores
+    b = denoise(noisy * 1000, template * 1000, model=model, precision="fp32").scores
     np.testing.assert_allclose(a, b, atol=1e-5)
 
 
 def test_denoise_refuses_batches_and_bad_thresholds(model, clouds):
     template, noisy = clouds
     with pytest.raises(MaskNetError, match="one noisy cloud"):
-        denoise(noisy[None], template[None], model)
+        denoise(noisy[None], template[None], model=model)
     with pytest.raises(MaskNetError, match="threshold"):
-        denoise(noisy, template, model, threshold=2.0)
+        denoise(noisy, template, model=model, threshold=2.0)
 
 
 def _has_open3d() -> bool:
@@ -92,3 +92,15 @@ def test_cli_denoise_writes_points_and_mask(tmp_path, model, clouds, capsys):
     assert mask.shape == (440,)
     np.testing.assert_allclose(np.loadtxt(out).reshape(-1, 3), noisy[mask], atol=1e-6)
     assert "kept" in capsys.readouterr().out
+
+
+def test_distance_method_removes_far_points(clouds):
+    template, noisy = clouds
+    result = denoise(noisy, template, method="distance", max_distance=0.05)
+    d = np.sqrt(((noisy[:, None] - template[None]) ** 2).sum(-1)).min(1)
+    np.testing.assert_array_equal(result.mask, d <= 0.05)
+    assert result.mask[:400].all()  # the real points lie on the template
+    default = denoise(noisy, template, method="distance")
+    assert default.mask[:400].all() and not default.mask.all()
+    with pytest.raises(MaskNetError, match="unknown denoising method"):
+        denoise(noisy, template, method="median")

@@ -269,7 +269,19 @@ def build_parser() -> argparse.ArgumentParser:
         "one 0/1 per noisy point",
     )
     p.add_argument(
-        "--threshold", type=_finite_float, default=0.5, help="keep points scoring >= this"
+        "--method",
+        choices=["masknet", "distance"],
+        default="masknet",
+        help="masknet: the denoising network; distance: keep points near the template",
+    )
+    p.add_argument(
+        "--threshold", type=_finite_float, default=0.5, help="masknet: keep points scoring >= this"
+    )
+    p.add_argument(
+        "--max-distance",
+        type=_finite_float,
+        help="distance: the largest distance kept, in the clouds' units "
+        "(default 3x the template's point spacing)",
     )
     _add_file_options(p)
     _add_model_options(p, default_pretrained="denoise_modelnet40")
@@ -618,10 +630,19 @@ def cmd_denoise(args: argparse.Namespace) -> None:
         raise MaskNetError(f"--threshold must be in [0, 1], got {args.threshold}")
     noisy = read_points(args.noisy, drop_nonfinite=args.drop_nonfinite)
     template = read_points(args.template, drop_nonfinite=args.drop_nonfinite)
-    model = _load_model(args)
-    result = denoise(
-        noisy, template, model, threshold=args.threshold, precision=args.inference_precision
-    )
+    if args.method == "distance":
+        result = denoise(noisy, template, method="distance", max_distance=args.max_distance)
+        rule = f"distance <= {args.max_distance or '3x template spacing'}"
+    else:
+        model = _load_model(args)
+        result = denoise(
+            noisy,
+            template,
+            model=model,
+            threshold=args.threshold,
+            precision=args.inference_precision,
+        )
+        rule = f"MaskNet score >= {args.threshold}"
     out = Path(args.output)
     mask_path = out.with_name(out.stem + "_mask.txt")
     _write_all(
@@ -633,7 +654,7 @@ def cmd_denoise(args: argparse.Namespace) -> None:
     removed = int((~result.mask).sum())
     print(
         f"kept {int(result.mask.sum())} of {len(noisy)} points, removed {removed} "
-        f"({100 * removed / len(noisy):.1f}%, threshold {args.threshold})"
+        f"({100 * removed / len(noisy):.1f}%, {rule})"
     )
     print(f"wrote {out} and {mask_path}")
     if args.html:

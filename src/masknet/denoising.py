@@ -15,13 +15,16 @@ import functools
 from typing import NamedTuple
 
 import numpy as np
+import torch
 
 from masknet.errors import MaskNetError
+from masknet.geometry.knn import knn_points
 from masknet.models.masknet import MaskNet, _as_batch, unit_radius
 
 __all__ = [
     "DenoiseResult",
     "denoise",
+    "template_spacing",
     "open3d_radius_outlier_removal",
     "open3d_statistical_outlier_removal",
 ]
@@ -41,32 +44,58 @@ def _default_model() -> MaskNet:
     return MaskNet.pretrained("denoise_modelnet40")
 
 
+def template_spacing(template: np.ndarray) -> float:
+    """Median distance from a template point (N, 3) to its nearest neighbour."""
+    cloud = torch.from_numpy(np.ascontiguousarray(template, dtype=np.float64))[None]
+    return float(knn_points(cloud, cloud, 2).dists[0, :, 1].sqrt().median())
+
+
 def denoise(
     noisy: np.ndarray,
     template: np.ndarray,
+    method: str = "masknet",
     model: MaskNet | None = None,
     threshold: float = 0.5,
+    max_distance: float | None = None,
     precision: str = "auto",
 ) -> DenoiseResult:
     """Remove the points of ``noisy`` (P, 3) that the clean ``template`` (N, 3) does not explain.
 
-    Both clouds are scaled by the template's radius (the outliers must not set
-    the scale); every noisy point is scored, in chunks, so large scans work at
-    full resolution. The clouds should be aligned (the shipped model was trained on
-    aligned pairs): denoise after a registration, e.g. ``register`` then this on the
-    moved source.
+    The clouds must be aligned: denoise after a registration, e.g. ``register`` and then
+    this on the moved source. Every noisy point is scored (in chunks), so large scans
+    work at full resolution.
 
     Args:
-        model: a MaskNet trained for denoising; None loads the shipped
-            ``"denoise_modelnet40"`` weights once.
-        threshold: keep points scoring at least this.
+        method: ``"masknet"`` (MaskNet the other way round: the network scores each noisy
+            point given the template; both are scaled by the template's radius, so the
+            outliers cannot set the scale) or ``"distance"`` (keep points within
+            ``max_distance`` of their nearest template point; default three times the
+            template's point spacing).
+        model: for ``"masknet"``: a MaskNet trained for denoising (``masknet train --model
+            denoise``); None loads the shipped ``"denoise_modelnet40"`` weights.
+        threshold: for ``"masknet"``: keep points scoring at least this.
+        max_distance: for ``"distance"``, in the clouds' units.
         precision: MaskNet's inference precision (``"auto"``: bf16 where native).
+
+    Returns:
+        DenoiseResult; ``scores`` are the network's for ``"masknet"``, and
+        ``exp(-(d / max_distance)^2)`` of the distance d for ``"distance"``.
     """
+    if method not in ("masknet", "distance"):
+        raise MaskNetError(f"unknown denoising method {method!r}; choose masknet or distance")
     if not 0 <= threshold <= 1:
         raise MaskNetError(f"threshold must be in [0, 1], got {threshold}")
     y, x, single = _as_batch(np.asarray(noisy), np.asarray(template))
     if not single:
         raise MaskNetError("denoise takes one noisy cloud (P, 3) and one template (N, 3)")
+    if method == "distance":
+        limit = 3 * template_spacing(template) if max_distance is None else max_distance
+        if not limit > 0:
+            raise MaskNetError(f"max_distance must be positive, got {limit}")
+        d = knn_points(y.double(), x.double(), 1).dists[0, :, 0].sqrt().numpy()
+        mask = d <= limit
+        scores = np.exp(-((d / limit) ** 2)).astype(np.float32)
+        return DenoiseResult(np.asarray(noisy)[mask], mask, scores)
     model = model or _default_model()
     radius = unit_radius(x)[:, None, None]
     scores = model.predict(
