@@ -34,19 +34,23 @@ def clouds():
 
 def test_denoise_keeps_points_scoring_above_threshold(model, clouds):
     template, noisy = clouds
-    result = denoise(noisy, template, model=model, threshold=0.5, precision="fp32")
+    result = denoise(
+        noisy, template, method="masknet", model=model, threshold=0.5, precision="fp32"
+    )
     assert result.mask.shape == (440,) and result.scores.shape == (440,)
     np.testing.assert_array_equal(result.mask, result.scores >= 0.5)
     np.testing.assert_array_equal(result.points, noisy[result.mask])
-    everything = denoise(noisy, template, model=model, threshold=0.0)
+    everything = denoise(noisy, template, method="masknet", model=model, threshold=0.0)
     assert everything.mask.all()
 
 
 def test_denoise_scale_comes_from_the_template(model, clouds):
     """Outliers far away must not change the scores of the other points' scaling."""
     template, noisy = clouds
-    a = denoise(noisy, template, model=model, precision="fp32").scores
-    b = denoise(noisy * 1000, template * 1000, model=model, precision="fp32").scores
+    a = denoise(noisy, template, method="masknet", model=model, precision="fp32").scores
+    b = denoise(
+        noisy * 1000, template * 1000, method="masknet", model=model, precision="fp32"
+    ).scores
     np.testing.assert_allclose(a, b, atol=1e-5)
 
 
@@ -55,7 +59,7 @@ def test_denoise_refuses_batches_and_bad_thresholds(model, clouds):
     with pytest.raises(MaskNetError, match="one noisy cloud"):
         denoise(noisy[None], template[None], model=model)
     with pytest.raises(MaskNetError, match="threshold"):
-        denoise(noisy, template, model=model, threshold=2.0)
+        denoise(noisy, template, method="masknet", model=model, threshold=2.0)
 
 
 def _has_open3d() -> bool:
@@ -87,7 +91,8 @@ def test_cli_denoise_writes_points_and_mask(tmp_path, model, clouds, capsys):
     np.save(tmp_path / "template.npy", template)
     out = tmp_path / "clean.xyz"
     args = ["denoise", str(tmp_path / "noisy.xyz"), str(tmp_path / "template.npy")]
-    assert main([*args, "-o", str(out), "--weights", str(weights), "--threshold", "0.5"]) == 0
+    options = ["--weights", str(weights), "--threshold", "0.5", "--method", "masknet"]
+    assert main([*args, "-o", str(out), *options]) == 0
     mask = np.loadtxt(tmp_path / "clean_mask.txt").astype(bool)
     assert mask.shape == (440,)
     np.testing.assert_allclose(np.loadtxt(out).reshape(-1, 3), noisy[mask], atol=1e-6)

@@ -6,7 +6,7 @@
     >>> from masknet import register
     >>> result = register(template, source)           # Mask-ICP; result.transform (4, 4)
     >>> from masknet import denoise
-    >>> kept = denoise(noisy, template)               # outliers removed: kept.points, kept.mask
+    >>> kept = denoise(noisy, template)               # aligned clouds: kept.points, kept.mask
 
 The transform convention for every registration result is documented in
 :mod:`masknet.geometry.se3`: ``template ~= R @ source + t``.

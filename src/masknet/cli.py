@@ -270,9 +270,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--method",
-        choices=["masknet", "distance"],
-        default="masknet",
-        help="masknet: the denoising network; distance: keep points near the template",
+        choices=["distance", "masknet"],
+        default="distance",
+        help="distance (default): keep points near the template; masknet: a denoising "
+        "network (--weights from masknet train --model denoise)",
     )
     p.add_argument(
         "--threshold", type=_finite_float, default=0.5, help="masknet: keep points scoring >= this"

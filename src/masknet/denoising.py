@@ -1,9 +1,12 @@
-"""Denoising: MaskNet applied the other way round removes outliers from a scan.
+"""Denoising: remove the points of a scan that a clean template does not explain.
 
 Given a noisy cloud Y (a scan with outliers) and a clean template X of the same
-object, :func:`denoise` scores every point of Y: does X see it? Points scoring at
-least ``threshold`` are kept. The shipped ``"denoise_modelnet40"`` weights were
-trained so (10% uniform outliers in the source, aligned pairs; its model card says how).
+object, aligned, :func:`denoise` decides for every point of Y whether X explains it:
+by its distance to X (``method="distance"``, the default), or by MaskNet applied the
+other way round (``method="masknet"``, the paper's denoising use, with a model from
+``masknet train --model denoise``: 10% uniform outliers in the source). No denoising
+MaskNet ships yet: three training runs on this project's CPU stayed at the
+keep-everything solution (docs/RESULTS.md, section 6).
 
 Open3D's statistical and radius outlier removal are wrapped here too, as the
 peers the benchmark compares against (they need no template).
@@ -53,7 +56,7 @@ def template_spacing(template: np.ndarray) -> float:
 def denoise(
     noisy: np.ndarray,
     template: np.ndarray,
-    method: str = "masknet",
+    method: str = "distance",
     model: MaskNet | None = None,
     threshold: float = 0.5,
     max_distance: float | None = None,
@@ -66,13 +69,14 @@ def denoise(
     work at full resolution.
 
     Args:
-        method: ``"masknet"`` (MaskNet the other way round: the network scores each noisy
+        method: ``"distance"`` (the default: keep points within ``max_distance`` of their
+            nearest template point; default three times the template's point spacing) or
+            ``"masknet"`` (MaskNet the other way round: the network scores each noisy
             point given the template; both are scaled by the template's radius, so the
-            outliers cannot set the scale) or ``"distance"`` (keep points within
-            ``max_distance`` of their nearest template point; default three times the
-            template's point spacing).
+            outliers cannot set the scale).
         model: for ``"masknet"``: a MaskNet trained for denoising (``masknet train --model
-            denoise``); None loads the shipped ``"denoise_modelnet40"`` weights.
+            denoise``). None loads shipped ``"denoise_modelnet40"`` weights; none ship yet,
+            because no training run so far learnt to reject outliers (docs/RESULTS.md).
         threshold: for ``"masknet"``: keep points scoring at least this.
         max_distance: for ``"distance"``, in the clouds' units.
         precision: MaskNet's inference precision (``"auto"``: bf16 where native).
