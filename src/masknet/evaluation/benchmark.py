@@ -380,8 +380,12 @@ def exp_timing(ctx: BenchmarkContext) -> ExperimentResult:
     pairs = ctx.test_pairs(count=8)
     repeats = 5 if ctx.quick else 100
     rows = []
-    for label, kwargs in SWEEP_PIPELINES.items():
-        method = label.removeprefix("Mask-")
+    pipelines = SWEEP_PIPELINES | {
+        "ICP (Open3D backend)": {"method": "open3d-icp", "use_mask": False},
+        "Mask-ICP (Open3D backend)": {"method": "open3d-icp", "use_mask": True},
+    }
+    for label, kwargs in pipelines.items():
+        method = label.removeprefix("Mask-").removesuffix(" (Open3D backend)")
         paper = PAPER_TIMING_MS[method][label.startswith("Mask-")]
         rows.append(
             {
