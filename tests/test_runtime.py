@@ -1,23 +1,17 @@
-"""Device, precision and thread helpers."""
+"""Device and precision helpers."""
 
-import torch
+import pytest
 
-from masknet.runtime import SMALL_WORK, default_precision, threads_for
-
-
-def test_small_work_runs_on_one_thread_and_restores_the_setting():
-    before = torch.get_num_threads()
-    torch.set_num_threads(2)
-    try:
-        with threads_for(1000):
-            assert torch.get_num_threads() == 1
-        assert torch.get_num_threads() == 2
-        with threads_for(SMALL_WORK):
-            assert torch.get_num_threads() == 2
-    finally:
-        torch.set_num_threads(before)
+from masknet.errors import MaskNetError
+from masknet.runtime import default_precision, resolve_device
 
 
 def test_default_precision_is_a_known_mode():
     assert default_precision("cpu") in ("fp32", "bf16")
     assert default_precision("meta") == "fp32"
+
+
+def test_unknown_device_is_one_clear_error():
+    assert resolve_device("cpu").type == "cpu"
+    with pytest.raises(MaskNetError, match="unknown device"):
+        resolve_device("tpu:7")

@@ -3,16 +3,14 @@ training and inference."""
 
 from __future__ import annotations
 
-import contextlib
 import functools
-from collections.abc import Iterator
 from pathlib import Path
 
 import torch
 
 from masknet.errors import MaskNetError
 
-__all__ = ["default_precision", "resolve_device", "threads_for"]
+__all__ = ["default_precision", "resolve_device"]
 
 
 def resolve_device(device: str) -> torch.device:
@@ -43,26 +41,3 @@ def _default_precision(device_type: str) -> str:
     except OSError:
         return "fp32"
     return "bf16" if ("avx512_bf16" in flags or "amx_bf16" in flags) else "fp32"
-
-
-# Below this many distance evaluations, thread start-up costs more than it saves.
-SMALL_WORK = 8_000_000
-
-
-@contextlib.contextmanager
-def threads_for(work: int) -> Iterator[None]:
-    """Run small CPU problems (``work`` below :data:`SMALL_WORK` operations) on one thread.
-
-    Small nearest-neighbour searches and 3x3 solves are dominated by thread overhead:
-    one ICP of a 717-point source on a 1,024-point template runs about twice as fast
-    on one thread as on two (docs/RESULTS.md). Larger problems keep torch's setting.
-    """
-    before = torch.get_num_threads()
-    if work >= SMALL_WORK or before == 1:
-        yield
-        return
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)

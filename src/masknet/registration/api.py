@@ -36,7 +36,6 @@ from masknet.models.masknet import MaskNet, _as_batch, unit_radius
 from masknet.models.pointnetlk import PointNetLK
 from masknet.registration.icp import icp
 from masknet.registration.open3d_icp import open3d_icp
-from masknet.runtime import threads_for
 
 __all__ = ["RegistrationResult", "register", "METHODS"]
 
@@ -321,15 +320,13 @@ def _run_icp(
         shift = (template * weights).sum(1, keepdims=True) / np.maximum(
             weights.sum(1, keepdims=True), 1
         )
-    work = source.shape[0] * source.shape[1] * template.shape[1]
     try:
-        with threads_for(work):
-            solution = icp(
-                torch.from_numpy(source - shift).float(),
-                torch.from_numpy(template - shift).float(),
-                template_valid=valid,
-                **options,
-            )
+        solution = icp(
+            torch.from_numpy(source - shift).float(),
+            torch.from_numpy(template - shift).float(),
+            template_valid=valid,
+            **options,
+        )
     except ValueError as exc:
         raise MaskNetError(f"icp: {exc}") from exc
     centred = solution.transform.double().numpy()
