@@ -319,7 +319,8 @@ def exp_noise(ctx: BenchmarkContext) -> ExperimentResult:
             rows.append({"sigma": sigma, "pipeline": label, **_batched_errors(few, **kwargs)})
 
     def plot(path: Path) -> None:
-        lines = {n: [r["rot_mean"] for r in rows if r["pipeline"] == n] for n in SWEEP_PIPELINES}
+        names = list(dict.fromkeys(r["pipeline"] for r in rows))
+        lines = {n: [r["rot_mean"] for r in rows if r["pipeline"] == n] for n in names}
         _line_plot(
             path,
             sigmas,
@@ -329,7 +330,11 @@ def exp_noise(ctx: BenchmarkContext) -> ExperimentResult:
             "Noise",
         )
 
-    return ExperimentResult(rows, f"{ctx.pairs} pairs per sigma, default protocol otherwise.", plot)
+    summary = (
+        f"{ctx.pairs} pairs per sigma (Open3D's global methods: the first {PEER_PAIRS}), default "
+        "protocol otherwise; Gaussian noise on the source, clipped at max(0.05, 2 sigma)."
+    )
+    return ExperimentResult(rows, summary, plot)
 
 
 def exp_generalization(ctx: BenchmarkContext) -> ExperimentResult:
