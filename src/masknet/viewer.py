@@ -18,6 +18,7 @@ import numpy as np
 
 from masknet.errors import MaskNetError
 from masknet.io import write_text_atomic
+from masknet.viz import display_points
 
 __all__ = ["Layer", "write_viewer", "LAYER_COLOURS"]
 
@@ -37,11 +38,7 @@ Layer = tuple[np.ndarray, str]  # (P, 3) points, "#rrggbb"
 
 
 def _layer_json(points: np.ndarray) -> list[float]:
-    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    points = points[np.isfinite(points).all(1)]
-    if len(points) > MAX_POINTS_PER_LAYER:
-        points = points[np.linspace(0, len(points) - 1, MAX_POINTS_PER_LAYER).astype(int)]
-    return np.round(points, 5).ravel().tolist()
+    return np.round(display_points(points, MAX_POINTS_PER_LAYER), 5).ravel().tolist()
 
 
 def write_viewer(

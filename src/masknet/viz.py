@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["plot_clouds", "plot_mask"]
+__all__ = ["display_points", "plot_clouds", "plot_mask"]
 
 GREY, BLUE = "#b0b0b0", "#1f77b4"
 TP, FP, FN = "#2ca02c", "#d62728", "#ff7f0e"
@@ -79,6 +79,15 @@ def plot_mask(
     return _save(fig, path)
 
 
+def display_points(points: np.ndarray, max_points: int) -> np.ndarray:
+    """Finite rows of (P, 3) points, evenly subsampled to at most ``max_points`` for drawing."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    points = points[np.isfinite(points).all(1)]
+    if len(points) > max_points:
+        points = points[np.linspace(0, len(points) - 1, max_points).astype(int)]
+    return points
+
+
 def plot_clouds(
     layers: dict[str, tuple[np.ndarray, str]],
     path: str | os.PathLike,
@@ -97,11 +106,7 @@ def plot_clouds(
 
     clouds = {}
     for name, (points, colour) in layers.items():
-        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        points = points[np.isfinite(points).all(1)]
-        if len(points) > max_points:
-            points = points[np.linspace(0, len(points) - 1, max_points).astype(int)]
-        clouds[name] = (points, colour)
+        clouds[name] = (display_points(points, max_points), colour)
     every = np.concatenate([p for p, _ in clouds.values()])
     mid = (every.max(0) + every.min(0)) / 2
     half = max((every.max(0) - every.min(0)).max() / 2, 1e-12)

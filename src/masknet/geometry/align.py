@@ -9,6 +9,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from masknet.geometry.se3 import make_transform
+
 __all__ = ["centroid", "centroid_alignment", "rigid_align"]
 
 
@@ -29,9 +31,8 @@ def centroid_alignment(
     """The translation-only transform (B, 4, 4), float64, that moves each source
     centroid onto its (valid) template centroid: a registration initialisation."""
     shift = centroid(template.double(), template_valid) - centroid(source.double())
-    out = torch.eye(4, dtype=torch.float64, device=source.device).repeat(source.shape[0], 1, 1)
-    out[:, :3, 3] = shift
-    return out
+    eye = torch.eye(3, dtype=torch.float64, device=source.device).expand(len(shift), 3, 3)
+    return make_transform(eye, shift)
 
 
 def rigid_align(

@@ -30,7 +30,7 @@ import torch
 from torch import Tensor, nn
 
 from masknet.geometry.align import centroid
-from masknet.geometry.se3 import se3_exp, transform_points
+from masknet.geometry.se3 import make_transform, se3_exp, transform_points
 from masknet.models.pointnet import PointNetEncoder
 from masknet.models.weights import SafetensorsWeights
 
@@ -50,13 +50,6 @@ class LKSolution(NamedTuple):
     residual: Tensor
     iterations: Tensor
     converged: Tensor
-
-
-def _translation(shift: Tensor) -> Tensor:
-    """(B, 3) -> (B, 4, 4) pure translations."""
-    out = torch.eye(4, dtype=shift.dtype, device=shift.device).repeat(shift.shape[0], 1, 1)
-    out[:, :3, 3] = shift
-    return out
 
 
 class PointNetLK(SafetensorsWeights, nn.Module):
@@ -138,5 +131,6 @@ class PointNetLK(SafetensorsWeights, nn.Module):
                 done = done | (xi.norm(dim=-1) < tolerance)
                 if bool(done.all()):
                     break
-        full = _translation(centre_t) @ transform @ _translation(-centre_s)
+        eye = torch.eye(3, dtype=transform.dtype, device=transform.device).expand(b, 3, 3)
+        full = make_transform(eye, centre_t) @ transform @ make_transform(eye, -centre_s)
         return LKSolution(full, residual, iterations, done)

@@ -32,6 +32,7 @@ from masknet.errors import MaskNetError
 from masknet.geometry.align import centroid_alignment
 from masknet.geometry.knn import knn_points
 from masknet.geometry.sampling import farthest_point_sample
+from masknet.geometry.se3 import transform_points
 from masknet.models.masknet import MaskNet, _as_batch, unit_radius
 from masknet.models.pointnetlk import PointNetLK
 from masknet.registration.icp import icp
@@ -294,8 +295,8 @@ def _spread_mask(template: np.ndarray, sampled: np.ndarray, mask: np.ndarray) ->
 
 
 def _apply(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """(B, 4, 4) transforms applied to (B, P, 3) points."""
-    return points @ transform[:, :3, :3].transpose(0, 2, 1) + transform[:, None, :3, 3]
+    """(B, 4, 4) transforms applied to (B, P, 3) points (numpy wrapper of the SE(3) module)."""
+    return transform_points(torch.from_numpy(transform), torch.from_numpy(points)).numpy()
 
 
 def _initial_transform(
