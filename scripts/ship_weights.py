@@ -5,6 +5,7 @@
     python scripts/ship_weights.py runs/ft modelnet40 --data PATH --previous OLD_CARD.json
     python scripts/ship_weights.py runs/denoise denoise_modelnet40 --data PATH --kind denoise
     python scripts/ship_weights.py runs/pointnetlk modelnet40 --data PATH --kind pointnetlk
+    python scripts/ship_weights.py runs/dcp modelnet40 --data PATH --kind dcp  (prnet, pcrnet, rpmnet)
 
 Every figure on the card comes from the run folder (run.json, log.csv) or is
 measured here on ``--pairs`` (default 1,000) seeded ModelNet40 *test* pairs;
@@ -84,14 +85,18 @@ def main() -> None:
     parser.add_argument("--data", required=True)
     parser.add_argument("--pairs", type=int, default=1000)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--kind", choices=["masknet", "denoise", "pointnetlk"], default="masknet")
+    parser.add_argument(
+        "--kind",
+        choices=["masknet", "denoise", "pointnetlk", "dcp", "prnet", "pcrnet", "rpmnet"],
+        default="masknet",
+    )
     parser.add_argument("--previous", type=Path, help="card (.json) of the --init weights")
     args = parser.parse_args()
     previous = json.loads(args.previous.read_text()) if args.previous else None
-    if args.kind == "pointnetlk":
-        from ship_pointnetlk import ship_pointnetlk
+    if args.kind not in ("masknet", "denoise"):
+        from ship_network import ship_network
 
-        return ship_pointnetlk(args, previous)
+        return ship_network(args, previous)
     if args.kind == "denoise":
         from ship_denoise import ship_denoise
 

@@ -41,6 +41,16 @@ def _finite_float(text: str) -> float:
     return value
 
 
+def _json_object(text: str) -> dict:
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise argparse.ArgumentTypeError(f"not valid JSON ({exc.msg}): {text}") from None
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError(f"must be a JSON object, got {text}")
+    return value
+
+
 def _add_pair_options(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("pair generation")
     g.add_argument(
@@ -112,14 +122,16 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser(
-        "train", help="train MaskNet or PointNetLK on ModelNet40 (CPU or GPU), resumable"
+        "train",
+        help="train MaskNet or a registration network on ModelNet40 (CPU or GPU), resumable",
     )
     p.add_argument(
         "--model",
-        choices=["masknet", "denoise", "pointnetlk"],
+        choices=["masknet", "denoise", "pointnetlk", "dcp", "prnet", "pcrnet", "rpmnet"],
         default="masknet",
         help="masknet (partial pairs), denoise (MaskNet scoring the points of a source "
-        "with outliers, 10%% by default) or pointnetlk (full-cloud pairs, as its paper trains)",
+        "with outliers, 10%% by default), or a registration network: pointnetlk, dcp, "
+        "pcrnet (full-cloud pairs, as their papers train) or prnet, rpmnet (partial pairs)",
     )
     p.add_argument("--data", help="ModelNet40 folder or .npz (default: $MASKNET_DATA)")
     p.add_argument(
@@ -136,17 +148,27 @@ def build_parser() -> argparse.ArgumentParser:
         help="PointNet feature size K (last encoder width); default 1024",
     )
     p.add_argument(
+        "--iterations",
         "--lk-iterations",
+        dest="iterations",
         type=_positive_int,
-        default=10,
-        help="pointnetlk only: LK iterations per training pair",
+        help="registration networks: refinement iterations per training pair (default: "
+        "pointnetlk 10, dcp 1, pcrnet 3, prnet 2, rpmnet 2)",
+    )
+    p.add_argument(
+        "--model-config",
+        type=_json_object,
+        default=None,
+        metavar="JSON",
+        help="registration networks: keyword arguments of the network class, e.g. "
+        '\'{"embedding": 128, "k": 16}\' for dcp (default: the paper\'s sizes)',
     )
     p.add_argument(
         "--precision",
         choices=["auto", "fp32", "bf16"],
         default="auto",
-        help="autocast dtype; auto = bf16 where the hardware has it (masknet; pointnetlk's "
-        "finite differences always train in fp32)",
+        help="autocast dtype; auto = bf16 where the hardware has it (masknet only: the "
+        "registration networks train in fp32)",
     )
     p.add_argument(
         "--num-points", type=_positive_int, default=1024, help="template points per training pair"
@@ -179,6 +201,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--pairs", type=_positive_int, default=1000)
     p.add_argument("--seed", type=_seed, default=0)
     p.add_argument("--json", help="also write the results to this JSON file")
+    p.add_argument(
+        "--realign-rounds",
+        type=_positive_int,
+        default=1,
+        metavar="R",
+        help="also report the top-k mask predicted in round R of mask -> Mask-ICP (30 "
+        "iterations) -> move the source: MaskNet inside the iterative pipeline",
+    )
     _add_model_options(p)
     _add_pair_options(p)
 
@@ -221,17 +251,34 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--method",
-        choices=["icp", "open3d-icp", "pointnetlk", "open3d-ransac", "open3d-fgr"],
+        choices=[
+            "icp",
+            "open3d-icp",
+            "pointnetlk",
+            "dcp",
+            "prnet",
+            "pcrnet",
+            "rpmnet",
+            "open3d-ransac",
+            "open3d-fgr",
+        ],
         default="icp",
-        help="icp (default), pointnetlk, or Open3D's icp / RANSAC / FGR on FPFH features",
+        help="icp (default), a learned network (pointnetlk, dcp, prnet, pcrnet, rpmnet; "
+        "shipped weights unless --network-weights), or Open3D's icp / RANSAC / FGR on FPFH",
+    )
+    p.add_argument(
+        "--network-weights",
+        metavar="PATH",
+        help="weights (.safetensors from masknet train --model NAME) for a learned --method",
     )
     p.add_argument("--no-mask", action="store_true", help="plain X instead of Mask-X")
     p.add_argument("--iterations", type=_positive_int, default=1, help="rounds of mask -> register")
     p.add_argument(
         "--max-iterations",
         type=_positive_int,
-        default=10,
-        help="iterations of the method per round (the paper's 10)",
+        default=None,
+        help="iterations of the method per round (default: 10 for ICP and PointNetLK, "
+        "as the paper; the learned networks' own: dcp 1, prnet 3, pcrnet 8, rpmnet 5)",
     )
     p.add_argument(
         "--refine",
@@ -399,8 +446,8 @@ def _load_model(args: argparse.Namespace):
 
 def cmd_train(args: argparse.Namespace) -> None:
     from masknet.data import load_modelnet40
-    from masknet.models import MaskNet, PointNetLK
-    from masknet.training import MaskNetTask, PointNetLKTask, TrainConfig, fit
+    from masknet.models import REGISTRATION_NETWORKS, MaskNet
+    from masknet.training import TRAINING_DEFAULTS, MaskNetTask, RegistrationTask, TrainConfig, fit
 
     data = load_modelnet40(args.data, "train").subset(args.categories)
     if not 16 <= args.num_points <= data.points.shape[1]:
@@ -428,17 +475,24 @@ def cmd_train(args: argparse.Namespace) -> None:
         )
         model_class = MaskNet
     else:
-        task = PointNetLKTask(
-            pairs=_pair_config(args, default_keep_ratio=1.0),
+        defaults = TRAINING_DEFAULTS[args.model]
+        model_config = args.model_config if args.model_config is not None else encoder
+        task = RegistrationTask(
+            pairs=_pair_config(args, default_keep_ratio=defaults["keep_ratio"]),
             num_points=args.num_points,
-            iterations=args.lk_iterations,
-            model_config=encoder,
+            name=args.model,
+            iterations=args.iterations or defaults["iterations"],
+            model_config=model_config,
         )
-        model_class = PointNetLK
+        model_class = REGISTRATION_NETWORKS[args.model]
+        try:
+            task.build_model()
+        except TypeError as exc:
+            raise MaskNetError(f"--model-config does not fit {args.model}: {exc}") from None
         if precision == "bf16":
             raise MaskNetError(
-                "--precision bf16 does not suit pointnetlk: its finite-difference Jacobian "
-                "needs fp32"
+                f"--precision bf16 does not suit {args.model}: registration networks train "
+                "in fp32 (PointNetLK's finite-difference Jacobian and the SVDs need it)"
             )
         precision = "fp32"
     config = TrainConfig(
@@ -479,6 +533,7 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
         args.seed,
         _pair_config(args),
         precision=args.inference_precision,
+        realign_rounds=args.realign_rounds,
     )
     print(
         f"{args.pairs} pairs from {len(data)} test shapes ({args.categories} categories), seed {args.seed}"
@@ -558,6 +613,15 @@ def cmd_register(args: argparse.Namespace) -> None:
     template = read_points(args.template, drop_nonfinite=args.drop_nonfinite)
     source = read_points(args.source, drop_nonfinite=args.drop_nonfinite)
     model = None if args.no_mask else _load_model(args)
+    options = {}
+    if args.max_iterations is not None and args.method not in ("open3d-ransac", "open3d-fgr"):
+        options["max_iterations"] = args.max_iterations
+    if args.network_weights:
+        from masknet.models import REGISTRATION_NETWORKS
+
+        if args.method not in REGISTRATION_NETWORKS:
+            raise MaskNetError(f"--network-weights needs a learned --method, not {args.method}")
+        options["network"] = REGISTRATION_NETWORKS[args.method].from_file(args.network_weights)
     result = register(
         template,
         source,
@@ -569,11 +633,7 @@ def cmd_register(args: argparse.Namespace) -> None:
         init=args.init,
         refine_iterations=args.refine,
         max_points=args.max_points,
-        **(
-            {}
-            if args.method in ("open3d-ransac", "open3d-fgr")
-            else {"max_iterations": args.max_iterations}
-        ),
+        **options,
     )
     moved = source @ result.R.T + result.t
     out = Path(args.output)
@@ -593,6 +653,10 @@ def cmd_register(args: argparse.Namespace) -> None:
         "icp": "ICP",
         "open3d-icp": "Open3D-ICP",
         "pointnetlk": "PointNetLK",
+        "dcp": "DCP",
+        "prnet": "PRNet",
+        "pcrnet": "PCRNet",
+        "rpmnet": "RPM-Net",
         "open3d-ransac": "Open3D-RANSAC",
         "open3d-fgr": "Open3D-FGR",
     }

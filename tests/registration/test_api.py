@@ -389,3 +389,74 @@ def _open3d_available() -> bool:
     except MaskNetError:
         return False
     return True
+
+
+_TINY_NETWORKS = {
+    "dcp": {"channels": [8, 16], "embedding": 16, "k": 8, "heads": 2, "feedforward": 32},
+    "prnet": {"channels": [8, 16], "embedding": 16, "k": 8, "heads": 2, "feedforward": 32},
+    "pcrnet": {"encoder_channels": [16, 32], "head_channels": [32, 16]},
+    "rpmnet": {"features": 16, "k": 8, "parameter_channels": [16, 32], "input_points": 300},
+}
+
+
+@pytest.mark.parametrize("method", list(_TINY_NETWORKS))
+def test_learned_methods_run_with_and_without_mask(pairs, method):
+    from masknet.models import REGISTRATION_NETWORKS
+
+    torch.manual_seed(0)
+    network = REGISTRATION_NETWORKS[method](**_TINY_NETWORKS[method]).eval()
+    template, source = pairs.template.numpy(), pairs.source.numpy()
+    mask = pairs.mask.numpy()
+    plain = register(template, source, method=method, use_mask=False, network=network)
+    masked = register(template, source, method=method, model=_FixedMask(mask), network=network)
+    for result in (plain, masked):
+        assert result.transform.shape == (3, 4, 4)
+        np.testing.assert_allclose(
+            result.R @ result.R.transpose(0, 2, 1), np.eye(3)[None].repeat(3, 0), atol=1e-5
+        )
+    # Mask-X: the masked-out template points cannot matter. They trade places among
+    # themselves, which keeps the template's extent (the scale the network sees).
+    cluttered = template.copy()
+    for i in range(len(mask)):
+        cluttered[i, ~mask[i]] = template[i, ~mask[i]][::-1]
+    moved = register(cluttered, source, method=method, model=_FixedMask(mask), network=network)
+    np.testing.assert_allclose(moved.transform, masked.transform, atol=1e-4)
+    if method in ("prnet", "rpmnet"):
+        inliers = masked.correspondence_inliers
+        assert inliers.shape == mask.shape and not inliers[~mask].any()
+    else:
+        assert masked.correspondence_inliers is None
+
+
+def test_networks_sample_clouds_above_their_input_size(pairs):
+    """rpmnet above was built for 300 points: the 1,024-point template is sampled to 300."""
+    from masknet.models import RPMNet
+
+    calls = []
+
+    class Recording(RPMNet):
+        def forward(self, template, source, max_iterations=5):
+            calls.append((template.shape[1], source.shape[1]))
+            return super().forward(template, source, max_iterations)
+
+    torch.manual_seed(0)
+    network = Recording(**_TINY_NETWORKS["rpmnet"]).eval()
+    template, source = pairs.template[0].numpy(), pairs.source[0].numpy()
+    register(template, source, method="rpmnet", use_mask=False, network=network)
+    assert calls == [(300, round(len(source) * 300 / len(template)))]
+
+
+def test_threshold_masks_of_different_sizes_run_pair_by_pair(pairs):
+    from masknet.models import DCP
+
+    torch.manual_seed(0)
+    network = DCP(**_TINY_NETWORKS["dcp"]).eval()
+    template, source = pairs.template.numpy(), pairs.source.numpy()
+    mask = pairs.mask.numpy().copy()
+    mask[0, np.flatnonzero(mask[0])[:50]] = False  # pair 0 keeps 50 fewer points
+    batched = register(template, source, method="dcp", model=_FixedMask(mask), network=network)
+    for i in range(3):
+        single = register(
+            template[i], source[i], method="dcp", model=_FixedMask(mask[i : i + 1]), network=network
+        )
+        np.testing.assert_allclose(batched.transform[i], single.transform, atol=1e-5)

@@ -6,13 +6,13 @@ import sys
 import torch
 
 from masknet.data import bundled_sample_path, load_modelnet40
-from masknet.training import PointNetLKTask, TrainConfig, fit
+from masknet.training import RegistrationTask, TrainConfig, fit
 
 torch.set_num_threads(1)
 shapes = load_modelnet40(bundled_sample_path()).points[:40]
 
 
-class Float64Task(PointNetLKTask):
+class Float64Task(RegistrationTask):
     """float64, so that rounding cannot hide or fake a difference from the parallelism."""
 
     def build_model(self):

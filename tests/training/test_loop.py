@@ -16,7 +16,7 @@ import torch
 from masknet.data import bundled_sample_path, load_modelnet40
 from masknet.errors import MaskNetError
 from masknet.models import MaskNet
-from masknet.training import MaskNetTask, TrainConfig, fit, split_train_val
+from masknet.training import MaskNetTask, RegistrationTask, TrainConfig, fit, split_train_val
 
 TINY = {"encoder_channels": (16, 16, 32), "head_channels": (32, 16)}
 
@@ -180,10 +180,12 @@ def test_corrupt_checkpoint_is_one_clear_error(tmp_path, shapes):
 
 def test_pointnetlk_trains_and_exports_loadable_weights(tmp_path):
     from masknet.models import PointNetLK
-    from masknet.training import PointNetLKTask
+    from masknet.training import RegistrationTask
 
     shapes = load_modelnet40(bundled_sample_path()).points[:40]
-    task = PointNetLKTask(num_points=64, iterations=2, model_config={"encoder_channels": [16, 32]})
+    task = RegistrationTask.for_network(
+        "pointnetlk", num_points=64, iterations=2, model_config={"encoder_channels": [16, 32]}
+    )
     config = TrainConfig(
         out_dir=str(tmp_path), epochs=2, batch_size=8, precision="fp32", val_pairs=8, lr=1e-3
     )
@@ -198,3 +200,28 @@ def test_pointnetlk_trains_and_exports_loadable_weights(tmp_path):
 
     with safe_open(str(tmp_path / "best.safetensors"), framework="pt") as f:
         assert json.loads(f.metadata()["epoch"]) == best_epoch
+
+
+@pytest.mark.parametrize(
+    "name, config",
+    [
+        ("dcp", {"channels": [8, 16], "embedding": 16, "k": 8, "heads": 2, "feedforward": 32}),
+        ("prnet", {"channels": [8, 16], "embedding": 16, "k": 8, "heads": 2, "feedforward": 32}),
+        ("pcrnet", {"encoder_channels": [16, 32], "head_channels": [32, 16]}),
+        ("rpmnet", {"features": 16, "k": 8, "parameter_channels": [16, 32]}),
+    ],
+)
+def test_registration_networks_train_and_export(tmp_path, name, config):
+    from masknet.models import REGISTRATION_NETWORKS
+
+    shapes = load_modelnet40(bundled_sample_path()).points[:24]
+    task = RegistrationTask.for_network(name, num_points=64, model_config=config)
+    train_config = TrainConfig(
+        out_dir=str(tmp_path), epochs=1, batch_size=8, precision="fp32", val_pairs=8, lr=1e-3
+    )
+    history = fit(task, shapes, train_config)
+    assert np.isfinite(history[-1]["train_loss"]) and np.isfinite(
+        history[-1]["val_rotation_error_deg"]
+    )
+    model = REGISTRATION_NETWORKS[name].from_file(tmp_path / "best.safetensors")
+    assert model.config == {**REGISTRATION_NETWORKS[name]().config, **config}

@@ -53,6 +53,20 @@ SWEEP_PIPELINES = {
     "PointNetLK": {"method": "pointnetlk", "use_mask": False},
     "Mask-PointNetLK": {"method": "pointnetlk", "use_mask": True},
 }
+# The learned back-ends beyond PointNetLK, by display name (method names of register()).
+LEARNED = {"DCP": "dcp", "PRNet": "prnet", "PCRNet": "pcrnet", "RPM-Net": "rpmnet"}
+
+
+def sweep_pipelines() -> dict[str, dict]:
+    """X and Mask-X for ICP, PointNetLK and every learned back-end whose weights ship."""
+    pipelines = dict(SWEEP_PIPELINES)
+    for name, method in LEARNED.items():
+        if _shipped(method):
+            pipelines[name] = {"method": method, "use_mask": False}
+            pipelines[f"Mask-{name}"] = {"method": method, "use_mask": True}
+    return pipelines
+
+
 # The paper's Table (GTX 1070), ms per pair: X, Mask-X.
 PAPER_TIMING_MS = {
     "ICP": (6.82, 9.83),
@@ -130,17 +144,21 @@ def _line_plot(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=110)
+    fig, ax = plt.subplots(figsize=(6.4 if len(lines) <= 6 else 7.6, 4.2), dpi=110)
+    # One colour per method X, Mask-X solid and plain X dashed.
+    bases = list(dict.fromkeys(name.removeprefix("Mask-") for name in lines))
+    palette = plt.get_cmap("tab10")
     for name, ys in lines.items():
-        style = "-" if "Mask" in name else "--"  # Mask-X solid, plain X dashed
-        ax.plot(x, ys, style, marker="o", label=name)
+        style = "-" if "Mask" in name else "--"
+        colour = palette(bases.index(name.removeprefix("Mask-")) % 10)
+        ax.plot(x, ys, style, marker="o", markersize=4, color=colour, label=name)
     if baseline is not None:
         ax.plot(x, baseline[1], ":", color="grey", label=baseline[0])
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.set_title(title)
     ax.grid(alpha=0.3)
-    ax.legend()
+    ax.legend(fontsize="small", ncol=2 if len(lines) > 6 else 1)
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
@@ -169,6 +187,17 @@ def _bar_plot(
     plt.close(fig)
 
 
+def _error_bars(path: Path, rows: list[dict], title: str) -> None:
+    """Mean and median rotation error of each pipeline row, as bars."""
+    _bar_plot(
+        path,
+        [r["pipeline"] for r in rows],
+        {"mean": [r["rot_mean"] for r in rows], "median": [r["rot_median"] for r in rows]},
+        "rotation error (degrees)",
+        title,
+    )
+
+
 # ------------------------------------------------------------------------- experiments
 
 
@@ -180,18 +209,57 @@ def exp_registration(ctx: BenchmarkContext) -> ExperimentResult:
     best = min(rows, key=lambda r: r["rot_median"])
 
     def plot(path: Path) -> None:
-        names = [r["pipeline"] for r in rows]
-        _bar_plot(
+        _error_bars(
             path,
-            names,
-            {"mean": [r["rot_mean"] for r in rows], "median": [r["rot_median"] for r in rows]},
-            "rotation error (degrees)",
+            rows,
             f"Registration on {len(pairs.template)} ModelNet40 test pairs (30% missing, <=45 deg)",
         )
 
     summary = (
         f"{len(pairs.template)} pairs, 30% missing, rotation <= 45 deg, translation in [-1, 1]^3; "
         f"lowest median rotation error: {best['pipeline']} ({best['rot_median']:.2f} deg)."
+    )
+    return ExperimentResult(rows, summary, plot)
+
+
+def _shipped(method: str) -> bool:
+    """Whether the package ships weights for a learned registration method."""
+    from masknet.models import REGISTRATION_NETWORKS
+
+    try:
+        REGISTRATION_NETWORKS[method].pretrained()
+    except MaskNetError:
+        return False
+    return True
+
+
+def exp_networks(ctx: BenchmarkContext) -> ExperimentResult:
+    """The learned back-ends (DCP, PRNet, PCRNet, RPM-Net): X against Mask-X, and no motion."""
+    pairs = ctx.test_pairs()
+    truth = pairs.transform.double().numpy()
+    identity = np.broadcast_to(np.eye(4), truth.shape)
+    rows = [{"pipeline": "Identity (no motion)", **summarize_errors(*pose_errors(identity, truth))}]
+    missing = [name for name, method in LEARNED.items() if not _shipped(method)]
+    pipelines = {
+        f"{prefix}{name}": {"method": method, "use_mask": bool(prefix)}
+        for name, method in LEARNED.items()
+        if name not in missing
+        for prefix in ("", "Mask-")
+    }
+    table = benchmark_registration(pairs, pipelines, progress=ctx.progress)
+    rows += [{"pipeline": name, **values} for name, values in table.items()]
+    for row in rows:
+        row.setdefault("ms_per_pair", float("nan"))
+
+    def plot(path: Path) -> None:
+        _error_bars(path, rows, f"Learned back-ends on {len(pairs.template)} ModelNet40 test pairs")
+
+    summary = (
+        f"{len(pairs.template)} pairs, the registration experiment's (same seed): 30% missing, "
+        "rotation <= 45 deg, translation in [-1, 1]^3; each network at its paper's iteration "
+        "count (DCP 1, PRNet 3, PCRNet 8, RPM-Net 5) with the shipped weights; X uses the "
+        "whole template, Mask-X the template points MaskNet keeps."
+        + (f" Not shipped, so not run: {', '.join(missing)}." if missing else "")
     )
     return ExperimentResult(rows, summary, plot)
 
@@ -226,33 +294,61 @@ def exp_precision_vs_missing(ctx: BenchmarkContext) -> ExperimentResult:
     """MaskNet's top-k precision as the missing fraction grows (trained at 30%)."""
     model = MaskNet.pretrained()
     missing = [0.1, 0.3, 0.5] if ctx.quick else [0.1, 0.2, 0.3, 0.4, 0.5, 0.6]
+    correspondence = [n for n in ("PRNet", "RPM-Net") if _shipped(LEARNED[n])]
     rows = []
     for miss in missing:
         result = evaluate_masknet(
             model, ctx.points, ctx.pairs, ctx.seed, PairConfig(keep_ratio=1 - miss), progress=False
         )
         top = result.rows["top-k (k=M)"]
-        rows.append(
-            {
-                "missing": miss,
-                "precision": top["precision"],
-                "recall": top["recall"],
-                "chance": 1 - miss,
-            }
-        )
+        row = {
+            "missing": miss,
+            "precision": top["precision"],
+            "recall": top["recall"],
+            "chance": 1 - miss,
+        }
+        pairs = ctx.test_pairs(PairConfig(keep_ratio=1 - miss))
+        for name in correspondence:
+            row[f"{name} precision"] = _correspondence_precision(pairs, LEARNED[name])
+        rows.append(row)
 
     def plot(path: Path) -> None:
+        lines = {"MaskNet top-k precision": [r["precision"] for r in rows]}
+        for name in correspondence:
+            lines[f"{name} correspondence precision"] = [r[f"{name} precision"] for r in rows]
         _line_plot(
             path,
             [100 * r["missing"] for r in rows],
-            {"MaskNet top-k precision": [r["precision"] for r in rows]},
+            lines,
             "missing points (%)",
             "inlier precision",
             "MaskNet precision vs missing points",
             baseline=("chance (random top-k)", [r["chance"] for r in rows]),
         )
 
-    return ExperimentResult(rows, f"{ctx.pairs} pairs per point, rotation <= 45 deg.", plot)
+    summary = f"{ctx.pairs} pairs per point, rotation <= 45 deg." + (
+        f" {' and '.join(correspondence)}: the share of template points in a confident "
+        "correspondence (see RegistrationResult.correspondence_inliers) that are true inliers, "
+        "the network on the whole template (no mask)."
+        if correspondence
+        else ""
+    )
+    return ExperimentResult(rows, summary, plot)
+
+
+def _correspondence_precision(pairs: Pairs, method: str, chunk: int = 100) -> float:
+    """Mean per-pair precision of a network's correspondence inliers (pairs with none: 0)."""
+    template, source = pairs.template.double().numpy(), pairs.source.double().numpy()
+    truth = pairs.mask.numpy()
+    precisions = []
+    for i in range(0, len(template), chunk):
+        result = register(
+            template[i : i + chunk], source[i : i + chunk], method=method, use_mask=False
+        )
+        called = result.correspondence_inliers
+        hits = (called & truth[i : i + chunk]).sum(1)
+        precisions.append(hits / np.maximum(called.sum(1), 1))
+    return float(np.concatenate(precisions).mean())
 
 
 def _rotated_by(pairs: Pairs, angle_deg: float, seed: int) -> Pairs:
@@ -275,14 +371,15 @@ def exp_rotation_sweep(ctx: BenchmarkContext) -> ExperimentResult:
     """Errors against the initial rotation, 0-90 degrees, for X and Mask-X."""
     angles = [0, 30, 60, 90] if ctx.quick else list(range(0, 91, 10))
     base = ctx.test_pairs(PairConfig(max_angle_deg=0.0))
+    sweep = sweep_pipelines()
     rows = []
     for angle in angles:
         pairs = _rotated_by(base, angle, ctx.seed + angle)
-        for name, kwargs in SWEEP_PIPELINES.items():
+        for name, kwargs in sweep.items():
             rows.append({"angle_deg": angle, "pipeline": name, **_batched_errors(pairs, **kwargs)})
 
     def plot(path: Path) -> None:
-        lines = {n: [r["rot_mean"] for r in rows if r["pipeline"] == n] for n in SWEEP_PIPELINES}
+        lines = {n: [r["rot_mean"] for r in rows if r["pipeline"] == n] for n in sweep}
         _line_plot(
             path,
             angles,
@@ -311,7 +408,7 @@ def exp_noise(ctx: BenchmarkContext) -> ExperimentResult:
     for sigma in sigmas:
         config = PairConfig(noise_sigma=sigma, noise_clip=max(0.05, 2 * sigma))
         pairs = ctx.test_pairs(config)
-        for name, kwargs in SWEEP_PIPELINES.items():
+        for name, kwargs in sweep_pipelines().items():
             rows.append({"sigma": sigma, "pipeline": name, **_batched_errors(pairs, **kwargs)})
         few = Pairs(*(x[:PEER_PAIRS] for x in pairs))
         for name, kwargs in PEERS.items():
@@ -385,13 +482,13 @@ def exp_timing(ctx: BenchmarkContext) -> ExperimentResult:
     pairs = ctx.test_pairs(count=8)
     repeats = 5 if ctx.quick else 100
     rows = []
-    pipelines = SWEEP_PIPELINES | {
+    pipelines = sweep_pipelines() | {
         "ICP (Open3D backend)": {"method": "open3d-icp", "use_mask": False},
         "Mask-ICP (Open3D backend)": {"method": "open3d-icp", "use_mask": True},
     }
     for label, kwargs in pipelines.items():
         method = label.removeprefix("Mask-").removesuffix(" (Open3D backend)")
-        paper = PAPER_TIMING_MS[method][label.startswith("Mask-")]
+        paper = PAPER_TIMING_MS.get(method, (float("nan"),) * 2)[label.startswith("Mask-")]
         rows.append(
             {
                 "pipeline": label,
@@ -616,6 +713,7 @@ def exp_scans(ctx: BenchmarkContext) -> ExperimentResult:
 
 EXPERIMENTS: dict[str, Callable[[BenchmarkContext], ExperimentResult]] = {
     "registration": exp_registration,
+    "networks": exp_networks,
     "iterations": exp_iterations,
     "precision-vs-missing": exp_precision_vs_missing,
     "rotation-sweep": exp_rotation_sweep,

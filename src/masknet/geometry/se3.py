@@ -28,6 +28,7 @@ __all__ = [
     "so3_exp",
     "se3_exp",
     "make_transform",
+    "quaternion_to_rotation",
     "split_transform",
     "invert_transform",
     "transform_points",
@@ -86,6 +87,21 @@ def make_transform(rotation: Tensor, translation: Tensor) -> Tensor:
     out[..., :3, 3] = translation
     out[..., 3, 3] = 1
     return out
+
+
+def quaternion_to_rotation(quaternion: Tensor) -> Tensor:
+    """Rotation matrices (..., 3, 3) of quaternions (..., 4) ordered (w, x, y, z).
+
+    The quaternion is normalised first, so any non-zero 4-vector is accepted (PCRNet
+    regresses unnormalised ones); q and -q give the same rotation.
+    """
+    w, x, y, z = (quaternion / quaternion.norm(dim=-1, keepdim=True).clamp_min(1e-12)).unbind(-1)
+    rows = [
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ]
+    return torch.stack([torch.stack(r, -1) for r in rows], -2)
 
 
 def split_transform(transform: Tensor) -> tuple[Tensor, Tensor]:

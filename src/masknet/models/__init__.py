@@ -1,15 +1,36 @@
-"""Models: the PointNet encoder and MaskNet."""
+"""Models: the PointNet encoder, MaskNet, and the learned registration networks."""
 
+from masknet.models.dcp import DCP
+from masknet.models.layers import RegistrationSolution
 from masknet.models.masknet import FusedMaskNet, MaskNet, select_mask
+from masknet.models.pcrnet import PCRNet
 from masknet.models.pointnet import PointNetEncoder, fold_batchnorm
 from masknet.models.pointnetlk import LKSolution, PointNetLK
+from masknet.models.prnet import PRNet
+from masknet.models.rpmnet import RPMNet
+
+# Learned registration networks by method name. Each takes (template, source,
+# max_iterations=...) and returns a solution with a ``transform`` (B, 4, 4).
+REGISTRATION_NETWORKS = {
+    "pointnetlk": PointNetLK,
+    "dcp": DCP,
+    "prnet": PRNet,
+    "pcrnet": PCRNet,
+    "rpmnet": RPMNet,
+}
 
 __all__ = [
+    "DCP",
     "FusedMaskNet",
     "LKSolution",
     "MaskNet",
+    "PCRNet",
+    "PRNet",
     "PointNetLK",
     "PointNetEncoder",
+    "REGISTRATION_NETWORKS",
+    "RPMNet",
+    "RegistrationSolution",
     "fold_batchnorm",
     "select_mask",
 ]

@@ -51,6 +51,11 @@ class LKSolution(NamedTuple):
     iterations: Tensor
     converged: Tensor
 
+    @property
+    def auxiliary_loss(self) -> Tensor:
+        """() mean squared feature residual, PointNetLK's second training loss."""
+        return self.residual.square().mean()
+
 
 class PointNetLK(SafetensorsWeights, nn.Module):
     """PointNetLK: forward(template (B, N, 3), source (B, M, 3)) -> :class:`LKSolution`.
@@ -63,6 +68,7 @@ class PointNetLK(SafetensorsWeights, nn.Module):
     """
 
     weights_prefix = "pointnetlk_"
+    default_iterations = 10
 
     def __init__(
         self, encoder_channels: Sequence[int] = (64, 64, 64, 128, 1024), delta: float = 1e-2

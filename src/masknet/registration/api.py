@@ -33,14 +33,15 @@ from masknet.geometry.align import centroid_alignment
 from masknet.geometry.knn import knn_points
 from masknet.geometry.sampling import farthest_point_sample
 from masknet.geometry.se3 import transform_points
+from masknet.models import REGISTRATION_NETWORKS
 from masknet.models.masknet import MaskNet, _as_batch, unit_radius
-from masknet.models.pointnetlk import PointNetLK
 from masknet.registration.icp import icp
 from masknet.registration.open3d_icp import open3d_icp
 
 __all__ = ["RegistrationResult", "register", "METHODS"]
 
-METHODS = ("icp", "open3d-icp", "pointnetlk", "open3d-ransac", "open3d-fgr")
+NETWORK_METHODS = tuple(REGISTRATION_NETWORKS)  # pointnetlk, dcp, prnet, pcrnet, rpmnet
+METHODS = ("icp", "open3d-icp", *NETWORK_METHODS, "open3d-ransac", "open3d-fgr")
 _OPTIONS = {
     "icp": ("max_iterations", "tolerance", "max_correspondence_distance"),
     "open3d-icp": (
@@ -50,10 +51,16 @@ _OPTIONS = {
         "relative_rmse",
     ),
     "pointnetlk": ("max_iterations", "tolerance", "network"),
+    **{name: ("max_iterations", "network") for name in NETWORK_METHODS if name != "pointnetlk"},
     "open3d-ransac": ("max_iterations", "voxel_size", "confidence", "seed"),
     "open3d-fgr": ("max_iterations", "voxel_size"),
 }
 _DEFAULT_MAX_ITERATIONS = 10  # the paper's budget for ICP and PointNetLK
+# Each learned network's own iteration count (its paper's): DCP 1, PRNet 3, PCRNet 8, ...
+_DEFAULT_ITERATIONS = {
+    **{m: _DEFAULT_MAX_ITERATIONS for m in METHODS},
+    **{name: cls.default_iterations for name, cls in REGISTRATION_NETWORKS.items()},
+}
 INITS = ("centroid", "identity")
 
 
@@ -80,6 +87,10 @@ class RegistrationResult:
             ``converged``, ``iterations``, ``feature_residual``.
         rounds: the cumulative transform after each round, (4, 4) or (B, 4, 4) each.
         sampled: (template, source) sizes the method ran on, for single pairs.
+        correspondence_inliers: (N,) or (B, N) bool, for PRNet and RPM-Net: the template
+            points taking part in a confident correspondence in the last round (the rule
+            is in :mod:`masknet.models.prnet` and :mod:`masknet.models.rpmnet`); None
+            for other methods.
     """
 
     R: np.ndarray
@@ -90,11 +101,13 @@ class RegistrationResult:
     info: dict[str, np.ndarray] = field(default_factory=dict)
     rounds: list[np.ndarray] = field(default_factory=list)
     sampled: tuple[int, int] | None = None
+    correspondence_inliers: np.ndarray | None = None
 
 
 class _Run(NamedTuple):
     transform: np.ndarray  # (B, 4, 4) float64, source -> template
     info: dict[str, np.ndarray]  # (B,) each
+    correspondence_inliers: np.ndarray | None = None  # (B, N) bool
 
 
 @functools.lru_cache(maxsize=1)
@@ -103,10 +116,10 @@ def _default_model() -> MaskNet:
     return MaskNet.pretrained()
 
 
-@functools.lru_cache(maxsize=1)
-def _default_pointnetlk() -> PointNetLK:
-    """The shipped PointNetLK weights, loaded once per process."""
-    return PointNetLK.pretrained()
+@functools.cache
+def _default_network(method: str) -> torch.nn.Module:
+    """The shipped weights of a learned registration network, loaded once per process."""
+    return REGISTRATION_NETWORKS[method].pretrained().eval()
 
 
 def register(
@@ -130,9 +143,10 @@ def register(
         template: (N, 3) or (B, N, 3) full template cloud(s), any units.
         source: (M, 3) or (B, M, 3) partial source cloud(s), same units.
         method: ``"icp"`` (batched torch ICP), ``"open3d-icp"`` (Open3D's
-            point-to-point ICP, pair by pair), ``"pointnetlk"`` (the shipped
-            PointNetLK unless ``network=`` is given), ``"open3d-ransac"`` or
-            ``"open3d-fgr"`` (Open3D's global registration on FPFH features).
+            point-to-point ICP, pair by pair), a learned network: ``"pointnetlk"``,
+            ``"dcp"``, ``"prnet"``, ``"pcrnet"`` or ``"rpmnet"`` (the shipped weights
+            unless ``network=`` is given), ``"open3d-ransac"`` or ``"open3d-fgr"``
+            (Open3D's global registration on FPFH features).
         use_mask: Mask-X (True) or plain X (False).
         iterations: rounds of {mask -> initialise -> register -> move the source}.
         model: the MaskNet to use; None loads the shipped weights once.
@@ -150,9 +164,10 @@ def register(
         **options: for the method. ``"icp"``: ``max_iterations`` (default 10),
             ``tolerance``, ``max_correspondence_distance``. ``"open3d-icp"``:
             ``max_iterations`` (default 10), ``max_correspondence_distance``,
-            ``relative_fitness``, ``relative_rmse``. ``"pointnetlk"``:
-            ``max_iterations`` (default 10), ``tolerance``, ``network`` (a
-            :class:`~masknet.models.PointNetLK`). ``"open3d-ransac"`` and ``"open3d-fgr"``
+            ``relative_fitness``, ``relative_rmse``. Learned networks: ``max_iterations``
+            (default: the network's paper's, PointNetLK 10, DCP 1, PRNet 3, PCRNet 8,
+            RPM-Net 5) and ``network`` (a model of :data:`~masknet.models.REGISTRATION_NETWORKS`);
+            PointNetLK also ``tolerance``. ``"open3d-ransac"`` and ``"open3d-fgr"``
             (Open3D's global registration on FPFH features, pair by pair):
             ``voxel_size`` (feature scale as a fraction of the template's radius, default
             0.05); RANSAC also ``max_iterations`` (default 100,000), ``confidence``,
@@ -170,11 +185,11 @@ def register(
     _check_arguments(method, options, iterations, k, threshold, use_mask, init, refine_iterations)
     tpl_full, src_full, single = _as_numpy_batch(template, source)
     if method not in ("open3d-ransac", "open3d-fgr"):
-        options.setdefault("max_iterations", _DEFAULT_MAX_ITERATIONS)
+        options.setdefault("max_iterations", _DEFAULT_ITERATIONS[method])
     if use_mask and model is None:
         model = _default_model()
-    if method == "pointnetlk" and options.get("network") is None:
-        options["network"] = _default_pointnetlk()
+    if method in NETWORK_METHODS and options.get("network") is None:
+        options["network"] = _default_network(method)
 
     times = {"sample": 0.0, "mask": 0.0, "register": 0.0, "refine": 0.0}
     tic = time.perf_counter()
@@ -204,8 +219,12 @@ def register(
         total = _run_icp(tpl, _apply(total, src), None, refine_options).transform @ total
         times["refine"] = time.perf_counter() - tic
 
-    if mask is not None and template_index is not None:
-        mask = _spread_mask(tpl_full[0], template_index, mask[0])[None]
+    inliers = run.correspondence_inliers
+    if template_index is not None:
+        if mask is not None:
+            mask = _spread_mask(tpl_full[0], template_index, mask[0])[None]
+        if inliers is not None:
+            inliers = _spread_mask(tpl_full[0], template_index, inliers[0])[None]
 
     def out(a: np.ndarray) -> np.ndarray:
         return a[0] if single else a
@@ -220,6 +239,7 @@ def register(
         info={key: out(value) for key, value in run.info.items()},
         rounds=rounds,
         sampled=(tpl.shape[1], src.shape[1]) if single else None,
+        correspondence_inliers=None if inliers is None else out(inliers),
     )
 
 
@@ -361,30 +381,78 @@ def _run_open3d_icp(
 
 
 @torch.inference_mode()
-def _run_pointnetlk(
+def _run_network(
     template: np.ndarray, source: np.ndarray, mask: np.ndarray | None, options: dict
 ) -> _Run:
-    network: PointNetLK = options["network"]
-    # The network saw unit-radius shapes: scale each pair by its template's radius.
+    """A learned network on each pair's template points in use (all, or the masked ones)."""
+    network = options["network"]
+    if mask is None or len(set(mask.sum(1).tolist())) == 1:
+        # Every pair keeps the same number of points (top-k masks): one batched call.
+        index = None if mask is None else np.stack([np.flatnonzero(m) for m in mask])
+        return _network_batch(network, template, source, index, options)
+    parts = [  # threshold masks: sizes differ, so pair by pair
+        _network_batch(network, template[i : i + 1], source[i : i + 1], idx[None], options)
+        for i, idx in enumerate(np.flatnonzero(m) for m in mask)
+    ]
+    inliers = (
+        None
+        if parts[0].correspondence_inliers is None
+        else np.concatenate([p.correspondence_inliers for p in parts])
+    )
+    info = {key: np.concatenate([p.info[key] for p in parts]) for key in parts[0].info}
+    return _Run(np.concatenate([p.transform for p in parts]), info, inliers)
+
+
+def _network_batch(
+    network: torch.nn.Module,
+    template: np.ndarray,
+    source: np.ndarray,
+    index: np.ndarray | None,
+    options: dict,
+) -> _Run:
+    """Run ``network`` on template[:, index] (B, K, 3) and source (B, M, 3), scaled to unit
+    radius; clouds above the network's ``input_points`` are farthest-point sampled first."""
+    b = template.shape[0]
+    index = (
+        np.broadcast_to(np.arange(template.shape[1]), template.shape[:2])
+        if index is None
+        else index
+    )
+    limit = getattr(network, "config", {}).get("input_points")
+    if limit and index.shape[1] > limit:
+        keep = max(3, round(source.shape[1] * limit / index.shape[1]))  # same overlap ratio
+        index = np.stack(
+            [
+                index[i][farthest_point_sample(template[i, index[i]], limit).indices]
+                for i in range(b)
+            ]
+        )
+        source = np.stack(
+            [source[i][farthest_point_sample(source[i], keep).indices] for i in range(b)]
+        )
     tpl = torch.from_numpy(template).float()
+    # The networks saw unit-radius shapes: scale each pair by its template's radius.
     radius = unit_radius(tpl)[:, None, None]
-    valid = None if mask is None else torch.from_numpy(mask)
+    used = torch.gather(tpl, 1, torch.from_numpy(np.array(index))[..., None].expand(-1, -1, 3))
     device = next(network.parameters()).device
+    kwargs = {"max_iterations": options["max_iterations"]}
+    if "tolerance" in options:
+        kwargs["tolerance"] = options["tolerance"]
     solution = network(
-        (tpl / radius).to(device),
-        (torch.from_numpy(source).float() / radius).to(device),
-        template_valid=None if valid is None else valid.to(device),
-        max_iterations=options["max_iterations"],
-        tolerance=options.get("tolerance", 1e-5),
+        (used / radius).to(device), (torch.from_numpy(source).float() / radius).to(device), **kwargs
     )
     transform = solution.transform.double().cpu().numpy()
     transform[:, :3, 3] *= radius[:, 0].double().numpy()
-    info = {
-        "converged": solution.converged.cpu().numpy(),
-        "iterations": solution.iterations.cpu().numpy(),
-        "feature_residual": solution.residual.double().cpu().numpy(),
-    }
-    return _Run(transform, info)
+    info = {"iterations": solution.iterations.cpu().numpy()}
+    if hasattr(solution, "converged"):  # PointNetLK
+        info["converged"] = solution.converged.cpu().numpy()
+        info["feature_residual"] = solution.residual.double().cpu().numpy()
+    inliers = None
+    weight = getattr(solution, "template_weight", None)
+    if weight is not None:
+        inliers = np.zeros(template.shape[:2], bool)
+        np.put_along_axis(inliers, index, (weight >= 0.5).cpu().numpy(), axis=1)
+    return _Run(transform, info, inliers)
 
 
 def _run_open3d_global(method: str):
@@ -419,7 +487,7 @@ def _run_open3d_global(method: str):
 _METHOD_RUNNERS: dict[str, Callable[[np.ndarray, np.ndarray, np.ndarray | None, dict], _Run]] = {
     "icp": _run_icp,
     "open3d-icp": _run_open3d_icp,
-    "pointnetlk": _run_pointnetlk,
+    **{name: _run_network for name in NETWORK_METHODS},
     "open3d-ransac": _run_open3d_global("open3d-ransac"),
     "open3d-fgr": _run_open3d_global("open3d-fgr"),
 }

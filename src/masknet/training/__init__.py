@@ -3,7 +3,7 @@
 from masknet.training.loop import Task, TrainConfig, fit, split_train_val
 from masknet.training.masknet_task import MaskNetTask
 from masknet.training.pair_task import PairTask
-from masknet.training.pointnetlk_task import PointNetLKTask
+from masknet.training.registration_task import TRAINING_DEFAULTS, RegistrationTask
 
 __all__ = [
     "Task",
@@ -12,5 +12,6 @@ __all__ = [
     "split_train_val",
     "MaskNetTask",
     "PairTask",
-    "PointNetLKTask",
+    "RegistrationTask",
+    "TRAINING_DEFAULTS",
 ]
