@@ -460,3 +460,15 @@ def test_threshold_masks_of_different_sizes_run_pair_by_pair(pairs):
             template[i], source[i], method="dcp", model=_FixedMask(mask[i : i + 1]), network=network
         )
         np.testing.assert_allclose(batched.transform[i], single.transform, atol=1e-5)
+
+
+def test_learned_methods_refuse_a_mask_of_fewer_than_three_points(pairs):
+    from masknet.models import DCP
+
+    network = DCP(**_TINY_NETWORKS["dcp"]).train()
+    mask = np.zeros(pairs.mask.shape, bool)
+    mask[:, :2] = True
+    template, source = pairs.template.numpy(), pairs.source.numpy()
+    with pytest.raises(MaskNetError, match="kept 2 template point"):
+        register(template, source, method="dcp", model=_FixedMask(mask), network=network)
+    assert network.training  # the caller's mode is restored

@@ -225,12 +225,10 @@ def exp_registration(ctx: BenchmarkContext) -> ExperimentResult:
 def _shipped(method: str) -> bool:
     """Whether the package ships weights for a learned registration method."""
     from masknet.models import REGISTRATION_NETWORKS
+    from masknet.models.weights import shipped_weights_path
 
-    try:
-        REGISTRATION_NETWORKS[method].pretrained()
-    except MaskNetError:
-        return False
-    return True
+    prefix = REGISTRATION_NETWORKS[method].weights_prefix
+    return shipped_weights_path(f"{prefix}modelnet40.safetensors").exists()
 
 
 def exp_networks(ctx: BenchmarkContext) -> ExperimentResult:

@@ -90,7 +90,7 @@ def evaluate_masknet(
     The same (points, num_pairs, seed, pair_config) always gives the same pairs,
     so different models are compared on identical data. ``keep_outputs`` keeps the
     pairs and scores on the result (for pictures and further analysis).
-    ``realign_rounds`` > 1 adds the row ``top-k after R rounds of Mask-ICP``
+    ``realign_rounds`` > 1 adds the row ``top-k, round R of mask -> Mask-ICP``
     (:func:`realigned_mask_metrics`).
     """
     pair_config = pair_config or PairConfig()

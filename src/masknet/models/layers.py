@@ -89,14 +89,15 @@ def neighbour_index(features: Tensor, k: int) -> Tensor:
 class EdgeConvEncoder(nn.Module):
     """DGCNN: EdgeConv layers on a k-NN graph rebuilt in each layer's feature space.
 
-    Layer l maps each point i to ``max_j relu(W_l [x_j - x_i; x_i])`` over its k nearest
+    Layer l maps each point i to ``max_j act(norm(W_l [x_j - x_i; x_i]))`` (LayerNorm,
+    LeakyReLU 0.2) over its k nearest
     neighbours j (in the space of layer l's input), and a final linear layer maps the
     concatenation of every layer's output to ``out_channels``. DCP and PRNet use
     channels (64, 64, 128, 256), k=20 and 512 (DCP) output channels. LayerNorm stands
     in for the original BatchNorm, so a cloud's features depend on that cloud alone
     (batch 1 at inference behaves as in training).
 
-    forward: points (B, N, 3) -> features (B, N, out_channels). Needs N >= k.
+    forward: points (B, N, 3) -> features (B, N, out_channels); k is clamped to N.
     """
 
     def __init__(
@@ -135,7 +136,8 @@ class CrossAttention(nn.Module):
 
     One encoder layer (self-attention) on each cloud, then one decoder layer whose
     queries are one cloud and memory the other, so each point's feature depends on both
-    clouds. Layer norms come first (pre-norm); there is no dropout.
+    clouds. Layer norms come first (pre-norm); there is no dropout. Unlike DCP's code,
+    the query cloud is encoded before the decoder too.
 
     forward: (B, N, C), (B, M, C) -> (B, N, C), (B, M, C).
     """

@@ -7,18 +7,19 @@ Each iteration:
    (PRNet's detector), so that matching uses points both clouds are likely to share.
 3. Every source keypoint i gets a distribution p_i over the template keypoints:
    ``softmax(phi_s_i . phi_t_j / (sqrt(C) tau))`` with a temperature tau predicted
-   from the two pooled embeddings; in training the distribution is a Gumbel-softmax
-   sample, as in the paper.
+   from the two pooled embeddings; in training it is perturbed by Gumbel noise
+   (a soft Gumbel-softmax sample).
 4. A differentiable SVD fits source keypoints -> ``sum_j p_ij t_j``.
 
 The moved source feeds the next iteration (the paper's 3). Clouds are centred first.
-Deviations: LayerNorm for BatchNorm in the DGCNN; the cycle-consistency and
+Deviations: LayerNorm for BatchNorm in the DGCNN; a soft Gumbel-softmax sample where
+the paper's code takes a hard (straight-through) one; the cycle-consistency and
 feature-alignment losses are left out (the transform loss alone trains it).
 
 **Correspondence inliers** (``template_weight``): a template keypoint's weight is the
 largest probability any source keypoint puts on it; other template points get 0. A
 template point counts as an inlier when its weight is at least 0.5, that is, some source
-keypoint picks it with more than even confidence.
+keypoint picks it with at least even confidence.
 """
 
 from __future__ import annotations

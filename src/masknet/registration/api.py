@@ -89,8 +89,9 @@ class RegistrationResult:
         sampled: (template, source) sizes the method ran on, for single pairs.
         correspondence_inliers: (N,) or (B, N) bool, for PRNet and RPM-Net: the template
             points taking part in a confident correspondence in the last round (the rule
-            is in :mod:`masknet.models.prnet` and :mod:`masknet.models.rpmnet`); None
-            for other methods.
+            is in :mod:`masknet.models.prnet` and :mod:`masknet.models.rpmnet`); template
+            points the network did not see (sampled away for its input size) are False;
+            None for other methods.
     """
 
     R: np.ndarray
@@ -223,8 +224,10 @@ def register(
     if template_index is not None:
         if mask is not None:
             mask = _spread_mask(tpl_full[0], template_index, mask[0])[None]
-        if inliers is not None:
-            inliers = _spread_mask(tpl_full[0], template_index, inliers[0])[None]
+        if inliers is not None:  # points the network never saw are not inliers
+            full = np.zeros(tpl_full.shape[:2], bool)
+            full[:, template_index] = inliers
+            inliers = full
 
     def out(a: np.ndarray) -> np.ndarray:
         return a[0] if single else a
@@ -418,17 +421,24 @@ def _network_batch(
         if index is None
         else index
     )
+    if index.shape[1] < 3:
+        raise MaskNetError(
+            f"the mask kept {index.shape[1]} template point(s); a registration network needs "
+            "at least 3 (lower the threshold, or use top-k)"
+        )
     limit = getattr(network, "config", {}).get("input_points")
-    if limit and index.shape[1] > limit:
-        keep = max(3, round(source.shape[1] * limit / index.shape[1]))  # same overlap ratio
+    n_used, m = index.shape[1], source.shape[1]
+    if limit and (n_used > limit or m > limit):
+        n_keep = min(n_used, limit)
+        m_keep = min(m, limit, max(3, round(m * n_keep / n_used)))  # same overlap ratio
         index = np.stack(
             [
-                index[i][farthest_point_sample(template[i, index[i]], limit).indices]
+                index[i][farthest_point_sample(template[i, index[i]], n_keep).indices]
                 for i in range(b)
             ]
         )
         source = np.stack(
-            [source[i][farthest_point_sample(source[i], keep).indices] for i in range(b)]
+            [source[i][farthest_point_sample(source[i], m_keep).indices] for i in range(b)]
         )
     tpl = torch.from_numpy(template).float()
     # The networks saw unit-radius shapes: scale each pair by its template's radius.
@@ -438,9 +448,16 @@ def _network_batch(
     kwargs = {"max_iterations": options["max_iterations"]}
     if "tolerance" in options:
         kwargs["tolerance"] = options["tolerance"]
-    solution = network(
-        (used / radius).to(device), (torch.from_numpy(source).float() / radius).to(device), **kwargs
-    )
+    was_training = network.training
+    network.eval()  # e.g. PRNet samples Gumbel noise in training mode
+    try:
+        solution = network(
+            (used / radius).to(device),
+            (torch.from_numpy(source).float() / radius).to(device),
+            **kwargs,
+        )
+    finally:
+        network.train(was_training)
     transform = solution.transform.double().cpu().numpy()
     transform[:, :3, 3] *= radius[:, 0].double().numpy()
     info = {"iterations": solution.iterations.cpu().numpy()}
