@@ -185,7 +185,35 @@ def fit(
             f"{ckpt_path} exists: pass --resume to continue it, or choose another --out"
         )
     device = resolve_device(config.device)
-    rank, world = _init_distributed(device)
+    rank, world, joined = _init_distributed(device)
+    if not joined:
+        return _fit(task, train_points, config, resume, init_weights, device, rank, world)
+    # Leave the group before the interpreter exits: gloo threads still running at exit
+    # abort the process ("terminate called without an active exception").
+    import torch.distributed as dist
+
+    try:
+        history = _fit(task, train_points, config, resume, init_weights, device, rank, world)
+        dist.barrier()  # no rank tears down while another still writes or syncs
+        return history
+    finally:
+        dist.destroy_process_group()
+
+
+def _fit(
+    task: Task,
+    train_points: np.ndarray,
+    config: TrainConfig,
+    resume: bool,
+    init_weights: nn.Module | None,
+    device: torch.device,
+    rank: int,
+    world: int,
+) -> list[dict]:
+    """fit() once the process group, if any, is joined."""
+    train_idx, val_idx = split_train_val(len(train_points), config.val_fraction, config.seed)
+    out = Path(config.out_dir)
+    ckpt_path = out / "checkpoint.pt"
     if world > 1 and device.type == "cuda":
         device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
     if config.batch_size % world:
@@ -341,16 +369,18 @@ def fit(
     return history
 
 
-def _init_distributed(device: torch.device) -> tuple[int, int]:
-    """(rank, world size); joins the process group when started by torchrun."""
+def _init_distributed(device: torch.device) -> tuple[int, int, bool]:
+    """(rank, world size, joined): joins the process group when started by torchrun;
+    ``joined`` says that this call did, so that fit() leaves it again."""
     world = int(os.environ.get("WORLD_SIZE", "1"))
     if world == 1:
-        return 0, 1
+        return 0, 1, False
     import torch.distributed as dist
 
-    if not dist.is_initialized():
+    joined = not dist.is_initialized()
+    if joined:
         dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
-    return dist.get_rank(), dist.get_world_size()
+    return dist.get_rank(), dist.get_world_size(), joined
 
 
 def _mean_over_processes(sums: dict[str, float], device: torch.device) -> dict[str, float]:
