@@ -225,3 +225,22 @@ def test_registration_networks_train_and_export(tmp_path, name, config):
     )
     model = REGISTRATION_NETWORKS[name].from_file(tmp_path / "best.safetensors")
     assert model.config == {**REGISTRATION_NETWORKS[name]().config, **config}
+
+
+def test_bce_trains_a_saturated_network_out_of_keeping_everything(shapes):
+    """A MaskNet whose sigmoid is saturated at 1 for every point (the keep-everything
+    start of a denoising run) still gets a gradient from BCE, which works on logits;
+    BCE on clamped scores would give exactly none."""
+    from masknet.data import PairConfig, make_test_pairs
+
+    torch.manual_seed(0)
+    model = MaskNet(encoder_channels=[8, 16], head_channels=[16, 8])
+    with torch.no_grad():
+        model.head[-1].bias.fill_(40.0)  # sigmoid(40) == 1.0 in float32
+    pairs = make_test_pairs(shapes[:4], 4, PairConfig(outlier_ratio=0.2), seed=0)
+    assert (model(pairs.source, pairs.template) == 1.0).all()
+    task = MaskNetTask.denoising(PairConfig(outlier_ratio=0.2), loss="bce")
+    loss, metrics = task.step(model, pairs, torch.device("cpu"))
+    loss.backward()
+    assert model.head[-1].bias.grad.abs().item() > 0.1  # ~ the outlier share, 1/6
+    assert metrics["recall"] == 1.0 and metrics["precision"] < 0.9  # keeps the outliers too

@@ -119,13 +119,17 @@ class MaskNet(SafetensorsWeights, nn.Module):
     def _head_tail(self, x: Tensor) -> Tensor:
         for layer in self.head:
             x = layer(torch.relu(x))
-        return torch.sigmoid(x).squeeze(-1)
+        return x.squeeze(-1)
 
-    def forward(self, template: Tensor, source: Tensor) -> Tensor:
-        """Split-head forward: (B, N, 3), (B, M, 3) -> scores (B, N)."""
+    def forward(self, template: Tensor, source: Tensor, logits: bool = False) -> Tensor:
+        """Split-head forward: (B, N, 3), (B, M, 3) -> scores (B, N) in [0, 1].
+
+        ``logits=True`` returns the values before the sigmoid, for losses on logits (BCE),
+        where a saturated sigmoid still gets a gradient.
+        """
         g = self.head_global(self._global_feature(source))
-        x = self.head_template(self.encoder(centre(template))) + g[:, None, :]
-        return self._head_tail(x)
+        x = self._head_tail(self.head_template(self.encoder(centre(template))) + g[:, None, :])
+        return x if logits else torch.sigmoid(x)
 
     def forward_reference(self, template: Tensor, source: Tensor) -> Tensor:
         """The paper's concatenation formulation; the same function as :meth:`forward`."""
@@ -133,7 +137,9 @@ class MaskNet(SafetensorsWeights, nn.Module):
         t = self.encoder(centre(template))
         joint = torch.cat([t, g[:, None, :].expand(-1, t.shape[1], -1)], dim=-1)
         weight = torch.cat([self.head_template.weight, self.head_global.weight], dim=1)
-        return self._head_tail(nn.functional.linear(joint, weight, self.head_template.bias))
+        return torch.sigmoid(
+            self._head_tail(nn.functional.linear(joint, weight, self.head_template.bias))
+        )
 
     # ------------------------------------------------------------------ fast inference
     def fused(self, precision: Precision = "fp32") -> FusedMaskNet:

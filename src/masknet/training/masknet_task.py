@@ -48,15 +48,21 @@ class MaskNetTask(PairTask):
         self, model: nn.Module, batch: Pairs, device: torch.device
     ) -> tuple[Tensor, dict[str, float]]:
         if self.role == "denoise":
-            scores = model(batch.source.to(device), batch.template.to(device)).float()
+            scored, given = batch.source.to(device), batch.template.to(device)
             target = batch.source_mask.to(device).float()
         else:
-            scores = model(batch.template.to(device), batch.source.to(device)).float()
+            scored, given = batch.template.to(device), batch.source.to(device)
             target = batch.mask.to(device).float()
         if self.loss == "mse":
+            scores = model(scored, given).float()
             loss = nn.functional.mse_loss(scores, target)
         else:
-            loss = nn.functional.binary_cross_entropy(scores.clamp(1e-6, 1 - 1e-6), target)
+            # BCE on logits: a sigmoid saturated at the wrong answer (a start from weights
+            # that keep everything) still gets a gradient of 1, where BCE on clamped
+            # scores gets none.
+            logits = model(scored, given, logits=True).float()
+            loss = nn.functional.binary_cross_entropy_with_logits(logits, target)
+            scores = torch.sigmoid(logits)
         with torch.no_grad():
             if self.role == "denoise":
                 predicted = scores >= 0.5
