@@ -10,7 +10,9 @@ Architecture (the paper's):
 **Centring.** Before the network, each cloud is centred on its own centroid
 (template on the template's, source on the source's). This removes most of the
 translation the network would otherwise have to learn; it is part of the model,
-applied by every forward path.
+applied by every forward path. For clouds that are already aligned (denoising: a
+noisy scan scored against its registered template) their relative position is
+information: ``MaskNet(centring="source")`` centres both on the source's centroid.
 
 **Three forward paths, one function.**
 
@@ -41,7 +43,7 @@ from masknet.models.pointnet import PointNetEncoder, fold_batchnorm
 from masknet.models.weights import SafetensorsWeights
 from masknet.runtime import default_precision
 
-__all__ = ["MaskNet", "FusedMaskNet", "select_mask", "centre", "unit_radius"]
+__all__ = ["MaskNet", "FusedMaskNet", "select_mask", "centre", "centre_pair", "unit_radius"]
 
 Precision = Literal["fp32", "bf16"]
 _DTYPES = {"fp32": torch.float32, "bf16": torch.bfloat16}
@@ -50,6 +52,15 @@ _DTYPES = {"fp32": torch.float32, "bf16": torch.bfloat16}
 def centre(points: Tensor) -> Tensor:
     """Subtract each cloud's centroid: (B, N, 3) -> (B, N, 3)."""
     return points - points.mean(dim=1, keepdim=True)
+
+
+def centre_pair(template: Tensor, source: Tensor, centring: str) -> tuple[Tensor, Tensor]:
+    """Both clouds centred: each on its own centroid (``"each"``), or both on the
+    source's (``"source"``, for aligned clouds). (B, N, 3), (B, M, 3) in and out."""
+    if centring == "each":
+        return centre(template), centre(source)
+    offset = source.mean(dim=1, keepdim=True)
+    return template - offset, source - offset
 
 
 def unit_radius(points: Tensor) -> Tensor:
@@ -97,12 +108,18 @@ class MaskNet(SafetensorsWeights, nn.Module):
         self,
         encoder_channels: Sequence[int] = (64, 64, 64, 128, 1024),
         head_channels: Sequence[int] = (1024, 512, 256, 128),
+        centring: Literal["each", "source"] = "each",
     ):
         super().__init__()
+        if centring not in ("each", "source"):
+            raise ValueError(f"centring must be 'each' or 'source', got {centring!r}")
         self.config = {
             "encoder_channels": list(encoder_channels),
             "head_channels": list(head_channels),
         }
+        if centring != "each":  # only then: the configs of earlier files stay as they were
+            self.config["centring"] = centring
+        self.centring = centring
         self.encoder = PointNetEncoder(encoder_channels)
         feat = self.encoder.out_channels
         # The first head layer on [template feature; global source feature], split in two.
@@ -113,8 +130,6 @@ class MaskNet(SafetensorsWeights, nn.Module):
         self._fused_cache: dict = {}
 
     # ------------------------------------------------------------------ forward paths
-    def _global_feature(self, source: Tensor) -> Tensor:
-        return self.encoder(centre(source)).amax(dim=1)
 
     def _head_tail(self, x: Tensor) -> Tensor:
         for layer in self.head:
@@ -127,14 +142,16 @@ class MaskNet(SafetensorsWeights, nn.Module):
         ``logits=True`` returns the values before the sigmoid, for losses on logits (BCE),
         where a saturated sigmoid still gets a gradient.
         """
-        g = self.head_global(self._global_feature(source))
-        x = self._head_tail(self.head_template(self.encoder(centre(template))) + g[:, None, :])
+        template, source = centre_pair(template, source, self.centring)
+        g = self.head_global(self.encoder(source).amax(dim=1))
+        x = self._head_tail(self.head_template(self.encoder(template)) + g[:, None, :])
         return x if logits else torch.sigmoid(x)
 
     def forward_reference(self, template: Tensor, source: Tensor) -> Tensor:
         """The paper's concatenation formulation; the same function as :meth:`forward`."""
-        g = self._global_feature(source)
-        t = self.encoder(centre(template))
+        template, source = centre_pair(template, source, self.centring)
+        g = self.encoder(source).amax(dim=1)
+        t = self.encoder(template)
         joint = torch.cat([t, g[:, None, :].expand(-1, t.shape[1], -1)], dim=-1)
         weight = torch.cat([self.head_template.weight, self.head_global.weight], dim=1)
         return torch.sigmoid(
@@ -223,10 +240,12 @@ class FusedMaskNet(nn.Module):
         head_global: Tensor,
         head: list[tuple[Tensor, Tensor]],
         precision: Precision = "fp32",
+        centring: str = "each",
     ):
         super().__init__()
         dtype = _DTYPES[precision]
         self.precision = precision
+        self.centring = centring
         self.encoder = [(w.to(dtype), b.to(dtype)) for w, b in encoder]
         self.head_template = tuple(p.to(dtype) for p in head_template)
         self.head_global = head_global.to(dtype)
@@ -245,7 +264,8 @@ class FusedMaskNet(nn.Module):
         head = [
             (layer.weight.detach().clone(), layer.bias.detach().clone()) for layer in model.head
         ]
-        return cls(enc, ht, model.head_global.weight.detach().clone(), head, precision)
+        global_weight = model.head_global.weight.detach().clone()
+        return cls(enc, ht, global_weight, head, precision, model.centring)
 
     def _encode(self, x: Tensor) -> Tensor:
         for w, b in self.encoder:
@@ -256,10 +276,10 @@ class FusedMaskNet(nn.Module):
     def forward(self, template: Tensor, source: Tensor, chunk_size: int | None = None) -> Tensor:
         dtype = self.head_global.dtype
         b, n, _ = template.shape
-        src = centre(source.float()).to(dtype)
+        tpl, src = centre_pair(template.float(), source.float(), self.centring)
+        tpl, src = tpl.to(dtype), src.to(dtype)
         g = self._encode(src.reshape(-1, 3)).reshape(b, source.shape[1], -1).amax(1)
         g = g @ self.head_global.t() + self.head_template[1]  # (B, H): once per cloud
-        tpl = centre(template.float()).to(dtype)
         step = n if chunk_size is None else chunk_size
         out = []
         for start in range(0, n, step):

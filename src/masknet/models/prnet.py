@@ -24,7 +24,7 @@ keypoint picks it with at least even confidence.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from typing import Any
 
 import torch
 from torch import Tensor, nn
@@ -41,30 +41,25 @@ class PRNet(DCP):
     """PRNet: forward(template (B, N, 3), source (B, M, 3)) -> :class:`RegistrationSolution`.
 
     Args:
-        channels, embedding, k, heads, feedforward, input_points: as
-            :class:`~masknet.models.DCP` (paper: DGCNN 64-64-128-256, 512 channels, k=20).
         keypoints: keypoints per cloud (paper: 512 of 768 points); clamped to each
             cloud's size.
+        dcp_options: ``channels``, ``embedding``, ``k``, ``heads``, ``feedforward``,
+            ``input_points``, as :class:`~masknet.models.DCP`, with its defaults (the
+            paper's: DGCNN 64-64-128-256, 512 channels, k=20).
     """
 
     weights_prefix = "prnet_"
     default_iterations = 3
 
-    def __init__(
-        self,
-        channels: Sequence[int] = (64, 64, 128, 256),
-        embedding: int = 512,
-        k: int = 20,
-        heads: int = 4,
-        feedforward: int = 1024,
-        input_points: int | None = None,
-        keypoints: int = 512,
-    ):
-        super().__init__(channels, embedding, k, heads, feedforward, input_points)
+    def __init__(self, keypoints: int = 512, **dcp_options: Any):
+        super().__init__(**dcp_options)
         self.config["keypoints"] = keypoints
         self.keypoints = keypoints
         self.temperature = nn.Sequential(
-            nn.Linear(2 * embedding, 128), nn.ReLU(), nn.Linear(128, 1), nn.Softplus()
+            nn.Linear(2 * self.config["embedding"], 128),
+            nn.ReLU(),
+            nn.Linear(128, 1),
+            nn.Softplus(),
         )
 
     def _step(self, template: Tensor, source: Tensor, _: int):

@@ -38,8 +38,22 @@ class MaskNetTask(PairTask):
 
     @classmethod
     def denoising(cls, pairs: PairConfig, **kwargs) -> MaskNetTask:
-        """The paper's denoising task: outliers in the source, masks predicted for it."""
-        return cls(pairs=pairs, role="denoise", metric="f1", name="masknet-denoise", **kwargs)
+        """The paper's denoising task: outliers in the source, masks predicted for it.
+
+        The network centres both clouds on the clean template's centroid
+        (``centring="source"``, unless ``model_config`` says otherwise): denoising works on
+        aligned clouds, and centring a partial, outlier-ridden cloud on its own centroid would
+        throw their relative position away.
+        """
+        config = {"centring": "source", **kwargs.pop("model_config", {})}
+        return cls(
+            pairs=pairs,
+            role="denoise",
+            metric="f1",
+            name="masknet-denoise",
+            model_config=config,
+            **kwargs,
+        )
 
     def build_model(self) -> nn.Module:
         return MaskNet(**self.model_config)
