@@ -100,6 +100,18 @@ def render(card: dict, method: str) -> str:
     )
     pairs = task["pairs"]
     iterations = cls.default_iterations
+    started = ""
+    prev = card.get("previous")
+    if prev:
+        prev_pairs = prev["training"]["task"]["pairs"]
+        best_prev = min(float(r["val_rotation_error_deg"]) for r in prev["log"])
+        started = (
+            f"- **Started from** the weights of run `{prev['name']}` (`masknet train --init`): "
+            f"{prev['epochs_trained']} epoch(s), {prev['training_minutes']:.0f} minutes, keep ratio "
+            f"{prev_pairs['keep_ratio']}, lr {prev['training']['train']['lr']}, best validation "
+            f"rotation error {best_prev:.3f} deg. The run above continued from them; the "
+            "untrained row is the seeded random start of that first run.\n"
+        )
     return f"""# Model card: `{cls.weights_prefix}{card["name"]}`
 
 {DESCRIPTIONS[method]} Implemented in `masknet.models.{cls.__name__}`; load it with
@@ -119,7 +131,7 @@ is the aim, not the paper's numbers.
 - Adam, lr {train["lr"]} ({train["lr_schedule"]}), batch {train["batch_size"]}, fp32, seed {train["seed"]}.
 - Epochs: {epochs_text(card)} (best validation epoch {card["best_epoch"]}, shipped),
   {card["training_minutes"]:.0f} minutes on {card["machine"]}, sharing the 2 cores with another training run.
-
+{started}
 ## Test errors
 {card["test"]["pairs"]} seeded ModelNet40 **test** pairs per protocol (seed {card["test"]["seed"]}), {iterations} iteration(s),
 1,024-point templates; rotation errors in degrees, translations in units of the unit-radius shapes.

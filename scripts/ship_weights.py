@@ -38,6 +38,19 @@ def read_run(run: Path) -> tuple[dict, list[dict]]:
         return info, list(csv.DictReader(fh))
 
 
+def run_summary(run_dir: Path) -> dict:
+    """The card fields of an unshipped run that a shipped one continued (``--init``)."""
+    run, log = read_run(run_dir)
+    return {
+        "name": run_dir.name,
+        "training": run,
+        "epochs_trained": len(log),
+        "training_minutes": float(log[-1]["elapsed_min"]),
+        "log": log,
+        "previous": None,
+    }
+
+
 def machine(run: dict) -> str:
     """The training machine: this one, with the run's thread setting."""
     threads = run["train"].get("threads") or torch.get_num_threads()
@@ -91,8 +104,13 @@ def main() -> None:
         default="masknet",
     )
     parser.add_argument("--previous", type=Path, help="card (.json) of the --init weights")
+    parser.add_argument(
+        "--previous-run", type=Path, help="run folder of the --init weights, when they have no card"
+    )
     args = parser.parse_args()
     previous = json.loads(args.previous.read_text()) if args.previous else None
+    if args.previous_run:
+        previous = run_summary(args.previous_run)
     if args.kind not in ("masknet", "denoise"):
         from ship_network import ship_network
 
