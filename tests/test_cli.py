@@ -214,6 +214,25 @@ def test_register_no_mask_writes_no_inliers(tmp_path, pair_files, capsys):
     assert capsys.readouterr().out.startswith("ICP:")
 
 
+@pytest.mark.parametrize("method", ["dcp", "prnet", "pcrnet", "rpmnet"])
+def test_register_with_learned_networks(tmp_path, pair_files, method, capsys):
+    template, source, _ = pair_files
+    out = tmp_path / "moved.xyz"
+    assert main(["register", str(template), str(source), "-o", str(out), "--method", method]) == 0
+    transform = _read_transform(tmp_path / "moved_transform.txt")
+    np.testing.assert_allclose(transform[:3, :3] @ transform[:3, :3].T, np.eye(3), atol=1e-6)
+    assert (tmp_path / "moved_inliers.xyz").exists()
+    pretty = {"dcp": "DCP", "prnet": "PRNet", "pcrnet": "PCRNet", "rpmnet": "RPM-Net"}[method]
+    assert capsys.readouterr().out.startswith(f"Mask-{pretty}:")
+
+
+def test_register_network_weights_need_a_learned_method(tmp_path, pair_files, capsys):
+    template, source, _ = pair_files
+    args = ["register", str(template), str(source), "-o", str(tmp_path / "m.xyz")]
+    assert main([*args, "--network-weights", "x.safetensors"]) == 2
+    assert "learned --method" in capsys.readouterr().err
+
+
 def test_register_bad_source_is_one_line_and_writes_nothing(tmp_path, pair_files, capsys):
     template, _, _ = pair_files
     bad = tmp_path / "flat.xyz"

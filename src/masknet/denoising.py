@@ -5,8 +5,8 @@ object, aligned, :func:`denoise` decides for every point of Y whether X explains
 by its distance to X (``method="distance"``, the default), or by MaskNet applied the
 other way round (``method="masknet"``, the paper's denoising use, with a model from
 ``masknet train --model denoise``: 10% uniform outliers in the source). No denoising
-MaskNet ships yet: three training runs on this project's CPU stayed at the
-keep-everything solution (docs/RESULTS.md, section 6).
+MaskNet ships yet: four training runs on this project's CPU learnt to remove few or none
+of the outliers (docs/RESULTS.md, section 3).
 
 Open3D's statistical and radius outlier removal are wrapped here too, as the
 peers the benchmark compares against (they need no template).
@@ -76,7 +76,7 @@ def denoise(
             outliers cannot set the scale).
         model: for ``"masknet"``: a MaskNet trained for denoising (``masknet train --model
             denoise``). None loads shipped ``"denoise_modelnet40"`` weights; none ship yet,
-            because no training run so far learnt to reject outliers (docs/RESULTS.md).
+            because no training run so far learnt to reject most outliers (docs/RESULTS.md).
         threshold: for ``"masknet"``: keep points scoring at least this.
         max_distance: for ``"distance"``, in the clouds' units.
         precision: MaskNet's inference precision (``"auto"``: bf16 where native).

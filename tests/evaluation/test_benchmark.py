@@ -46,6 +46,21 @@ def test_plots_and_contents(quick_run):
     assert all(r["precision"] > r["chance"] for r in missing)  # the shipped model beats chance
     rounds = json.loads((quick_run / "iterations.json").read_text())["rows"]
     assert [r["round"] for r in rounds] == [1, 2, 3, 1, 2, 3]
+    networks = {
+        r["pipeline"]: r for r in json.loads((quick_run / "networks.json").read_text())["rows"]
+    }
+    learned = [f"{p}{n}" for n in ("DCP", "PRNet", "PCRNet", "RPM-Net") for p in ("", "Mask-")]
+    assert set(networks) == {"Identity (no motion)", *learned}  # every shipped network runs
+    assert all(networks[n]["ms_per_pair"] > 0 for n in learned)
+    assert all(networks[n]["ms_mask"] > 0 for n in learned if n.startswith("Mask-"))
+    outliers = {
+        r["pipeline"] for r in json.loads((quick_run / "outliers.json").read_text())["rows"]
+    }
+    assert "Mask-ICP (MaskNet trained with 10% outliers)" in outliers
+    sweep = {
+        r["pipeline"] for r in json.loads((quick_run / "rotation-sweep.json").read_text())["rows"]
+    }
+    assert set(learned) <= sweep
 
 
 def test_results_block_is_replaced_in_place(tmp_path):

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from tqdm.auto import tqdm
 
 from masknet.data.modelnet import PointCloudSet, load_modelnet40
 from masknet.data.pairs import PairConfig, Pairs, make_test_pairs
@@ -244,10 +245,15 @@ def exp_networks(ctx: BenchmarkContext) -> ExperimentResult:
         if name not in missing
         for prefix in ("", "Mask-")
     }
-    table = benchmark_registration(pairs, pipelines, progress=ctx.progress)
-    rows += [{"pipeline": name, **values} for name, values in table.items()]
+    timing_pairs = Pairs(*(x[:8] for x in pairs))
+    repeats = 3 if ctx.quick else 20
+    for name, kwargs in tqdm(pipelines.items(), desc="networks", disable=not ctx.progress):
+        row = {"pipeline": name, **_batched_errors(pairs, **kwargs)}
+        row.update(time_pipeline(timing_pairs, repeats, warmup=2, **kwargs))
+        rows.append(row)
     for row in rows:
-        row.setdefault("ms_per_pair", float("nan"))
+        for key in ("ms_per_pair", "ms_mask", "ms_register"):
+            row.setdefault(key, float("nan"))
 
     def plot(path: Path) -> None:
         _error_bars(path, rows, f"Learned back-ends on {len(pairs.template)} ModelNet40 test pairs")
@@ -256,7 +262,8 @@ def exp_networks(ctx: BenchmarkContext) -> ExperimentResult:
         f"{len(pairs.template)} pairs, the registration experiment's (same seed): 30% missing, "
         "rotation <= 45 deg, translation in [-1, 1]^3; each network at its paper's iteration "
         "count (DCP 1, PRNet 3, PCRNet 8, RPM-Net 5) with the shipped weights; X uses the "
-        "whole template, Mask-X the template points MaskNet keeps."
+        "whole template, Mask-X the template points MaskNet keeps. Errors from batched calls; "
+        f"times: median of {repeats} single-pair register() calls (batch 1) after 2 warm-ups."
         + (f" Not shipped, so not run: {', '.join(missing)}." if missing else "")
     )
     return ExperimentResult(rows, summary, plot)
@@ -570,21 +577,37 @@ def exp_denoising(ctx: BenchmarkContext) -> ExperimentResult:
     return ExperimentResult(rows, summary, plot)
 
 
+def _shipped_outlier_masknet() -> MaskNet | None:
+    """The MaskNet fine-tuned with 10% uniform outliers in the source, if it ships."""
+    try:
+        return MaskNet.pretrained("modelnet40_outliers10")
+    except MaskNetError:
+        return None
+
+
 def exp_outliers(ctx: BenchmarkContext) -> ExperimentResult:
-    """Registration error against uniform source outliers, 0-20%: X, Mask-X, and
-    Mask-X -> denoise the moved source (the denoising MaskNet, trained with 10% outliers on
-    aligned pairs) -> Mask-X again."""
+    """Registration error against uniform source outliers, 0-20%: X, Mask-X with the shipped
+    MaskNet, Mask-X with the MaskNet trained with 10% source outliers (the paper's), and
+    Mask-X -> denoise the moved source -> Mask-X again."""
     from masknet.denoising import denoise
 
     denoiser = _shipped_denoiser()
+    outlier_model = _shipped_outlier_masknet()
     how = {"method": "masknet", "model": denoiser} if denoiser else {"method": "distance"}
     ratios = [0.0, 0.1, 0.2] if ctx.quick else [0.0, 0.05, 0.1, 0.15, 0.2]
     count = ctx.pairs if not ctx.quick else min(ctx.pairs, 10)
+    pipelines = dict(SWEEP_PIPELINES)
+    if outlier_model is not None:
+        for name in ("Mask-ICP", "Mask-PointNetLK"):
+            pipelines[f"{name} (MaskNet trained with 10% outliers)"] = {
+                **SWEEP_PIPELINES[name],
+                "model": outlier_model,
+            }
     rows = []
     for ratio in ratios:
         pairs = ctx.test_pairs(PairConfig(outlier_ratio=ratio), count=count)
         truth = pairs.transform.double().numpy()
-        for name, kwargs in SWEEP_PIPELINES.items():
+        for name, kwargs in pipelines.items():
             rows.append({"outliers": ratio, "pipeline": name, **_batched_errors(pairs, **kwargs)})
         for name in ("Mask-ICP", "Mask-PointNetLK"):
             kwargs = SWEEP_PIPELINES[name]
@@ -612,7 +635,14 @@ def exp_outliers(ctx: BenchmarkContext) -> ExperimentResult:
             "Outliers",
         )
 
-    return ExperimentResult(rows, f"{count} pairs per rate, 30% missing, <= 45 deg.", plot)
+    summary = f"{count} pairs per rate, 30% missing, <= 45 deg; Mask-X uses the shipped MaskNet" + (
+        ", and the rows marked '(MaskNet trained with 10% outliers)' the MaskNet fine-tuned "
+        "with 10% source outliers "
+        "(`MaskNet.pretrained('modelnet40_outliers10')`)."
+        if outlier_model is not None
+        else " (no outlier-trained MaskNet ships)."
+    )
+    return ExperimentResult(rows, summary, plot)
 
 
 # (name, template file, source file, ground truth file or None) in ../shared/data/scans.

@@ -46,7 +46,8 @@ PIPELINES: dict[str, dict] = {
 
 def pose_errors(estimate: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Rotation errors (degrees) and translation errors for (P, 4, 4) transforms."""
-    est, tru = torch.from_numpy(estimate).double(), torch.from_numpy(truth).double()
+    # np.array copies read-only inputs (e.g. a broadcast identity), which torch warns about
+    est, tru = (torch.as_tensor(np.array(a, dtype=np.float64)) for a in (estimate, truth))
     rotation = rotation_error_deg(est[:, :3, :3], tru[:, :3, :3]).numpy()
     translation = np.linalg.norm(estimate[:, :3, 3] - truth[:, :3, 3], axis=-1)
     return rotation, translation
