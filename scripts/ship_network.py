@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from ship_weights import base_card, epochs_text, install, read_run
+from ship_weights import base_card, epochs_text, install, previous_text, read_run
 
 from masknet.data import PairConfig, load_modelnet40, make_test_pairs
 from masknet.evaluation.registration import pose_errors, summarize_errors
@@ -100,18 +100,9 @@ def render(card: dict, method: str) -> str:
     )
     pairs = task["pairs"]
     iterations = cls.default_iterations
-    started = ""
-    prev = card.get("previous")
-    if prev:
-        prev_pairs = prev["training"]["task"]["pairs"]
-        best_prev = min(float(r["val_rotation_error_deg"]) for r in prev["log"])
-        started = (
-            f"- **Started from** the weights of run `{prev['name']}` (`masknet train --init`): "
-            f"{prev['epochs_trained']} epoch(s), {prev['training_minutes']:.0f} minutes, keep ratio "
-            f"{prev_pairs['keep_ratio']}, lr {prev['training']['train']['lr']}, best validation "
-            f"rotation error {best_prev:.3f} deg. The run above continued from them; the "
-            "untrained row is the seeded random start of that first run.\n"
-        )
+    started = previous_text(card)
+    if started:
+        started += "  The untrained row is the seeded random start of the first run.\n"
     return f"""# Model card: `{cls.weights_prefix}{card["name"]}`
 
 {DESCRIPTIONS[method]} Implemented in `masknet.models.{cls.__name__}`; load it with

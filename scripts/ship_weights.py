@@ -38,17 +38,21 @@ def read_run(run: Path) -> tuple[dict, list[dict]]:
         return info, list(csv.DictReader(fh))
 
 
-def run_summary(run_dir: Path) -> dict:
-    """The card fields of an unshipped run that a shipped one continued (``--init``)."""
-    run, log = read_run(run_dir)
+def run_fields(name: str, run: dict, log: list[dict], previous: dict | None) -> dict:
+    """The card fields that come from a training run folder alone."""
     return {
-        "name": run_dir.name,
+        "name": name,
         "training": run,
         "epochs_trained": len(log),
         "training_minutes": float(log[-1]["elapsed_min"]),
         "log": log,
-        "previous": None,
+        "previous": previous,
     }
+
+
+def run_summary(run_dir: Path) -> dict:
+    """The card fields of an unshipped run that a shipped one continued (``--init``)."""
+    return run_fields(run_dir.name, *read_run(run_dir), previous=None)
 
 
 def machine(run: dict) -> str:
@@ -67,17 +71,11 @@ def base_card(
     args, run: dict, log: list[dict], config: dict, best: dict, test: dict, previous: dict | None
 ) -> dict:
     """The fields every model card has; ``test`` holds what the kind measured."""
-    return {
-        "name": args.name,
+    return run_fields(args.name, run, log, previous) | {
         "architecture": config,
-        "training": run,
-        "epochs_trained": len(log),
         "best_epoch": int(best["epoch"]),
-        "training_minutes": float(log[-1]["elapsed_min"]),
         "machine": machine(run),
-        "log": log,
         "test": test,
-        "previous": previous,
     }
 
 
@@ -142,13 +140,16 @@ def previous_text(card: dict) -> str:
     if not prev:
         return ""
     val_key = next(k for k in prev["log"][-1] if k.startswith("val_") and "loss" not in k)
+    pick = min if "error" in val_key else max  # errors: lower is better; precision: higher
+    earlier = previous_text(prev).replace("- **Started", "  - earlier: started")
     text = (
         f"- **Started from** `{prev['name']}` weights (`masknet train --init`), which had "
-        f"{prev['epochs_trained']} epochs, {prev['training_minutes']:.0f} minutes (best "
-        f"{val_key} {max(float(r[val_key]) for r in prev['log']):.4f} on their own validation "
-        "split); the run above continued from them. Their card:\n"
+        f"{prev['epochs_trained']} epochs, {prev['training_minutes']:.0f} minutes on pairs with "
+        f"keep ratio {prev['training']['task']['pairs']['keep_ratio']} (best {val_key} "
+        f"{pick(float(r[val_key]) for r in prev['log']):.4f} on their own validation split); "
+        "the run above continued from them." + (" Their card:\n" if earlier else "\n")
     )
-    return text + previous_text(prev).replace("- **Started", "  - earlier: started")
+    return text + earlier
 
 
 def render_card(card: dict) -> str:
