@@ -152,6 +152,17 @@ def previous_text(card: dict) -> str:
     return text + earlier
 
 
+def resolution_note(num_points: int) -> str:
+    """Validation and test pairs use the data's stored 1,024 points, whatever the training size."""
+    if num_points == 1024:
+        return ""
+    return (
+        " (validation and test pairs: all 1,024 stored points; MaskNet's per-point features do"
+        " not depend on the cloud's density and its max-pooled source feature barely does, so"
+        " the weights carry over)"
+    )
+
+
 def render_card(card: dict) -> str:
     train, task = card["training"]["train"], card["training"]["task"]
     pairs = task["pairs"]
@@ -182,7 +193,8 @@ trained by `masknet train` in this repository. Load it with
 - Pairs (fresh every epoch, seeded): protocol `{pairs["protocol"]}`, keep ratio {pairs["keep_ratio"]}
   ({100 * (1 - pairs["keep_ratio"]):.0f}% missing), rotation <= {pairs["max_angle_deg"]} deg about a random axis,
   translation uniform in [-{pairs["max_translation"]}, {pairs["max_translation"]}]^3, noise sigma
-  {pairs["noise_sigma"]}, outliers {pairs["outlier_ratio"]}; {task["num_points"]} template points per pair.
+  {pairs["noise_sigma"]}, outliers {pairs["outlier_ratio"]}; {task["num_points"]} template points per training
+  pair{resolution_note(task["num_points"])}.
 - Optimiser: Adam, lr {train["lr"]} ({train["lr_schedule"]} schedule, min {train["min_lr"]}), batch
   {train["batch_size"]}, {task["loss"].upper()} loss, {train["precision"]} autocast, seed {train["seed"]}.
 - Epochs: {epochs_text(card)} (best validation epoch {card["best_epoch"]}, the one shipped),

@@ -350,8 +350,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "experiment",
-        help="registration, iterations, precision-vs-missing, rotation-sweep, noise, "
-        "generalization, timing, or all",
+        help="registration, networks, iterations, precision-vs-missing, rotation-sweep, "
+        "noise, generalization, timing, denoising, outliers, scans, or all",
     )
     p.add_argument("--data", help="ModelNet40 folder or .npz (default: $MASKNET_DATA)")
     p.add_argument("--pairs", type=_positive_int, help="pairs per setting (default 1000)")
@@ -753,7 +753,7 @@ def cmd_benchmark(args: argparse.Namespace) -> None:
     import torch
 
     from masknet.data import bundled_sample_path
-    from masknet.evaluation.benchmark import EXPERIMENTS, BenchmarkContext, run_benchmark
+    from masknet.evaluation.benchmark import EXPERIMENTS, BenchmarkContext, run_experiments
 
     names = list(EXPERIMENTS) if args.experiment == "all" else [args.experiment]
     if names[0] not in EXPERIMENTS:
@@ -779,19 +779,7 @@ def cmd_benchmark(args: argparse.Namespace) -> None:
         command=shlex.join(argv) if argv else f"masknet benchmark {args.experiment}",
     )
     start = time.perf_counter()
-    from masknet.evaluation.benchmark import markdown_table
-
-    for name in names:
-        tic = time.perf_counter()
-        try:
-            result = run_benchmark(name, ctx, results)
-        except MaskNetError as exc:
-            if len(names) == 1:
-                raise
-            print(f"== {name}: skipped ({exc})")  # e.g. no scan folder: the others still run
-            continue
-        print(f"== {name} ({time.perf_counter() - tic:.0f} s): {result.summary}")
-        print(markdown_table(result.rows))
+    run_experiments(names, ctx, results, echo=print)
     where = f" and {results}" if results else ""
     print(f"wrote {ctx.out}/{{{','.join(names)}}}.{{json,csv,png}}{where}")
     print(f"wall time {time.perf_counter() - start:.0f} s")

@@ -73,3 +73,36 @@ def test_results_block_is_replaced_in_place(tmp_path):
         text.count("<!-- benchmark:demo -->") == 1 and "| 2 | y |" in text and "| 1 |" not in text
     )
     assert text.startswith("# Results\n\nintro")
+
+
+def test_run_experiments_skips_a_failing_one_and_records_wall_times(tmp_path, monkeypatch):
+    from masknet.errors import MaskNetError
+    from masknet.evaluation import benchmark
+
+    def works(ctx):
+        return benchmark.ExperimentResult([{"value": 1.5}], "a working experiment")
+
+    def fails(ctx):
+        raise MaskNetError("no such folder")
+
+    monkeypatch.setattr(benchmark, "EXPERIMENTS", {"works": works, "fails": fails})
+    doc = tmp_path / "RESULTS.md"
+    doc.write_text("# Results\n")
+    ctx = benchmark.BenchmarkContext(out=tmp_path / "out", command="masknet benchmark all")
+    lines: list[str] = []
+    log = benchmark.run_experiments(["fails", "works"], ctx, doc, echo=lines.append)
+    assert [r["status"] for r in log] == ["skipped: no such folder", "done"]
+    assert json.loads((tmp_path / "out" / "works.json").read_text())["rows"] == [{"value": 1.5}]
+    text = doc.read_text()
+    assert "<!-- benchmark:all -->" in text and "| works |" in text and "min in all" in text
+    assert any("skipped" in line for line in lines)
+    with pytest.raises(MaskNetError):  # a single experiment reports its own failure
+        benchmark.run_experiments(["fails"], ctx, doc)
+
+
+def test_benchmark_help_names_every_experiment(capsys, monkeypatch):
+    monkeypatch.setenv("COLUMNS", "300")  # no line breaks inside hyphenated names
+    with pytest.raises(SystemExit):
+        main(["benchmark", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert all(name in text for name in EXPERIMENTS)

@@ -832,3 +832,43 @@ def run_benchmark(
             lines += ["", f"![{name}]({rel})"]
         update_results(results, name, "\n".join(lines))
     return result
+
+
+def run_experiments(
+    names: list[str],
+    ctx: BenchmarkContext,
+    results: Path | None = None,
+    echo: Callable[[str], None] = lambda line: None,
+) -> list[dict]:
+    """Run several experiments in order; returns one row each (name, minutes, status).
+
+    An experiment that raises :class:`MaskNetError` (e.g. no scan folder) is skipped
+    and the others still run; a single experiment re-raises. With ``results`` and more
+    than one experiment, the run's wall times go to its ``benchmark:all`` block.
+    """
+    start = time.perf_counter()
+    log = []
+    for name in names:
+        tic = time.perf_counter()
+        try:
+            result = run_benchmark(name, ctx, results)
+        except MaskNetError as exc:
+            if len(names) == 1:
+                raise
+            echo(f"== {name}: skipped ({exc})")
+            log.append({"experiment": name, "minutes": 0.0, "status": f"skipped: {exc}"})
+            continue
+        minutes = (time.perf_counter() - tic) / 60
+        log.append({"experiment": name, "minutes": minutes, "status": "done"})
+        echo(f"== {name} ({60 * minutes:.0f} s): {result.summary}")
+        echo(markdown_table(result.rows))
+    if results is not None and len(names) > 1:
+        wall = (time.perf_counter() - start) / 60
+        update_results(
+            results,
+            "all",
+            f"`{ctx.command}`: {wall:.1f} min in all, {torch.get_num_threads()} threads, "
+            f"{platform.machine()}, {os.cpu_count()} CPUs, torch {torch.__version__}\n\n"
+            + markdown_table(log),
+        )
+    return log
