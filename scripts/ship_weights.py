@@ -134,22 +134,24 @@ def main() -> None:
     install(args.run, f"masknet_{args.name}.safetensors", card, render_card(card))
 
 
-def previous_text(card: dict) -> str:
-    """The training of the weights this run started from, recursively."""
+def previous_text(card: dict, depth: int = 0) -> str:
+    """The training of the weights this run started from, one nested line per earlier run."""
     prev = card.get("previous")
     if not prev:
         return ""
     val_key = next(k for k in prev["log"][-1] if k.startswith("val_") and "loss" not in k)
     pick = min if "error" in val_key else max  # errors: lower is better; precision: higher
-    earlier = previous_text(prev).replace("- **Started", "  - earlier: started")
+    task = prev["training"]["task"]
+    loss = f", {task['loss'].upper()} loss" if task.get("loss") else ""
+    lead = "**Started from**" if depth == 0 else "which started from"
     text = (
-        f"- **Started from** `{prev['name']}` weights (`masknet train --init`), which had "
-        f"{prev['epochs_trained']} epochs, {prev['training_minutes']:.0f} minutes on pairs with "
-        f"keep ratio {prev['training']['task']['pairs']['keep_ratio']} (best {val_key} "
-        f"{pick(float(r[val_key]) for r in prev['log']):.4f} on their own validation split); "
-        "the run above continued from them." + (" Their card:\n" if earlier else "\n")
+        f"{'  ' * depth}- {lead} `{prev['name']}` weights (`masknet train --init`): "
+        f"{prev['epochs_trained']} epochs, {prev['training_minutes']:.0f} minutes, "
+        f"{task['num_points']} points per training pair, keep ratio "
+        f"{task['pairs']['keep_ratio']}{loss}; best {val_key} "
+        f"{pick(float(r[val_key]) for r in prev['log']):.4f} on their own validation split.\n"
     )
-    return text + earlier
+    return text + previous_text(prev, depth + 1)
 
 
 def resolution_note(num_points: int) -> str:
