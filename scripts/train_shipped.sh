@@ -4,6 +4,7 @@
 # Session 2: MaskNet continued from the session-1 weights (new pairs: seed 1), PointNetLK,
 # and denoising attempts (none shipped).
 # Session 3: DCP, PRNet, PCRNet, RPM-Net, the outlier-trained MaskNet and the denoising MaskNet.
+# Session 4: MaskNet continued (BCE on logits, 512-point training pairs).
 cd "$(dirname "$0")/.."  # the repository root
 export MASKNET_DATA=../shared/data/modelnet40/modelnet40_1024_int16.npz
 M=.venv/bin/masknet
@@ -56,3 +57,11 @@ $M train --out runs/masknet_outliers10 --init $W/masknet_modelnet40.safetensors 
 $M train --model denoise --out runs/denoise_aligned --init $W/masknet_modelnet40.safetensors --max-angle 0 \
     --max-translation 0 --loss bce --epochs 3 --lr 1e-3 --lr-schedule cosine --seed 4 --threads 1 \
     --num-points 512 --max-minutes 28 $(resume runs/denoise_aligned)
+# (the two runs above started from the session-2 MaskNet, the file shipped at the time; from
+#  session 4 on, $W/masknet_modelnet40.safetensors holds the run below)
+# Session 4: the MaskNet continued from the session-2 weights with BCE on logits and 512-point
+# training pairs (validation and test at 1,024), alone on the 2 cores; then shipped:
+#   python scripts/ship_weights.py runs/modelnet40_bce512 modelnet40 --data $MASKNET_DATA \
+#       --kind masknet --previous <the session-2 card>
+$M train --out runs/modelnet40_bce512 --init $W/masknet_modelnet40.safetensors --loss bce --num-points 512 \
+    --epochs 22 --lr 7e-5 --lr-schedule cosine --seed 1 --max-minutes 92 --threads 2 $(resume runs/modelnet40_bce512)
