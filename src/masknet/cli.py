@@ -370,6 +370,12 @@ def build_parser() -> argparse.ArgumentParser:
         "when it exists); 'none' to skip",
     )
     p.add_argument("--threads", type=_positive_int, help="torch CPU threads")
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="after a kill: keep the table rows the interrupted run already wrote to "
+        "--out/.rows (same pairs, seed, weights, data and version) and compute the rest",
+    )
 
     p = sub.add_parser(
         "demo", help="run the shipped model on the bundled sample: metrics and a picture"
@@ -777,6 +783,7 @@ def cmd_benchmark(args: argparse.Namespace) -> None:
         out=Path(args.out),
         progress=sys.stderr.isatty(),
         command=shlex.join(argv) if argv else f"masknet benchmark {args.experiment}",
+        resume=args.resume,
     )
     start = time.perf_counter()
     run_experiments(names, ctx, results, echo=print)

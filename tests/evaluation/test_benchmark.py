@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 
+import numpy as np
 import pytest
 
 from masknet.cli import main
@@ -106,3 +107,67 @@ def test_benchmark_help_names_every_experiment(capsys, monkeypatch):
         main(["benchmark", "--help"])
     text = " ".join(capsys.readouterr().out.split())
     assert all(name in text for name in EXPERIMENTS)
+
+
+def test_resume_keeps_the_rows_an_interrupted_run_wrote(tmp_path, monkeypatch):
+    from masknet.data import bundled_sample_path
+    from masknet.evaluation import benchmark
+
+    calls: list[int] = []
+
+    def square(value: int, kill_at: int | None) -> dict:
+        if value == kill_at:
+            raise KeyboardInterrupt  # the run is killed while computing this row
+        calls.append(value)
+        return {"square": float(value**2)}
+
+    def experiment(ctx, kill_at=None):
+        rows = [ctx.row({"value": v}, square, v, kill_at) for v in range(4)]
+        return benchmark.ExperimentResult(rows, "squares")
+
+    monkeypatch.setattr(benchmark, "EXPERIMENTS", {"squares": experiment})
+    doc = tmp_path / "RESULTS.md"
+    doc.write_text("# Results\n")
+
+    def context(resume, data=bundled_sample_path()):
+        return benchmark.BenchmarkContext(data=data, pairs=5, out=tmp_path, resume=resume)
+
+    monkeypatch.setitem(benchmark.EXPERIMENTS, "squares", lambda ctx: experiment(ctx, kill_at=2))
+    with pytest.raises(KeyboardInterrupt):
+        benchmark.run_benchmark("squares", context(resume=False), doc)
+    assert calls == [0, 1] and not (tmp_path / "squares.json").exists()
+    with open(tmp_path / ".rows" / "squares.jsonl", "a") as f:
+        f.write('{"id": "torn by the kill')  # a half-written line is ignored
+
+    monkeypatch.setitem(benchmark.EXPERIMENTS, "squares", experiment)
+    calls.clear()
+    benchmark.run_benchmark("squares", context(resume=True), doc)
+    payload = json.loads((tmp_path / "squares.json").read_text())
+    assert calls == [2, 3]  # only the rows the kill lost
+    assert [r["square"] for r in payload["rows"]] == [0.0, 1.0, 4.0, 9.0]
+    assert payload["resumed_rows"] == 2 and "2 rows kept from an interrupted" in doc.read_text()
+
+    calls.clear()  # a fresh run (no --resume) recomputes everything
+    benchmark.run_benchmark("squares", context(resume=False), doc)
+    assert calls == [0, 1, 2, 3]
+    assert json.loads((tmp_path / "squares.json").read_text())["resumed_rows"] == 0
+
+    calls.clear()  # other test shapes: the kept rows do not apply
+    other = tmp_path / "other.npz"
+    with np.load(bundled_sample_path()) as sample:
+        arrays = dict(sample)
+    arrays["test_points"] = arrays["test_points"][::-1].copy()
+    np.savez(other, **arrays)
+    benchmark.run_benchmark("squares", context(resume=True, data=other), doc)
+    assert calls == [0, 1, 2, 3]
+
+
+def test_benchmark_resume_from_the_command_line(tmp_path, monkeypatch):
+    monkeypatch.delenv("MASKNET_DATA", raising=False)
+    argv = ["benchmark", "iterations", "--quick", "--out", str(tmp_path), "--threads", "1"]
+    assert main(argv) == 0
+    first = json.loads((tmp_path / "iterations.json").read_text())
+    assert main([*argv, "--resume"]) == 0
+    again = json.loads((tmp_path / "iterations.json").read_text())
+    assert first["resumed_rows"] == 0 and again["resumed_rows"] == 2  # Mask-ICP, Mask-PointNetLK
+    assert again["rows"] == first["rows"]

@@ -6,6 +6,12 @@ runs the methods on the same pairs, and writes ``<out>/<experiment>.json``,
 in docs/RESULTS.md (between ``<!-- benchmark:NAME -->`` markers), so the
 document always shows what the last run measured and the command that did it.
 
+Every table row is also appended to ``<out>/.rows/<experiment>.jsonl`` as soon as it
+is computed. ``--resume`` (``BenchmarkContext(resume=True)``) reads those rows back
+instead of recomputing them, when their settings, the package version, the shipped
+weights and the test shapes all match, so a full-size run killed after hours loses
+at most the row in progress.
+
 Registration methods run with the paper's budget (10 iterations) and the shipped
 weights. Errors: rotation in degrees (angle of R_est^T R_true), translation as
 ||t_est - t_true|| in units of the unit-radius shapes.
@@ -14,13 +20,14 @@ weights. Errors: rotation in degrees (angle of R_est^T R_true), translation as
 from __future__ import annotations
 
 import csv
+import hashlib
 import io
 import json
 import os
 import platform
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -42,6 +49,7 @@ from masknet.evaluation.registration import (
 from masknet.geometry.se3 import invert_transform, make_transform, so3_exp
 from masknet.io import write_text_atomic
 from masknet.models.masknet import MaskNet
+from masknet.models.weights import shipped_weights_path
 from masknet.registration.api import register
 from masknet.runtime import default_precision
 
@@ -88,7 +96,12 @@ class BenchmarkContext:
     out: Path = Path("masknet_benchmark")
     progress: bool = True
     command: str = ""
+    resume: bool = False  # keep the rows an interrupted invocation already computed
+    experiment: str = ""  # set by run_benchmark: the experiment whose rows row() records
+    reused: dict[str, float] = field(default_factory=lambda: {"rows": 0, "seconds": 0.0})
     _test: PointCloudSet | None = None
+    _fingerprint: str | None = None
+    _kept: dict[str, dict] | None = None
 
     @property
     def test_set(self) -> PointCloudSet:
@@ -108,6 +121,75 @@ class BenchmarkContext:
 
     def test_pairs(self, config: PairConfig | None = None, count: int | None = None) -> Pairs:
         return make_test_pairs(self.points, count or self.pairs, config or PairConfig(), self.seed)
+
+    @property
+    def fingerprint(self) -> str:
+        """A digest of what a row depends on beyond its key: the package version, every
+        shipped weight file and the test shapes."""
+        if self._fingerprint is None:
+            from masknet import __version__
+
+            digest = hashlib.sha256(__version__.encode())
+            for path in sorted(shipped_weights_path("").glob("*.safetensors")):
+                digest.update(path.name.encode() + path.read_bytes())
+            digest.update(np.ascontiguousarray(self.points).tobytes())
+            self._fingerprint = digest.hexdigest()[:16]
+        return self._fingerprint
+
+    @property
+    def rows_file(self) -> Path:
+        """``<out>/.rows/<experiment>.jsonl``: every row computed, one JSON line each."""
+        return self.out / ".rows" / f"{self.experiment}.jsonl"
+
+    def start_experiment(self, name: str) -> None:
+        """Point :meth:`row` at ``name``; without ``resume``, forget its earlier rows."""
+        self.experiment, self._kept = name, None
+        self.reused = {"rows": 0, "seconds": 0.0}
+        if not self.resume:
+            self.rows_file.unlink(missing_ok=True)
+
+    def row(self, key: dict, compute: Callable[..., dict], *args: object, **kwargs: object) -> dict:
+        """One table row, ``{**key, **compute(*args, **kwargs)}``.
+
+        The row is appended to :attr:`rows_file` as soon as it is computed. With
+        ``resume``, a row recorded there for the same key, pairs, seed, quick flag and
+        :attr:`fingerprint` is read back instead of computed, so a killed run, restarted
+        with ``--resume``, loses at most the row it was computing.
+        """
+        ident = json.dumps(
+            {**key, "pairs": self.pairs, "seed": self.seed, "quick": self.quick},
+            sort_keys=True,
+            default=str,
+        )
+        ident += f" {self.fingerprint}"
+        if self.resume:
+            if self._kept is None:
+                self._kept = _read_rows(self.rows_file)
+            kept = self._kept.get(ident)
+            if kept is not None:
+                self.reused["rows"] += 1
+                self.reused["seconds"] += kept["seconds"]
+                return kept["row"]
+        tic = time.perf_counter()
+        row = {**key, **compute(*args, **kwargs)}
+        entry = {"id": ident, "seconds": time.perf_counter() - tic, "row": row}
+        self.rows_file.parent.mkdir(parents=True, exist_ok=True)
+        with open(self.rows_file, "a") as f:
+            f.write(json.dumps(entry) + "\n")
+        return row
+
+
+def _read_rows(path: Path) -> dict[str, dict]:
+    """id -> entry of a rows file; a line torn by a kill mid-write is ignored."""
+    kept = {}
+    if path.exists():
+        for line in path.read_text().splitlines():
+            try:
+                entry = json.loads(line)
+                kept[entry["id"]] = entry
+            except (json.JSONDecodeError, KeyError, TypeError):
+                continue
+    return kept
 
 
 @dataclass
@@ -202,11 +284,28 @@ def _error_bars(path: Path, rows: list[dict], title: str) -> None:
 # ------------------------------------------------------------------------- experiments
 
 
+def _registration_row(pairs: Pairs, name: str, kwargs: dict, progress: bool) -> dict:
+    return benchmark_registration(pairs, {name: kwargs}, progress=progress)[name]
+
+
+def _network_row(pairs: Pairs, timing_pairs: Pairs, repeats: int, kwargs: dict) -> dict:
+    """Errors over ``pairs`` (batched) and batch-1 times over ``timing_pairs``."""
+    return _batched_errors(pairs, **kwargs) | time_pipeline(
+        timing_pairs, repeats, warmup=2, **kwargs
+    )
+
+
+def _rounds_row(pairs: Pairs, method: str, progress: bool) -> dict:
+    return {"rounds": iteration_errors(pairs, 3, progress=progress, method=method)}
+
+
 def exp_registration(ctx: BenchmarkContext) -> ExperimentResult:
     """X against Mask-X (and refinements) on the default protocol, pair by pair."""
     pairs = ctx.test_pairs()
-    table = benchmark_registration(pairs, PIPELINES, progress=ctx.progress)
-    rows = [{"pipeline": name, **values} for name, values in table.items()]
+    rows = [
+        ctx.row({"pipeline": name}, _registration_row, pairs, name, kwargs, ctx.progress)
+        for name, kwargs in PIPELINES.items()
+    ]
     best = min(rows, key=lambda r: r["rot_median"])
 
     def plot(path: Path) -> None:
@@ -248,9 +347,7 @@ def exp_networks(ctx: BenchmarkContext) -> ExperimentResult:
     timing_pairs = Pairs(*(x[:8] for x in pairs))
     repeats = 3 if ctx.quick else 20
     for name, kwargs in tqdm(pipelines.items(), desc="networks", disable=not ctx.progress):
-        row = {"pipeline": name, **_batched_errors(pairs, **kwargs)}
-        row.update(time_pipeline(timing_pairs, repeats, warmup=2, **kwargs))
-        rows.append(row)
+        rows.append(ctx.row({"pipeline": name}, _network_row, pairs, timing_pairs, repeats, kwargs))
     for row in rows:
         for key in ("ms_per_pair", "ms_mask", "ms_register"):
             row.setdefault(key, float("nan"))
@@ -274,8 +371,8 @@ def exp_iterations(ctx: BenchmarkContext) -> ExperimentResult:
     pairs = ctx.test_pairs()
     rows = []
     for name, method in (("Mask-ICP", "icp"), ("Mask-PointNetLK", "pointnetlk")):
-        for row in iteration_errors(pairs, 3, progress=ctx.progress, method=method):
-            rows.append({"pipeline": name, **row})
+        kept = ctx.row({"pipeline": name}, _rounds_row, pairs, method, ctx.progress)
+        rows += [{"pipeline": name, **row} for row in kept["rounds"]]
 
     def plot(path: Path) -> None:
         lines = {
@@ -300,22 +397,18 @@ def exp_precision_vs_missing(ctx: BenchmarkContext) -> ExperimentResult:
     model = MaskNet.pretrained()
     missing = [0.1, 0.3, 0.5] if ctx.quick else [0.1, 0.2, 0.3, 0.4, 0.5, 0.6]
     correspondence = [n for n in ("PRNet", "RPM-Net") if _shipped(LEARNED[n])]
-    rows = []
-    for miss in missing:
-        result = evaluate_masknet(
-            model, ctx.points, ctx.pairs, ctx.seed, PairConfig(keep_ratio=1 - miss), progress=False
-        )
+
+    def precisions(miss: float) -> dict:
+        config = PairConfig(keep_ratio=1 - miss)
+        result = evaluate_masknet(model, ctx.points, ctx.pairs, ctx.seed, config, progress=False)
         top = result.rows["top-k (k=M)"]
-        row = {
-            "missing": miss,
-            "precision": top["precision"],
-            "recall": top["recall"],
-            "chance": 1 - miss,
-        }
-        pairs = ctx.test_pairs(PairConfig(keep_ratio=1 - miss))
+        row = {"precision": top["precision"], "recall": top["recall"], "chance": 1 - miss}
+        pairs = ctx.test_pairs(config)
         for name in correspondence:
             row[f"{name} precision"] = _correspondence_precision(pairs, LEARNED[name])
-        rows.append(row)
+        return row
+
+    rows = [ctx.row({"missing": miss}, precisions, miss) for miss in missing]
 
     def plot(path: Path) -> None:
         lines = {"MaskNet top-k precision": [r["precision"] for r in rows]}
@@ -381,7 +474,9 @@ def exp_rotation_sweep(ctx: BenchmarkContext) -> ExperimentResult:
     for angle in angles:
         pairs = _rotated_by(base, angle, ctx.seed + angle)
         for name, kwargs in sweep.items():
-            rows.append({"angle_deg": angle, "pipeline": name, **_batched_errors(pairs, **kwargs)})
+            rows.append(
+                ctx.row({"angle_deg": angle, "pipeline": name}, _batched_errors, pairs, **kwargs)
+            )
 
     def plot(path: Path) -> None:
         lines = {n: [r["rot_mean"] for r in rows if r["pipeline"] == n] for n in sweep}
@@ -414,11 +509,13 @@ def exp_noise(ctx: BenchmarkContext) -> ExperimentResult:
         config = PairConfig(noise_sigma=sigma, noise_clip=max(0.05, 2 * sigma))
         pairs = ctx.test_pairs(config)
         for name, kwargs in sweep_pipelines().items():
-            rows.append({"sigma": sigma, "pipeline": name, **_batched_errors(pairs, **kwargs)})
+            key = {"sigma": sigma, "pipeline": name}
+            rows.append(ctx.row(key, _batched_errors, pairs, **kwargs))
         few = Pairs(*(x[:PEER_PAIRS] for x in pairs))
         for name, kwargs in PEERS.items():
             label = f"{name}, first {len(few.template)} pairs"
-            rows.append({"sigma": sigma, "pipeline": label, **_batched_errors(few, **kwargs)})
+            key = {"sigma": sigma, "pipeline": label}
+            rows.append(ctx.row(key, _batched_errors, few, **kwargs))
 
     def plot(path: Path) -> None:
         names = list(dict.fromkeys(r["pipeline"] for r in rows))
@@ -585,12 +682,27 @@ def _shipped_outlier_masknet() -> MaskNet | None:
         return None
 
 
+def _register_denoise_register(pairs: Pairs, how: dict, kwargs: dict) -> dict[str, float]:
+    """Errors of register -> denoise the moved source (``how``: denoise() arguments) ->
+    register again, pair by pair."""
+    from masknet.denoising import denoise
+
+    truth = pairs.transform.double().numpy()
+    estimates = np.empty_like(truth)
+    for i in range(len(truth)):
+        template = pairs.template[i].double().numpy()
+        source = pairs.source[i].double().numpy()
+        first = register(template, source, **kwargs).transform
+        moved = source @ first[:3, :3].T + first[:3, 3]
+        cleaned = denoise(moved, template, **how).points
+        estimates[i] = register(template, cleaned, **kwargs).transform @ first
+    return summarize_errors(*pose_errors(estimates, truth))
+
+
 def exp_outliers(ctx: BenchmarkContext) -> ExperimentResult:
     """Registration error against uniform source outliers, 0-20%: X, Mask-X with the shipped
     MaskNet, Mask-X with the MaskNet trained with 10% source outliers (the paper's), and
     Mask-X -> denoise the moved source -> Mask-X again."""
-    from masknet.denoising import denoise
-
     denoiser = _shipped_denoiser()
     outlier_model = _shipped_outlier_masknet()
     how = {"method": "masknet", "model": denoiser} if denoiser else {"method": "distance"}
@@ -606,22 +718,12 @@ def exp_outliers(ctx: BenchmarkContext) -> ExperimentResult:
     rows = []
     for ratio in ratios:
         pairs = ctx.test_pairs(PairConfig(outlier_ratio=ratio), count=count)
-        truth = pairs.transform.double().numpy()
         for name, kwargs in pipelines.items():
-            rows.append({"outliers": ratio, "pipeline": name, **_batched_errors(pairs, **kwargs)})
+            key = {"outliers": ratio, "pipeline": name}
+            rows.append(ctx.row(key, _batched_errors, pairs, **kwargs))
         for name in ("Mask-ICP", "Mask-PointNetLK"):
-            kwargs = SWEEP_PIPELINES[name]
-            estimates = np.empty_like(truth)
-            for i in range(len(truth)):
-                template = pairs.template[i].double().numpy()
-                source = pairs.source[i].double().numpy()
-                first = register(template, source, **kwargs).transform
-                moved = source @ first[:3, :3].T + first[:3, 3]
-                cleaned = denoise(moved, template, **how).points
-                estimates[i] = register(template, cleaned, **kwargs).transform @ first
-            errors = summarize_errors(*pose_errors(estimates, truth))
-            label = f"{name}, denoise ({how['method']}), {name}"
-            rows.append({"outliers": ratio, "pipeline": label, **errors})
+            key = {"outliers": ratio, "pipeline": f"{name}, denoise ({how['method']}), {name}"}
+            rows.append(ctx.row(key, _register_denoise_register, pairs, how, SWEEP_PIPELINES[name]))
 
     def plot(path: Path) -> None:
         names = list(dict.fromkeys(r["pipeline"] for r in rows))
@@ -799,9 +901,11 @@ def run_benchmark(
             f"unknown experiment {name!r}; choose from {', '.join(EXPERIMENTS)} or all"
         )
     ctx.out.mkdir(parents=True, exist_ok=True)
+    ctx.start_experiment(name)
     start = time.perf_counter()
     result = EXPERIMENTS[name](ctx)
     wall = time.perf_counter() - start
+    reused = dict(ctx.reused)
     stem = ctx.out / name
     payload = {
         "experiment": name,
@@ -809,6 +913,8 @@ def run_benchmark(
         "seed": ctx.seed,
         "quick": ctx.quick,
         "wall_time_s": wall,
+        "resumed_rows": reused["rows"],  # rows kept from earlier invocations (--resume)
+        "resumed_seconds": reused["seconds"],  # what computing those rows took then
         "threads": torch.get_num_threads(),
         "machine": f"{platform.machine()}, {os.cpu_count()} CPUs, torch {torch.__version__}",
         "summary": result.summary,
@@ -819,9 +925,14 @@ def run_benchmark(
     if result.plot is not None:
         result.plot(stem.with_suffix(".png"))
     if results is not None:
+        took = f"{wall / 60:.1f} min"
+        if reused["rows"]:
+            took += (
+                f", plus {reused['seconds'] / 60:.1f} min for {reused['rows']} rows kept from "
+                "an interrupted invocation"
+            )
         lines = [
-            f"`{ctx.command}` ({wall / 60:.1f} min, {payload['machine']}, "
-            f"{payload['threads']} threads)",
+            f"`{ctx.command}` ({took}, {payload['machine']}, {payload['threads']} threads)",
             "",
             result.summary,
             "",
@@ -859,7 +970,13 @@ def run_experiments(
             log.append({"experiment": name, "minutes": 0.0, "status": f"skipped: {exc}"})
             continue
         minutes = (time.perf_counter() - tic) / 60
-        log.append({"experiment": name, "minutes": minutes, "status": "done"})
+        status = "done"
+        if ctx.reused["rows"]:
+            status += (
+                f"; {ctx.reused['rows']} rows ({ctx.reused['seconds'] / 60:.1f} min) kept from "
+                "an interrupted invocation"
+            )
+        log.append({"experiment": name, "minutes": minutes, "status": status})
         echo(f"== {name} ({60 * minutes:.0f} s): {result.summary}")
         echo(markdown_table(result.rows))
     if results is not None and len(names) > 1:
