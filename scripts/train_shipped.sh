@@ -65,3 +65,9 @@ $M train --model denoise --out runs/denoise_aligned --init $W/masknet_modelnet40
 #       --kind masknet --previous <the session-2 card>
 $M train --out runs/modelnet40_bce512 --init $W/masknet_modelnet40.safetensors --loss bce --num-points 512 \
     --epochs 22 --lr 7e-5 --lr-schedule cosine --seed 1 --max-minutes 92 --threads 2 $(resume runs/modelnet40_bce512)
+# Session 5: two more cosine cycles of the same recipe, each from the previous best, then shipped
+# (--previous: the card shipped before each run).
+$M train --out runs/modelnet40_bce512b --init $W/masknet_modelnet40.safetensors --loss bce --num-points 512 \
+    --epochs 24 --lr 1e-4 --lr-schedule cosine --seed 1 --max-minutes 100 --threads 2 $(resume runs/modelnet40_bce512b)
+$M train --out runs/modelnet40_bce512c --init runs/modelnet40_bce512b/best.safetensors --loss bce --num-points 512 \
+    --epochs 9 --lr 4e-5 --lr-schedule cosine --seed 1 --max-minutes 37 --threads 2 $(resume runs/modelnet40_bce512c)
