@@ -129,7 +129,8 @@ def test_resume_keeps_the_rows_an_interrupted_run_wrote(tmp_path, monkeypatch):
     doc = tmp_path / "RESULTS.md"
     doc.write_text("# Results\n")
 
-    def context(resume, data=bundled_sample_path()):
+    def context(resume, data=None):
+        data = data or bundled_sample_path()
         return benchmark.BenchmarkContext(data=data, pairs=5, out=tmp_path, resume=resume)
 
     monkeypatch.setitem(benchmark.EXPERIMENTS, "squares", lambda ctx: experiment(ctx, kill_at=2))
