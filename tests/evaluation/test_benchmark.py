@@ -145,6 +145,8 @@ def test_resume_keeps_the_rows_an_interrupted_run_wrote(tmp_path, monkeypatch):
     benchmark.run_benchmark("squares", context(resume=True), doc)
     payload = json.loads((tmp_path / "squares.json").read_text())
     assert calls == [2, 3]  # only the rows the kill lost
+    lines = (tmp_path / ".rows" / "squares.jsonl").read_text().splitlines()
+    assert [json.loads(line)["row"]["value"] for line in lines] == [0, 1, 2, 3]  # torn tail cut
     assert [r["square"] for r in payload["rows"]] == [0.0, 1.0, 4.0, 9.0]
     assert payload["resumed_rows"] == 2 and "2 rows kept from an interrupted" in doc.read_text()
 

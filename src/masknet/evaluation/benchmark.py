@@ -180,10 +180,15 @@ class BenchmarkContext:
 
 
 def _read_rows(path: Path) -> dict[str, dict]:
-    """id -> entry of a rows file; a line torn by a kill mid-write is ignored."""
+    """id -> entry of a rows file. A line torn by a kill mid-write is ignored, and cut
+    off the file, so that the next row appended starts a line of its own."""
     kept = {}
     if path.exists():
-        for line in path.read_text().splitlines():
+        text = path.read_text()
+        if text and not text.endswith("\n"):
+            text = text[: text.rfind("\n") + 1]
+            write_text_atomic(path, text)
+        for line in text.splitlines():
             try:
                 entry = json.loads(line)
                 kept[entry["id"]] = entry
