@@ -73,6 +73,16 @@ def test_knn_chunked_equals_unchunked():
     torch.testing.assert_close(a.dists, b.dists)
 
 
+@pytest.mark.parametrize("block_elements", [1, 2 * 33, 10 * 2 * 33 + 5])
+def test_knn_block_bound_splits_queries_not_results(block_elements):
+    # a bound below one query row per batch still searches one row at a time
+    query, reference = _clouds(2, 101, 33, seed=6)
+    result = knn_points(query, reference, k=3, block_elements=block_elements)
+    exp_d, exp_i = _expected(query, reference, 3)
+    np.testing.assert_array_equal(result.idx.numpy(), exp_i)
+    np.testing.assert_allclose(result.dists.numpy(), exp_d, rtol=1e-9, atol=1e-12)
+
+
 def test_knn_k_larger_than_reference_raises():
     query, reference = _clouds(1, 5, 4)
     with pytest.raises(ValueError, match="k=5"):

@@ -37,7 +37,7 @@ from tqdm.auto import tqdm
 from masknet.data.modelnet import PointCloudSet, load_modelnet40
 from masknet.data.pairs import PairConfig, Pairs, make_test_pairs
 from masknet.errors import MaskNetError
-from masknet.evaluation.evaluate import evaluate_masknet
+from masknet.evaluation.evaluate import PAIRS_PER_CALL, evaluate_masknet
 from masknet.evaluation.metrics import outlier_removal_metrics
 from masknet.evaluation.registration import (
     PIPELINES,
@@ -206,9 +206,10 @@ class ExperimentResult:
     plot: Callable[[Path], None] | None = None
 
 
-def _batched_errors(pairs: Pairs, chunk: int = 100, **kwargs: object) -> dict[str, float]:
-    """Errors of one pipeline over every pair, in batched register calls of ``chunk`` pairs
-    (bounded memory: PointNetLK's Jacobian pass holds 7 clouds per pair)."""
+def _batched_errors(
+    pairs: Pairs, chunk: int = PAIRS_PER_CALL, **kwargs: object
+) -> dict[str, float]:
+    """Errors of one pipeline over every pair, in batched register calls of ``chunk`` pairs."""
     template, source = pairs.template.double().numpy(), pairs.source.double().numpy()
     estimates = [
         register(template[i : i + chunk], source[i : i + chunk], **kwargs).transform
@@ -439,7 +440,7 @@ def exp_precision_vs_missing(ctx: BenchmarkContext) -> ExperimentResult:
     return ExperimentResult(rows, summary, plot)
 
 
-def _correspondence_precision(pairs: Pairs, method: str, chunk: int = 100) -> float:
+def _correspondence_precision(pairs: Pairs, method: str, chunk: int = PAIRS_PER_CALL) -> float:
     """Mean per-pair precision of a network's correspondence inliers (pairs with none: 0)."""
     template, source = pairs.template.double().numpy(), pairs.source.double().numpy()
     truth = pairs.mask.numpy()
