@@ -71,3 +71,7 @@ $M train --out runs/modelnet40_bce512b --init $W/masknet_modelnet40.safetensors 
     --epochs 24 --lr 1e-4 --lr-schedule cosine --seed 1 --max-minutes 100 --threads 2 $(resume runs/modelnet40_bce512b)
 $M train --out runs/modelnet40_bce512c --init runs/modelnet40_bce512b/best.safetensors --loss bce --num-points 512 \
     --epochs 9 --lr 4e-5 --lr-schedule cosine --seed 1 --max-minutes 37 --threads 2 $(resume runs/modelnet40_bce512c)
+# Session 6: three epochs on full 1,024-point pairs at a low learning rate, from session 5's
+# shipped weights, then shipped (--previous: session 5's card).
+$M train --out runs/modelnet40_bce1024d --init $W/masknet_modelnet40.safetensors --loss bce --num-points 1024 \
+    --epochs 3 --lr 2e-5 --lr-schedule cosine --seed 1 --max-minutes 45 --threads 2 $(resume runs/modelnet40_bce1024d)
