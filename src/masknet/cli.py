@@ -7,6 +7,7 @@ is printed as one line, ``masknet: error: <file>: <problem>``, with exit code 2.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
 import os
@@ -784,9 +785,10 @@ def cmd_benchmark(args: argparse.Namespace) -> None:
         progress=sys.stderr.isatty(),
         command=shlex.join(argv) if argv else f"masknet benchmark {args.experiment}",
         resume=args.resume,
+        log=None if sys.stderr.isatty() else functools.partial(print, file=sys.stderr, flush=True),
     )
     start = time.perf_counter()
-    run_experiments(names, ctx, results, echo=print)
+    run_experiments(names, ctx, results, echo=functools.partial(print, flush=True))
     where = f" and {results}" if results else ""
     print(f"wrote {ctx.out}/{{{','.join(names)}}}.{{json,csv,png}}{where}")
     print(f"wall time {time.perf_counter() - start:.0f} s")

@@ -165,12 +165,18 @@ def test_resume_keeps_the_rows_an_interrupted_run_wrote(tmp_path, monkeypatch):
     assert calls == [0, 1, 2, 3]
 
 
-def test_benchmark_resume_from_the_command_line(tmp_path, monkeypatch):
+def test_benchmark_resume_from_the_command_line(tmp_path, monkeypatch, capsys):
     monkeypatch.delenv("MASKNET_DATA", raising=False)
     argv = ["benchmark", "iterations", "--quick", "--out", str(tmp_path), "--threads", "1"]
     assert main(argv) == 0
     first = json.loads((tmp_path / "iterations.json").read_text())
+    # stderr is not a terminal here: one line per row stands in for the progress bars
+    log = capsys.readouterr().err.splitlines()
+    assert sum(line.startswith("iterations: pipeline Mask-") for line in log) == 2, log
     assert main([*argv, "--resume"]) == 0
+    assert (
+        "iterations: pipeline Mask-ICP: kept from an earlier invocation" in capsys.readouterr().err
+    )
     again = json.loads((tmp_path / "iterations.json").read_text())
     assert first["resumed_rows"] == 0 and again["resumed_rows"] == 2  # Mask-ICP, Mask-PointNetLK
     assert again["rows"] == first["rows"]

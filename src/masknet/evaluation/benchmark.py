@@ -99,6 +99,9 @@ class BenchmarkContext:
     resume: bool = False  # keep the rows an interrupted invocation already computed
     experiment: str = ""  # set by run_benchmark: the experiment whose rows row() records
     reused: dict[str, float] = field(default_factory=lambda: {"rows": 0, "seconds": 0.0})
+    # called with one line per table row computed or kept: a log's only sign of life in a
+    # long experiment when stderr is not a terminal (no progress bars)
+    log: Callable[[str], None] | None = None
     _test: PointCloudSet | None = None
     _fingerprint: str | None = None
     _kept: dict[str, dict] | None = None
@@ -169,6 +172,7 @@ class BenchmarkContext:
             if kept is not None:
                 self.reused["rows"] += 1
                 self.reused["seconds"] += kept["seconds"]
+                self._log_row(key, "kept from an earlier invocation")
                 return kept["row"]
         tic = time.perf_counter()
         row = {**key, **compute(*args, **kwargs)}
@@ -176,7 +180,13 @@ class BenchmarkContext:
         self.rows_file.parent.mkdir(parents=True, exist_ok=True)
         with open(self.rows_file, "a") as f:
             f.write(json.dumps(entry) + "\n")
+        self._log_row(key, f"{entry['seconds']:.0f} s")
         return row
+
+    def _log_row(self, key: dict, how: str) -> None:
+        if self.log is not None:
+            what = ", ".join(f"{k} {v}" for k, v in key.items())
+            self.log(f"{self.experiment}: {what}: {how}")
 
 
 def _read_rows(path: Path) -> dict[str, dict]:
