@@ -13,21 +13,10 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
-import torch
 
 from masknet.data import load_modelnet40
 from masknet.evaluation.evaluate import evaluate_masknet
-from masknet.evaluation.metrics import mask_metrics
 from masknet.models import MaskNet
-from masknet.models.masknet import select_mask
-
-
-def per_pair_precision(model: MaskNet, points: np.ndarray, pairs: int, seed: int) -> np.ndarray:
-    """(pairs,) top-k precision of each seeded test pair, fp32 inference."""
-    ev = evaluate_masknet(model, points, pairs, seed, progress=False, keep_outputs=True)
-    data = ev.pairs_data
-    mask = select_mask(torch.from_numpy(ev.scores), k=data.source.shape[1])
-    return mask_metrics(mask, data.mask).precision.numpy().astype(np.float64)
 
 
 def main() -> None:
@@ -42,10 +31,12 @@ def main() -> None:
     scores = {}
     for name in ("old", "new"):
         path = getattr(args, name)
-        scores[name] = per_pair_precision(MaskNet.from_file(path), points, args.pairs, args.seed)
-        p = scores[name]
-        se = p.std(ddof=1) / np.sqrt(len(p))
-        print(f"{name}: {path}: top-k precision {p.mean():.4f} +- {se:.4f}")
+        ev = evaluate_masknet(
+            MaskNet.from_file(path), points, args.pairs, args.seed, progress=False
+        )
+        scores[name] = ev.topk_precision
+        mean, se = scores[name].mean(), ev.topk_precision_stderr
+        print(f"{name}: {path}: top-k precision {mean:.4f} +- {se:.4f}")
     diff = scores["new"] - scores["old"]
     se = diff.std(ddof=1) / np.sqrt(len(diff))
     print(f"new - old, paired over {len(diff)} pairs: {diff.mean():+.4f} +- {se:.4f}")

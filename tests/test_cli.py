@@ -129,7 +129,9 @@ def test_evaluate_json(tmp_path, weights, capsys):
     assert result["pairs"] == 40 and result["seed"] == 3
     top_k = result["metrics"]["top-k (k=M)"]
     assert 0 <= top_k["precision"] <= 1 and top_k["precision"] == pytest.approx(top_k["recall"])
-    assert "random top-k" in capsys.readouterr().out
+    assert 0 < result["topk_precision_stderr"] < 0.1
+    printed = capsys.readouterr().out
+    assert "random top-k" in printed and "standard error of the mean" in printed
 
 
 def test_evaluate_missing_data_says_what_to_download(monkeypatch, capsys):

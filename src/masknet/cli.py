@@ -546,6 +546,7 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
         f"{args.pairs} pairs from {len(data)} test shapes ({args.categories} categories), seed {args.seed}"
     )
     print(format_table(result.rows))
+    print(f"top-k precision: standard error of the mean {result.topk_precision_stderr:.4f}")
     print(f"inference: {result.ms_per_pair:.2f} ms/pair (batched, {args.inference_precision})")
     if args.json:
         out = result.to_dict() | {

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 
@@ -31,3 +32,14 @@ def test_realigned_rounds_add_a_row(model):
     result = evaluate_masknet(model, points, num_pairs=6, seed=3, progress=False, realign_rounds=2)
     row = result.rows["top-k, round 2 of mask -> Mask-ICP"]
     assert set(row) == {"precision", "recall", "f1", "iou"} and 0 <= row["precision"] <= 1
+
+
+def test_per_pair_precision_matches_the_mean(model):
+    points = load_modelnet40(bundled_sample_path()).points
+    result = evaluate_masknet(model, points, num_pairs=10, seed=4, progress=False)
+    per_pair = result.topk_precision
+    assert per_pair.shape == (10,) and np.all((0 <= per_pair) & (per_pair <= 1))
+    assert per_pair.mean() == pytest.approx(result.rows["top-k (k=M)"]["precision"], abs=1e-6)
+    expected = per_pair.std(ddof=1) / np.sqrt(10)
+    assert result.topk_precision_stderr == pytest.approx(expected) and expected > 0
+    assert result.to_dict()["topk_precision_stderr"] == pytest.approx(expected)

@@ -222,6 +222,11 @@ def test_predict_single_and_batched(model, clouds):
     np.testing.assert_allclose(
         model.predict(t, s, chunk_size=None, precision="fp32"), batched, atol=1e-6
     )
+    # Splitting the batch into calls changes the speed, not the scores.
+    for pairs_per_call in (1, 2, 100):
+        np.testing.assert_allclose(
+            model.predict(t, s, precision="fp32", pairs_per_call=pairs_per_call), batched, atol=1e-6
+        )
 
 
 def test_unit_radius():

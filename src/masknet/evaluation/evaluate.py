@@ -11,7 +11,7 @@ from tqdm.auto import tqdm
 
 from masknet.data.pairs import PairConfig, Pairs, make_test_pairs
 from masknet.evaluation.metrics import MaskMetrics, mask_metrics
-from masknet.models.masknet import MaskNet, select_mask
+from masknet.models.masknet import PAIRS_PER_CALL, MaskNet, select_mask
 
 __all__ = [
     "MaskEvaluation",
@@ -22,11 +22,6 @@ __all__ = [
     "PAIRS_PER_CALL",
 ]
 
-# Pairs per batched call when scoring or registering many pairs. On CPU, batches of a few
-# pairs keep each layer's (B, N, C) activations in cache: MaskNet's bf16 path runs about
-# 2x faster per pair at 8 than at 64, PointNetLK and PRNet 1.5-2.5x (2-core EPYC, 2 threads).
-PAIRS_PER_CALL = 8
-
 
 @dataclass
 class MaskEvaluation:
@@ -35,6 +30,8 @@ class MaskEvaluation:
     rows: selection rule -> {"precision", "recall", "f1", "iou"} means. Rules are
     ``top-k (k=M)``, ``threshold 0.5`` and ``random top-k`` (a seeded baseline
     that picks M template points at random).
+    topk_precision: (P,) float64, the top-k precision of each pair, for standard
+    errors and paired comparisons of two models on the same pairs.
     """
 
     pairs: int
@@ -43,8 +40,17 @@ class MaskEvaluation:
     precision_mode: str
     rows: dict[str, dict[str, float]] = field(default_factory=dict)
     ms_per_pair: float = 0.0
+    topk_precision: np.ndarray | None = None
     scores: np.ndarray | None = None
     pairs_data: Pairs | None = None
+
+    @property
+    def topk_precision_stderr(self) -> float:
+        """Standard error of the mean top-k precision over the pairs (nan for < 2 pairs)."""
+        p = self.topk_precision
+        if p is None or len(p) < 2:
+            return float("nan")
+        return float(p.std(ddof=1) / np.sqrt(len(p)))
 
     def to_dict(self) -> dict:
         return {
@@ -53,6 +59,7 @@ class MaskEvaluation:
             "pair_config": self.pair_config,
             "inference_precision": self.precision_mode,
             "metrics": self.rows,
+            "topk_precision_stderr": self.topk_precision_stderr,
             "ms_per_pair_batched": self.ms_per_pair,
         }
 
@@ -125,6 +132,7 @@ def evaluate_masknet(
         precision_mode=precision,
         rows=rows,
         ms_per_pair=1000 * elapsed / num_pairs,
+        topk_precision=rules["top-k (k=M)"].precision.double().numpy(),
         scores=all_scores.numpy() if keep_outputs else None,
         pairs_data=pairs if keep_outputs else None,
     )
