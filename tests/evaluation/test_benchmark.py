@@ -180,3 +180,49 @@ def test_benchmark_resume_from_the_command_line(tmp_path, monkeypatch, capsys):
     again = json.loads((tmp_path / "iterations.json").read_text())
     assert first["resumed_rows"] == 0 and again["resumed_rows"] == 2  # Mask-ICP, Mask-PointNetLK
     assert again["rows"] == first["rows"]
+
+
+def test_tables_leave_a_column_blank_where_a_row_lacks_it():
+    from masknet.evaluation.benchmark import _csv_text
+
+    rows = [{"a": 1.0}, {"a": 2.0, "b": 3}]
+    assert markdown_table(rows).splitlines()[0] == "| a | b |"
+    assert markdown_table(rows).splitlines()[2] == "| 1 |  |"
+    assert _csv_text(rows).splitlines() == ["a,b", "1.0,", "2.0,3"]
+
+
+def test_denoise_round_keeps_the_first_estimate_when_nothing_survives(monkeypatch):
+    """A first registration far off leaves no source point near the template: the second
+    round is skipped (and counted) instead of failing on an empty cloud."""
+    import torch
+
+    from masknet.data.pairs import Pairs
+    from masknet.evaluation import benchmark
+
+    rng = np.random.default_rng(0)
+    template = rng.uniform(-1, 1, (2, 64, 3)).astype(np.float32)
+    source = template[:, :40].copy()
+    source[1] += 100.0  # the second pair's source is far from its template
+    truth = np.tile(np.eye(4), (2, 1, 1))
+    truth[1, :3, 3] = -100.0
+    pairs = Pairs(
+        torch.from_numpy(template),
+        torch.from_numpy(source),
+        torch.ones(2, 64, dtype=torch.bool),
+        torch.from_numpy(truth).float(),
+        torch.ones(2, 40, dtype=torch.bool),
+    )
+    calls = []
+
+    class Identity:
+        transform = np.eye(4)
+
+    def fake_register(template, source, **kwargs):
+        calls.append(len(source))
+        return Identity()
+
+    monkeypatch.setattr(benchmark, "register", fake_register)
+    row = benchmark._register_denoise_register(pairs, {"method": "distance"}, {})
+    assert row["second_pass_skipped"] == 1
+    assert calls == [40, 40, 40]  # both first rounds, then only the first pair's second
+    assert row["trans_mean"] == pytest.approx(50.0 * np.sqrt(3), rel=1e-4)
