@@ -126,6 +126,30 @@ def test_template_valid_equals_icp_on_the_subset(shapes):
     torch.testing.assert_close(again.transform, masked.transform, atol=1e-12, rtol=0)
 
 
+def test_equal_count_masks_take_the_gathered_path_with_the_same_result(shapes):
+    """Top-k masks keep the same number of points in every pair; ICP then gathers them
+    once. The result must equal the masked path (forced here by one pair with a
+    different count) exactly."""
+    pairs = _pairs(shapes, 3, seed=9)
+    src, tpl = pairs.source.double(), pairs.template.double()
+    g = torch.Generator().manual_seed(9)
+    order = torch.rand(tpl.shape[:2], generator=g).argsort(1)
+    valid = torch.zeros(tpl.shape[:2], dtype=torch.bool).scatter_(1, order[:, :600], True)
+    gathered = icp(src, tpl, template_valid=valid, max_correspondence_distance=0.3)
+    mixed = torch.cat([valid, torch.ones(1, valid.shape[1], dtype=torch.bool)])
+    forced = icp(
+        torch.cat([src, src[:1]]),
+        torch.cat([tpl, tpl[:1]]),
+        template_valid=mixed,
+        max_correspondence_distance=0.3,
+    )
+    for got, exp in zip(gathered, forced, strict=True):
+        torch.testing.assert_close(got, exp[:3], atol=1e-12, rtol=0)
+    far = torch.where(valid[..., None], tpl, tpl + 100.0)
+    again = icp(src, far, template_valid=valid, max_correspondence_distance=0.3)
+    torch.testing.assert_close(again.transform, gathered.transform, atol=1e-12, rtol=0)
+
+
 def test_no_valid_template_point_gives_identity(shapes):
     pairs = _pairs(shapes, 2, seed=7)
     valid = torch.ones(pairs.template.shape[:2], dtype=torch.bool)

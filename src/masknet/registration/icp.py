@@ -132,6 +132,14 @@ def icp(
             raise ValueError(f"init must be (4,4) or ({b},4,4), got {tuple(init.shape)}")
         transform = init.to(device=device, dtype=torch.float64).expand(b, 4, 4).clone()
 
+    if template_valid is not None and template_valid.shape == template.shape[:2]:
+        counts = template_valid.sum(1)
+        if int(counts[0]) > 0 and bool((counts == counts[0]).all()):
+            # Equal counts (top-k masks): gather the points in use once, so that every
+            # iteration searches K points instead of N and skips the masking.
+            template = template[template_valid].view(b, int(counts[0]), 3)
+            template_valid = None
+
     m = _match(transform, source, template, max_correspondence_distance, template_valid)
     converged = torch.zeros(b, dtype=torch.bool, device=device)
     iterations = torch.zeros(b, dtype=torch.int64, device=device)
