@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from masknet.cli import main
-from masknet.evaluation.benchmark import EXPERIMENTS, markdown_table, update_results
+from masknet.evaluation.benchmark import EXPERIMENTS, _csv_text, markdown_table, update_results
 
 
 @pytest.fixture(scope="module")
@@ -183,8 +183,6 @@ def test_benchmark_resume_from_the_command_line(tmp_path, monkeypatch, capsys):
 
 
 def test_tables_leave_a_column_blank_where_a_row_lacks_it():
-    from masknet.evaluation.benchmark import _csv_text
-
     rows = [{"a": 1.0}, {"a": 2.0, "b": 3}]
     assert markdown_table(rows).splitlines()[0] == "| a | b |"
     assert markdown_table(rows).splitlines()[2] == "| 1 |  |"

@@ -246,3 +246,10 @@ def test_open3d_icp_empty_template_and_init():
     assert sol.fitness.item() == 1 and sol.inlier_rmse.item() < 1e-12
     with pytest.raises(ValueError, match="init"):
         open3d_icp(source, moved, init=np.eye(3))
+
+
+def test_template_valid_must_be_bool(shapes):
+    pairs = _pairs(shapes, 2, seed=10)
+    ones = torch.ones(pairs.template.shape[:2], dtype=torch.int64)  # equal counts, wrong dtype
+    with pytest.raises(ValueError, match="reference_valid must be a bool tensor"):
+        icp(pairs.source.double(), pairs.template.double(), template_valid=ones)

@@ -48,7 +48,7 @@ from masknet.evaluation.registration import (
 )
 from masknet.geometry.se3 import invert_transform, make_transform, so3_exp
 from masknet.io import write_text_atomic
-from masknet.models.masknet import MaskNet
+from masknet.models.masknet import MIN_POINTS, MaskNet
 from masknet.models.weights import shipped_weights_path
 from masknet.registration.api import register
 from masknet.runtime import default_precision
@@ -698,10 +698,6 @@ def _shipped_outlier_masknet() -> MaskNet | None:
         return None
 
 
-# Fewer source points than this after denoising and the second registration is skipped.
-MIN_DENOISED_POINTS = 3
-
-
 def _register_denoise_register(pairs: Pairs, how: dict, kwargs: dict) -> dict[str, float]:
     """Errors of register -> denoise the moved source (``how``: denoise() arguments) ->
     register again, pair by pair."""
@@ -716,8 +712,9 @@ def _register_denoise_register(pairs: Pairs, how: dict, kwargs: dict) -> dict[st
         first = register(template, source, **kwargs).transform
         moved = source @ first[:3, :3].T + first[:3, 3]
         cleaned = denoise(moved, template, **how).points
-        if len(cleaned) < MIN_DENOISED_POINTS:
-            # A first pass far off leaves almost nothing near the template: keep its estimate.
+        if len(cleaned) < MIN_POINTS:
+            # A first pass far off leaves almost nothing near the template, too few points
+            # for register(): keep its estimate.
             estimates[i] = first
             skipped += 1
         else:
@@ -775,7 +772,7 @@ def exp_outliers(ctx: BenchmarkContext) -> ExperimentResult:
         + (
             f" The 'denoise' rows register, drop the source points the denoiser rejects and "
             f"register again; `second_pass_skipped` counts the pairs where fewer than "
-            f"{MIN_DENOISED_POINTS} points survived, so the first estimate stands."
+            f"{MIN_POINTS} points survived, so the first estimate stands."
         )
     )
     return ExperimentResult(rows, summary, plot)

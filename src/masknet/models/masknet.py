@@ -51,6 +51,7 @@ __all__ = [
     "centre_pair",
     "unit_radius",
     "PAIRS_PER_CALL",
+    "MIN_POINTS",
 ]
 
 Precision = Literal["fp32", "bf16"]
@@ -60,6 +61,9 @@ _DTYPES = {"fp32": torch.float32, "bf16": torch.bfloat16}
 # pairs keep each layer's (B, N, C) activations in cache: MaskNet's bf16 path runs about
 # 2x faster per pair at 8 than at 64, PointNetLK and PRNet 1.5-2.5x (2-core EPYC, 2 threads).
 PAIRS_PER_CALL = 8
+
+# The fewest points a template or source may have for MaskNet and the registration networks.
+MIN_POINTS = 3
 
 
 def centre(points: Tensor) -> Tensor:
@@ -330,8 +334,8 @@ def _as_batch(template: np.ndarray, source: np.ndarray) -> tuple[Tensor, Tensor,
     for name, a in (("template", t), ("source", s)):
         if a.shape[-1] != 3:
             raise MaskNetError(f"{name} must have 3 columns (x, y, z); got shape {a.shape}")
-        if a.shape[1] < 3:
-            raise MaskNetError(f"{name} has {a.shape[1]} points; at least 3 are needed")
+        if a.shape[1] < MIN_POINTS:
+            raise MaskNetError(f"{name} has {a.shape[1]} points; at least {MIN_POINTS} are needed")
         if not np.isfinite(a).all():
             raise MaskNetError(f"{name} contains NaN or inf coordinates")
     if t.shape[0] != s.shape[0]:

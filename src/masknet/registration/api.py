@@ -34,7 +34,7 @@ from masknet.geometry.knn import knn_points
 from masknet.geometry.sampling import farthest_point_sample
 from masknet.geometry.se3 import transform_points
 from masknet.models import REGISTRATION_NETWORKS
-from masknet.models.masknet import MaskNet, _as_batch, unit_radius
+from masknet.models.masknet import MIN_POINTS, MaskNet, _as_batch, unit_radius
 from masknet.registration.icp import icp
 from masknet.registration.open3d_icp import open3d_icp
 
@@ -421,10 +421,10 @@ def _network_batch(
         if index is None
         else index
     )
-    if index.shape[1] < 3:
+    if index.shape[1] < MIN_POINTS:
         raise MaskNetError(
             f"the mask kept {index.shape[1]} template point(s); a registration network needs "
-            "at least 3 (lower the threshold, or use top-k)"
+            f"at least {MIN_POINTS} (lower the threshold, or use top-k)"
         )
     limit = getattr(network, "config", {}).get("input_points")
     n_used, m = index.shape[1], source.shape[1]

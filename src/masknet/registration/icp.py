@@ -132,7 +132,11 @@ def icp(
             raise ValueError(f"init must be (4,4) or ({b},4,4), got {tuple(init.shape)}")
         transform = init.to(device=device, dtype=torch.float64).expand(b, 4, 4).clone()
 
-    if template_valid is not None and template_valid.shape == template.shape[:2]:
+    if (
+        template_valid is not None
+        and template_valid.dtype == torch.bool
+        and template_valid.shape == template.shape[:2]
+    ):  # (anything else is left to knn_points to reject)
         counts = template_valid.sum(1)
         if int(counts[0]) > 0 and bool((counts == counts[0]).all()):
             # Equal counts (top-k masks): gather the points in use once, so that every
