@@ -16,6 +16,7 @@ from masknet.models.masknet import PAIRS_PER_CALL, MaskNet, select_mask
 __all__ = [
     "MaskEvaluation",
     "evaluate_masknet",
+    "evaluate_pairs",
     "format_table",
     "realigned_mask_metrics",
     "score_pairs",
@@ -108,6 +109,35 @@ def evaluate_masknet(
     """
     pair_config = pair_config or PairConfig()
     pairs = make_test_pairs(points, num_pairs, pair_config, seed)
+    return evaluate_pairs(
+        model,
+        pairs,
+        seed,
+        pair_config.to_dict(),
+        precision,
+        threshold,
+        batch_size,
+        progress,
+        keep_outputs,
+        realign_rounds,
+    )
+
+
+def evaluate_pairs(
+    model: MaskNet,
+    pairs: Pairs,
+    seed: int = 0,
+    pair_config: dict | None = None,
+    precision: str = "fp32",
+    threshold: float = 0.5,
+    batch_size: int = PAIRS_PER_CALL,
+    progress: bool = True,
+    keep_outputs: bool = False,
+    realign_rounds: int = 0,
+) -> MaskEvaluation:
+    """:func:`evaluate_masknet` on given pairs (any generator's); ``pair_config`` is
+    recorded as given, and ``seed`` seeds the random baseline."""
+    num_pairs = pairs.template.shape[0]
     start = time.perf_counter()
     all_scores = score_pairs(model, pairs, precision, batch_size, progress)
     elapsed = time.perf_counter() - start
@@ -128,7 +158,7 @@ def evaluate_masknet(
     return MaskEvaluation(
         pairs=num_pairs,
         seed=seed,
-        pair_config=pair_config.to_dict(),
+        pair_config=pair_config or {},
         precision_mode=precision,
         rows=rows,
         ms_per_pair=1000 * elapsed / num_pairs,

@@ -143,7 +143,8 @@ def _atomic_torch_save(obj: Any, path: Path) -> None:
 def _write_csv(rows: list[dict], path: Path) -> None:
     tmp = path.with_name(path.name + ".tmp")
     with open(tmp, "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        # Every key of every row, in first-seen order: a mixed task's kinds vary by epoch.
+        writer = csv.DictWriter(fh, fieldnames=list(dict.fromkeys(k for r in rows for k in r)))
         writer.writeheader()
         writer.writerows(rows)
     os.replace(tmp, path)
@@ -281,9 +282,10 @@ def _fit(
         train_model.train()
         epoch_start = time.perf_counter()
         sums: dict[str, float] = {}
+        counts: dict[str, int] = {}  # per key: a mixed task's metrics need not be in every batch
         count = 0
         batches = task.train_batches(train_set, config.batch_size, config.seed, epoch)
-        total = len(train_set) // config.batch_size
+        total = len(batches) if hasattr(batches, "__len__") else len(train_set) // config.batch_size
         bar = tqdm(
             batches,
             total=total,
@@ -307,16 +309,15 @@ def _fit(
             count += 1
             for key, value in {"loss": loss_value, **metrics}.items():
                 sums[key] = sums.get(key, 0.0) + value
-            bar.set_postfix(
-                loss=f"{sums['loss'] / count:.4f}",
-                **{task.metric: f"{sums[task.metric] / count:.3f}"},
-                refresh=False,
-            )
+                counts[key] = counts.get(key, 0) + 1
+            shown = {k: f"{sums[k] / counts[k]:.3f}" for k in (task.metric,) if k in sums}
+            bar.set_postfix(loss=f"{sums['loss'] / count:.4f}", **shown, refresh=False)
         bar.close()
+        means = {k: v / counts[k] for k, v in sums.items()}
         if world > 1:
-            sums = _mean_over_processes(sums, device)
+            means = _mean_over_processes(means, device)
         row = {"epoch": epoch + 1, "lr": lr}
-        row.update({f"train_{k}": v / max(count, 1) for k, v in sums.items()})
+        row.update({f"train_{k}": v for k, v in means.items()})
         stop = False
         if lead:
             row.update(
@@ -384,7 +385,7 @@ def _init_distributed(device: torch.device) -> tuple[int, int, bool]:
 
 
 def _mean_over_processes(sums: dict[str, float], device: torch.device) -> dict[str, float]:
-    """Average per-process metric sums, so rank 0 logs the whole batch."""
+    """Average per-process metric means, so rank 0 logs the whole batch."""
     import torch.distributed as dist
 
     keys = sorted(sums)
@@ -411,9 +412,11 @@ def _validate(
         return {}
     model.eval()
     sums: dict[str, float] = {}
+    counts: dict[str, int] = {}
     for batch in batches:
         with autocast:
             loss, metrics = task.step(model, batch, device)
         for key, value in {"loss": loss.item(), **metrics}.items():
             sums[key] = sums.get(key, 0.0) + value
-    return {k: v / len(batches) for k, v in sums.items()}
+            counts[key] = counts.get(key, 0) + 1
+    return {k: v / counts[k] for k, v in sums.items()}

@@ -1,0 +1,160 @@
+"""MaskNet on real scans as well: ModelNet40 pairs mixed with sensor-like pairs cut from scans.
+
+Each epoch of :class:`ScanMaskNetTask` mixes three kinds of batch, shuffled together:
+
+* the paper's ModelNet40 pairs (:mod:`masknet.data.pairs`), on a random
+  ``modelnet_fraction`` of the training shapes, so the paper's figure is kept;
+* sensor-like ModelNet40 pairs (:mod:`masknet.data.views`: visibility cut, independent
+  sampling, noise, density fall-off) on ``modelnet_view_fraction`` of those batches;
+* ``scan_batches`` batches cut from crops of real scans (:mod:`masknet.data.scans`).
+
+Validation holds out whole scans (a fixed list of names) and ModelNet40 training shapes:
+``val_modelnet_precision`` and ``val_scans_precision`` are logged apart, and
+``val_precision``, their mean over equally many pairs, picks the best weights.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from masknet.data.pairs import Pairs, derive_seed, iterate_pairs
+from masknet.data.scans import (
+    Scan,
+    ScanCropConfig,
+    iterate_scan_pairs,
+    make_scan_test_pairs,
+)
+from masknet.data.views import ViewConfig, make_view_pairs, normalize_cloud
+from masknet.training.masknet_task import MaskNetTask
+
+__all__ = ["ScanMaskNetTask", "ScanPairs", "ViewPairs"]
+
+
+class ScanPairs(Pairs):
+    """Pairs cut from real scans (same fields as :class:`Pairs`)."""
+
+
+class ViewPairs(Pairs):
+    """Sensor-like pairs of ModelNet40 shapes (same fields as :class:`Pairs`)."""
+
+
+KIND_OF = {ScanPairs: "scans", ViewPairs: "views", Pairs: "modelnet"}
+
+
+class _Epoch:
+    """One epoch's batches: an iterable with a length (for the progress bar)."""
+
+    def __init__(self, kinds: list[str], makers: dict[str, Iterator[Pairs]]) -> None:
+        self.kinds, self.makers = kinds, makers
+
+    def __len__(self) -> int:
+        return len(self.kinds)
+
+    def __iter__(self) -> Iterator[Pairs]:
+        for kind in self.kinds:
+            yield next(self.makers[kind])
+
+
+@dataclass
+class ScanMaskNetTask(MaskNetTask):
+    """MaskNet trained on ModelNet40 and real scans (see the module docstring).
+
+    scans, val_scans: training and validation scans (whole scans, held apart).
+    view: how sensor-like pairs are cut (by default with noise up to 1% of the radius).
+    crop: how crops are cut from the scans.
+    scan_batches: scan batches per epoch.
+    modelnet_fraction: fraction of the ModelNet40 training shapes used per epoch.
+    modelnet_view_fraction: fraction of those ModelNet40 batches cut as sensor-like views.
+    modelnet_view_points: template points of a ModelNet40 view pair.
+    """
+
+    scans: list[Scan] = field(default_factory=list)
+    val_scans: list[Scan] = field(default_factory=list)
+    view: ViewConfig = field(
+        default_factory=lambda: ViewConfig(noise_sigma=0.01, random_noise=True)
+    )
+    crop: ScanCropConfig = field(default_factory=ScanCropConfig)
+    scan_batches: int = 128
+    modelnet_fraction: float = 0.5
+    modelnet_view_fraction: float = 0.25
+    modelnet_view_points: int = 384
+    name: str = "masknet-scans"
+
+    def __post_init__(self) -> None:
+        if not self.scans:
+            raise ValueError("ScanMaskNetTask needs at least one training scan")
+        if not 0 <= self.modelnet_fraction <= 1 or not 0 <= self.modelnet_view_fraction <= 1:
+            raise ValueError("modelnet_fraction and modelnet_view_fraction must be in [0, 1]")
+
+    def _modelnet_batches(
+        self, points: np.ndarray, batch_size: int, seed: int, epoch: int
+    ) -> Iterator[Pairs]:
+        rng = np.random.default_rng(derive_seed(seed, epoch, 0x3D))
+        for batch in iterate_pairs(
+            points, self.pairs, batch_size, seed, epoch, self.num_points, drop_last=True
+        ):
+            if rng.random() < self.modelnet_view_fraction:
+                # The same shapes, cut as sensor-like views (the paper's template is the
+                # whole shape, so its points are the cloud).
+                view = dataclasses.replace(self.view, template_points=self.modelnet_view_points)
+                clouds = [normalize_cloud(c) for c in batch.template.numpy()]
+                yield ViewPairs(*make_view_pairs(clouds, view, rng))
+            else:
+                yield batch
+
+    def train_batches(self, points: np.ndarray, batch_size: int, seed: int, epoch: int):
+        rng = np.random.default_rng(derive_seed(seed, epoch, 0xE9))
+        count = round(self.modelnet_fraction * len(points))
+        subset = points[np.sort(rng.permutation(len(points))[:count])]
+        n_modelnet = len(subset) // batch_size
+        kinds = ["modelnet"] * n_modelnet + ["scans"] * self.scan_batches
+        rng.shuffle(kinds)
+        makers = {
+            "modelnet": self._modelnet_batches(subset, batch_size, seed, epoch),
+            "scans": (
+                ScanPairs(*batch)
+                for batch in iterate_scan_pairs(
+                    self.scans, self.view, self.crop, self.scan_batches, batch_size, seed, epoch
+                )
+            ),
+        }
+        return _Epoch(kinds, makers)
+
+    def val_batches(
+        self, points: np.ndarray, num_pairs: int, batch_size: int, seed: int
+    ) -> list[Pairs]:
+        batches = super().val_batches(points, num_pairs, batch_size, seed)
+        if self.val_scans:
+            per_scan = -(-num_pairs // len(self.val_scans))
+            view = dataclasses.replace(self.view, noise_sigma=0.002, random_noise=False)
+            pairs, _ = make_scan_test_pairs(self.val_scans, per_scan, view, self.crop, seed + 7919)
+            batches += [
+                ScanPairs(*(x[i : i + batch_size] for x in pairs))
+                for i in range(0, len(pairs.template), batch_size)
+            ]
+        return batches
+
+    def step(
+        self, model: nn.Module, batch: Pairs, device: torch.device
+    ) -> tuple[Tensor, dict[str, float]]:
+        loss, metrics = super().step(model, batch, device)
+        kind = KIND_OF[type(batch)]
+        return loss, metrics | {f"{kind}_{k}": v for k, v in metrics.items()}
+
+    def describe_extra(self) -> dict:
+        return super().describe_extra() | {
+            "scans": [s.name for s in self.scans],
+            "val_scans": [s.name for s in self.val_scans],
+            "view": self.view.to_dict(),
+            "crop": dataclasses.asdict(self.crop),
+            "scan_batches": self.scan_batches,
+            "modelnet_fraction": self.modelnet_fraction,
+            "modelnet_view_fraction": self.modelnet_view_fraction,
+            "modelnet_view_points": self.modelnet_view_points,
+        }
