@@ -87,6 +87,15 @@ def test_fit_logs_scan_and_modelnet_validation_apart_and_resumes(tmp_path, shape
         fit(_task(scans=[_scan("a", 0)]), shapes, config, resume=True)
 
 
+def test_scans_alone_train_and_validate_without_modelnet(tmp_path):
+    config = TrainConfig(
+        out_dir=str(tmp_path), epochs=1, batch_size=16, precision="fp32", val_pairs=16, threads=1
+    )
+    history = fit(_task(modelnet_fraction=0.0), np.zeros((0, 128, 3), np.float32), config)
+    assert "val_scans_precision" in history[0] and "val_modelnet_precision" not in history[0]
+    assert "train_modelnet_precision" not in history[0]
+
+
 def test_a_task_needs_scans():
     with pytest.raises(ValueError, match="at least one training scan"):
         _task(scans=[])

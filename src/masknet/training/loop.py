@@ -167,7 +167,8 @@ def fit(
     """Train ``task``'s model on shapes (S, N, 3); returns the per-epoch log rows.
 
     ``train_points`` is split by :func:`split_train_val` into training and
-    validation shapes. ``init_weights`` optionally starts from another model's
+    validation shapes; it may hold no shapes (S = 0) for a task that brings its own
+    data, such as :class:`~masknet.training.scan_task.ScanMaskNetTask` on scans alone. ``init_weights`` optionally starts from another model's
     weights (fine-tuning); it is ignored when resuming. Under torchrun only rank 0
     returns the log rows (the others return an empty list).
     """
@@ -176,7 +177,8 @@ def fit(
     if not 0 <= config.val_fraction < 1:
         raise MaskNetError(f"--val-fraction must be in [0, 1), got {config.val_fraction}")
     train_idx, val_idx = split_train_val(len(train_points), config.val_fraction, config.seed)
-    _check_config(config, len(train_idx))
+    if len(train_points):  # no shapes at all: the task brings its own data (e.g. scans)
+        _check_config(config, len(train_idx))
     out = Path(config.out_dir)
     if out.exists() and not out.is_dir():
         raise MaskNetError(f"{out}: exists and is not a folder; choose another --out")
@@ -264,7 +266,7 @@ def _fit(
     train_set = train_points[train_idx]
     val_batches = (
         task.val_batches(train_points[val_idx], config.val_pairs, config.batch_size, config.seed)
-        if len(val_idx)
+        if len(val_idx) or (config.val_fraction > 0 and not len(train_points))
         else []
     )
     if lead:

@@ -34,6 +34,8 @@ class PairTask:
     def val_batches(
         self, points: np.ndarray, num_pairs: int, batch_size: int, seed: int
     ) -> list[Pairs]:
+        if not len(points):
+            return []
         # Validation always uses the full stored resolution, like the test set.
         pairs = make_test_pairs(points, num_pairs, self.pairs, seed=seed + 7919)
         return [
