@@ -6,7 +6,7 @@ by its distance to X (``method="distance"``, the default), or by MaskNet applied
 other way round (``method="masknet"``, the paper's denoising use, with a model from
 ``masknet train --model denoise``: 10% uniform outliers in the source). No denoising
 MaskNet ships yet: four training runs on this project's CPU learnt to remove few or none
-of the outliers (docs/RESULTS.md, section 3).
+of the outliers (docs/RESULTS.md#denoising).
 
 Open3D's statistical and radius outlier removal are wrapped here too, as the
 peers the benchmark compares against (they need no template).
