@@ -1,10 +1,10 @@
 #!/bin/bash
 # Every shipped network, as it was trained (each step resumes after a kill).
-# Session 1: MaskNet (all categories) and the seen-20 MaskNet, from scratch.
-# Session 2: MaskNet continued from the session-1 weights (new pairs: seed 1), PointNetLK,
+# v1.0: MaskNet (all categories) and the seen-20 MaskNet, from scratch.
+# v1.1: MaskNet continued from the v1.0 weights (new pairs: seed 1), PointNetLK,
 # and denoising attempts (none shipped).
-# Session 3: DCP, PRNet, PCRNet, RPM-Net, the outlier-trained MaskNet and the denoising MaskNet.
-# Session 4: MaskNet continued (BCE on logits, 512-point training pairs).
+# v1.0 of DCP, PRNet, PCRNet, RPM-Net, the outlier-trained MaskNet and the denoising MaskNet.
+# v1.2: MaskNet continued (BCE on logits, 512-point training pairs).
 cd "$(dirname "$0")/.."  # the repository root
 export MASKNET_DATA=../shared/data/modelnet40/modelnet40_1024_int16.npz
 M=.venv/bin/masknet
@@ -14,7 +14,7 @@ $M train --out runs/seen20 --categories seen --epochs 11 --lr 1e-4 --lr-schedule
 $M train --out runs/modelnet40_ft --init runs/modelnet40/best.safetensors --epochs 16 --lr 1e-4 \
     --lr-schedule cosine --seed 1 --max-minutes 85 --threads 2 $(resume runs/modelnet40_ft)
 # (stopped by hand after epoch 7 and resumed with a shorter schedule, so that the last epochs
-#  run at a decayed learning rate within the session)
+#  run at a decayed learning rate within one sitting)
 $M train --out runs/modelnet40_ft --init runs/modelnet40/best.safetensors --epochs 10 --lr 1e-4 \
     --lr-schedule cosine --seed 1 --max-minutes 40 --threads 2 --resume
 $M train --model pointnetlk --feature-size 256 --num-points 512 --out runs/pointnetlk --epochs 3 \
@@ -24,7 +24,7 @@ $M train --model pointnetlk --feature-size 256 --num-points 512 --out runs/point
 # (val F1 0.952 = all points kept) after an epoch and was stopped; aligned pairs instead:
 $M train --model denoise --out runs/denoise --init runs/modelnet40/best.safetensors --max-angle 0 --epochs 3 \
     --lr 1e-4 --lr-schedule cosine --val-pairs 256 --threads 1 --max-minutes 30 $(resume runs/denoise)
-# Session 3: the learned registration back-ends DCP, PRNet, PCRNet and RPM-Net, two at a time
+# v1.0: the learned registration back-ends DCP, PRNet, PCRNet and RPM-Net, two at a time
 # on one thread each; then the MaskNet fine-tuned with 10% source outliers (the outliers
 # experiment's) and the denoising MaskNet (BCE on logits, both clouds centred on the
 # template's centroid, aligned pairs).
@@ -57,21 +57,21 @@ $M train --out runs/masknet_outliers10 --init $W/masknet_modelnet40.safetensors 
 $M train --model denoise --out runs/denoise_aligned --init $W/masknet_modelnet40.safetensors --max-angle 0 \
     --max-translation 0 --loss bce --epochs 3 --lr 1e-3 --lr-schedule cosine --seed 4 --threads 1 \
     --num-points 512 --max-minutes 28 $(resume runs/denoise_aligned)
-# (the two runs above started from the session-2 MaskNet, the file shipped at the time; from
-#  session 4 on, $W/masknet_modelnet40.safetensors holds the run below)
-# Session 4: the MaskNet continued from the session-2 weights with BCE on logits and 512-point
+# (the two runs above started from MaskNet v1.1, the file shipped at the time; from
+#  v1.2 on, $W/masknet_modelnet40.safetensors holds the run below)
+# v1.2: the MaskNet continued from the v1.1 weights with BCE on logits and 512-point
 # training pairs (validation and test at 1,024), alone on the 2 cores; then shipped:
 #   python scripts/ship_weights.py runs/modelnet40_bce512 modelnet40 --data $MASKNET_DATA \
-#       --kind masknet --previous <the session-2 card>
+#       --kind masknet --previous <the v1.1 card>
 $M train --out runs/modelnet40_bce512 --init $W/masknet_modelnet40.safetensors --loss bce --num-points 512 \
     --epochs 22 --lr 7e-5 --lr-schedule cosine --seed 1 --max-minutes 92 --threads 2 $(resume runs/modelnet40_bce512)
-# Session 5: two more cosine cycles of the same recipe, each from the previous best, then shipped
+# v1.3 and v1.4: two more cosine cycles of the same recipe, each from the previous best, then shipped
 # (--previous: the card shipped before each run).
 $M train --out runs/modelnet40_bce512b --init $W/masknet_modelnet40.safetensors --loss bce --num-points 512 \
     --epochs 24 --lr 1e-4 --lr-schedule cosine --seed 1 --max-minutes 100 --threads 2 $(resume runs/modelnet40_bce512b)
 $M train --out runs/modelnet40_bce512c --init runs/modelnet40_bce512b/best.safetensors --loss bce --num-points 512 \
     --epochs 9 --lr 4e-5 --lr-schedule cosine --seed 1 --max-minutes 37 --threads 2 $(resume runs/modelnet40_bce512c)
-# Session 6: three epochs on full 1,024-point pairs at a low learning rate, from session 5's
-# shipped weights, then shipped (--previous: session 5's card).
+# v1.5: three epochs on full 1,024-point pairs at a low learning rate, from v1.4's
+# shipped weights, then shipped (--previous: the v1.4 card).
 $M train --out runs/modelnet40_bce1024d --init $W/masknet_modelnet40.safetensors --loss bce --num-points 1024 \
     --epochs 3 --lr 2e-5 --lr-schedule cosine --seed 1 --max-minutes 45 --threads 2 $(resume runs/modelnet40_bce1024d)
