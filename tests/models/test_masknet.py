@@ -275,6 +275,9 @@ def test_predict_mask_threshold(model, clouds):
     mask = model.predict_mask(t, s, threshold=threshold)
     np.testing.assert_array_equal(mask, scores >= threshold)
     assert 0 < mask.sum() < mask.size
+    with_scores, same_scores = model.predict_mask(t, s, threshold=threshold, return_scores=True)
+    np.testing.assert_array_equal(with_scores, mask)
+    np.testing.assert_array_equal(same_scores, scores)
 
 
 def test_select_mask_rules():

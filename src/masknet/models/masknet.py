@@ -240,18 +240,22 @@ class MaskNet(SafetensorsWeights, nn.Module):
         threshold: float | None = None,
         precision: Precision | Literal["auto"] = "auto",
         normalize: bool = True,
-    ) -> np.ndarray:
-        """Boolean inlier mask, (N,) or (B, N).
+        return_scores: bool = False,
+    ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+        """Boolean inlier mask, (N,) or (B, N), for template (N, 3) or (B, N, 3) and
+        source (M, 3) or (B, M, 3).
 
         By default top-k with k = M, the number of source points. Pass ``k`` for
-        another top-k, or ``threshold`` for the paper's epsilon rule.
+        another top-k, or ``threshold`` for the paper's epsilon rule. With
+        ``return_scores``, returns ``(mask, scores)``, the scores as :meth:`predict`.
         """
         scores = self.predict(template, source, precision=precision, normalize=normalize)
         batch = torch.from_numpy(np.atleast_2d(scores))
         if threshold is None and k is None:
             k = np.asarray(source).shape[-2]
         mask = select_mask(batch, k=k, threshold=threshold).numpy()
-        return mask[0] if scores.ndim == 1 else mask
+        mask = mask[0] if scores.ndim == 1 else mask
+        return (mask, scores) if return_scores else mask
 
 
 class FusedMaskNet(nn.Module):

@@ -38,10 +38,24 @@ from masknet.models.masknet import MIN_POINTS, MaskNet, _as_batch, unit_radius
 from masknet.registration.icp import icp
 from masknet.registration.open3d_icp import open3d_icp
 
-__all__ = ["RegistrationResult", "register", "METHODS"]
+__all__ = ["RegistrationResult", "register", "METHODS", "METHOD_TITLES"]
 
 NETWORK_METHODS = tuple(REGISTRATION_NETWORKS)  # pointnetlk, dcp, prnet, pcrnet, rpmnet
-METHODS = ("icp", "open3d-icp", *NETWORK_METHODS, "open3d-ransac", "open3d-fgr")
+# Open3D's global registration on FPFH features: no iteration budget, no init.
+GLOBAL_METHODS = ("open3d-ransac", "open3d-fgr")
+METHODS = ("icp", "open3d-icp", *NETWORK_METHODS, *GLOBAL_METHODS)
+# Each method's display name (X of "Mask-X").
+METHOD_TITLES = {
+    "icp": "ICP",
+    "open3d-icp": "Open3D-ICP",
+    "pointnetlk": "PointNetLK",
+    "dcp": "DCP",
+    "prnet": "PRNet",
+    "pcrnet": "PCRNet",
+    "rpmnet": "RPM-Net",
+    "open3d-ransac": "Open3D-RANSAC",
+    "open3d-fgr": "Open3D-FGR",
+}
 _OPTIONS = {
     "icp": ("max_iterations", "tolerance", "max_correspondence_distance"),
     "open3d-icp": (
@@ -185,7 +199,7 @@ def register(
     start = time.perf_counter()
     _check_arguments(method, options, iterations, k, threshold, use_mask, init, refine_iterations)
     tpl_full, src_full, single = _as_numpy_batch(template, source)
-    if method not in ("open3d-ransac", "open3d-fgr"):
+    if method not in GLOBAL_METHODS:
         options.setdefault("max_iterations", _DEFAULT_ITERATIONS[method])
     if use_mask and model is None:
         model = _default_model()

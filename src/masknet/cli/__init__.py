@@ -1,0 +1,75 @@
+"""The ``masknet`` command: a thin layer over the Python API.
+
+One module per command, each with ``add_parser(subparsers)`` and ``run(args)``; the
+options several commands share are in :mod:`masknet.cli._common`. Heavy imports
+happen inside ``run``, so ``masknet --help`` stays fast.
+
+Every failure caused by input (missing file, bad format, NaN rows, wrong shape)
+is printed as one line, ``masknet: error: <file>: <problem>``, with exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+from masknet.cli import (
+    benchmark,
+    demo,
+    denoise,
+    evaluate,
+    make_sample,
+    mask,
+    register,
+    show,
+    train,
+)
+from masknet.errors import MaskNetError
+
+__all__ = ["COMMANDS", "main", "build_parser"]
+
+# Command name -> its module, in the order ``masknet --help`` lists them.
+COMMANDS = {
+    "train": train,
+    "evaluate": evaluate,
+    "mask": mask,
+    "register": register,
+    "denoise": denoise,
+    "show": show,
+    "benchmark": benchmark,
+    "demo": demo,
+    "make-sample": make_sample,
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``masknet`` parser: one subparser per command of :data:`COMMANDS`."""
+    from masknet import __version__
+
+    parser = argparse.ArgumentParser(
+        prog="masknet",
+        description="MaskNet: predict which template points a partial source cloud also sees.",
+    )
+    parser.add_argument("--version", action="version", version=f"masknet {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True)
+    for module in COMMANDS.values():
+        module.add_parser(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run ``masknet`` with ``argv`` (default: ``sys.argv[1:]``); returns the exit code."""
+    args = build_parser().parse_args(argv)
+    try:
+        COMMANDS[args.command].run(args)
+    except MaskNetError as exc:
+        print(f"masknet: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("masknet: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:  # e.g. `masknet ... | head`: stop quietly, as Unix tools do
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+    return 0

@@ -1,0 +1,91 @@
+"""``masknet benchmark``: the paper's experiments on seeded ModelNet40 test pairs."""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import os
+import sys
+import time
+from pathlib import Path
+
+from masknet.cli._common import positive_int, seed
+from masknet.errors import MaskNetError
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``benchmark`` to the ``masknet`` subparsers."""
+    p = subparsers.add_parser(
+        "benchmark",
+        help="reproduce the paper's experiments on seeded ModelNet40 test pairs: "
+        "table (JSON, CSV), plot (PNG) and docs/RESULTS.md",
+    )
+    p.add_argument(
+        "experiment",
+        help="registration, networks, iterations, precision-vs-missing, rotation-sweep, "
+        "noise, generalization, timing, denoising, outliers, scans, or all",
+    )
+    p.add_argument("--data", help="ModelNet40 folder or .npz (default: $MASKNET_DATA)")
+    p.add_argument("--pairs", type=positive_int, help="pairs per setting (default 1000)")
+    p.add_argument("--seed", type=seed, default=0)
+    p.add_argument(
+        "--quick",
+        action="store_true",
+        help="a small run (20 pairs, fewer settings; the bundled sample when no data is "
+        "given); leaves docs/RESULTS.md alone",
+    )
+    p.add_argument("--out", default="masknet_benchmark", help="folder for JSON, CSV and PNG")
+    p.add_argument(
+        "--results",
+        default="docs/RESULTS.md",
+        help="markdown file whose benchmark blocks are rewritten (default docs/RESULTS.md, "
+        "when it exists); 'none' to skip",
+    )
+    p.add_argument("--threads", type=positive_int, help="torch CPU threads")
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="after a kill: keep the table rows the interrupted run already wrote to "
+        "--out/.rows (same pairs, seed, weights, data and version) and compute the rest",
+    )
+
+
+def run(args: argparse.Namespace) -> None:
+    """Run the experiment(s); print each table, the files written and the wall time."""
+    import shlex
+
+    import torch
+
+    from masknet.data import bundled_sample_path
+    from masknet.evaluation.benchmark import EXPERIMENTS, BenchmarkContext, run_experiments
+
+    names = list(EXPERIMENTS) if args.experiment == "all" else [args.experiment]
+    if names[0] not in EXPERIMENTS:
+        raise MaskNetError(
+            f"unknown experiment {args.experiment!r}; choose from {', '.join(EXPERIMENTS)} or all"
+        )
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    data_path = args.data
+    if args.quick and data_path is None and not os.environ.get("MASKNET_DATA"):
+        data_path = bundled_sample_path()
+    results = None
+    if not args.quick and args.results != "none" and Path(args.results).exists():
+        results = Path(args.results)
+    argv = ["masknet", "benchmark", *sys.argv[2:]] if sys.argv[1:2] == ["benchmark"] else []
+    ctx = BenchmarkContext(
+        data=data_path,
+        pairs=args.pairs or (20 if args.quick else 1000),
+        seed=args.seed,
+        quick=args.quick,
+        out=Path(args.out),
+        progress=sys.stderr.isatty(),
+        command=shlex.join(argv) if argv else f"masknet benchmark {args.experiment}",
+        resume=args.resume,
+        log=None if sys.stderr.isatty() else functools.partial(print, file=sys.stderr, flush=True),
+    )
+    start = time.perf_counter()
+    run_experiments(names, ctx, results, echo=functools.partial(print, flush=True))
+    where = f" and {results}" if results else ""
+    print(f"wrote {ctx.out}/{{{','.join(names)}}}.{{json,csv,png}}{where}")
+    print(f"wall time {time.perf_counter() - start:.0f} s")

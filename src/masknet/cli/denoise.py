@@ -1,0 +1,101 @@
+"""``masknet denoise``: drop the points of a noisy scan that a clean template does not explain."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from masknet.cli._common import (
+    add_file_options,
+    add_model_options,
+    finite_float,
+    load_model,
+    write_all,
+    write_views,
+)
+from masknet.errors import MaskNetError
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``denoise`` to the ``masknet`` subparsers."""
+    p = subparsers.add_parser(
+        "denoise",
+        help="remove the points of NOISY that TEMPLATE (a clean cloud of the same object) "
+        "does not explain",
+    )
+    p.add_argument("noisy", help="the scan with outliers: .ply .pcd .xyz .txt .npy .bin")
+    p.add_argument(
+        "template",
+        help="a clean cloud of the same object, aligned with NOISY (e.g. after register)",
+    )
+    p.add_argument(
+        "-o",
+        "--output",
+        required=True,
+        help="the kept points (format from the extension); <stem>_mask.txt beside it, "
+        "one 0/1 per noisy point",
+    )
+    p.add_argument(
+        "--method",
+        choices=["distance", "masknet"],
+        default="distance",
+        help="distance (default): keep points near the template; masknet: a denoising "
+        "network (--weights from masknet train --model denoise)",
+    )
+    p.add_argument(
+        "--threshold", type=finite_float, default=0.5, help="masknet: keep points scoring >= this"
+    )
+    p.add_argument(
+        "--max-distance",
+        type=finite_float,
+        help="distance: the largest distance kept, in the clouds' units "
+        "(default 3x the template's point spacing)",
+    )
+    add_file_options(p)
+    add_model_options(p, default_pretrained="denoise_modelnet40")
+
+
+def run(args: argparse.Namespace) -> None:
+    """Denoise; write the kept points and ``<stem>_mask.txt`` (and views)."""
+    from masknet.denoising import denoise
+    from masknet.io import read_points, write_mask, write_points
+
+    if not 0 <= args.threshold <= 1:
+        raise MaskNetError(f"--threshold must be in [0, 1], got {args.threshold}")
+    noisy = read_points(args.noisy, drop_nonfinite=args.drop_nonfinite)
+    template = read_points(args.template, drop_nonfinite=args.drop_nonfinite)
+    if args.method == "distance":
+        result = denoise(noisy, template, method="distance", max_distance=args.max_distance)
+        rule = f"distance <= {args.max_distance or '3x template spacing'}"
+    else:
+        model = load_model(args)
+        result = denoise(
+            noisy,
+            template,
+            model=model,
+            threshold=args.threshold,
+            precision=args.inference_precision,
+        )
+        rule = f"MaskNet score >= {args.threshold}"
+    out = Path(args.output)
+    mask_path = out.with_name(out.stem + "_mask.txt")
+    write_all(
+        [
+            (out, lambda p: write_points(p, result.points)),
+            (mask_path, lambda p: write_mask(p, result.mask)),
+        ]
+    )
+    removed = int((~result.mask).sum())
+    print(
+        f"kept {int(result.mask.sum())} of {len(noisy)} points, removed {removed} "
+        f"({100 * removed / len(noisy):.1f}%, {rule})"
+    )
+    print(f"wrote {out} and {mask_path}")
+    if args.html:
+        layers = {
+            "template": template,
+            "kept": result.points,
+            "removed": noisy[~result.mask],
+        }
+        views = write_views(args.html, layers, title=f"MaskNet denoising: {Path(args.noisy).name}")
+        print(f"wrote {views[0]} and {views[1]}")

@@ -1,0 +1,85 @@
+"""``masknet mask``: which template points the source sees, written as points and a mask."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from masknet.cli._common import (
+    add_file_options,
+    add_model_options,
+    finite_float,
+    load_model,
+    positive_int,
+    write_all,
+    write_views,
+)
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``mask`` to the ``masknet`` subparsers."""
+    p = subparsers.add_parser(
+        "mask", help="predict which TEMPLATE points SOURCE sees; write them and the mask"
+    )
+    p.add_argument("template", help="full cloud: .ply .pcd .xyz .txt .npy .bin")
+    p.add_argument("source", help="partial cloud of the same object")
+    p.add_argument(
+        "-o",
+        "--output",
+        required=True,
+        help="inlier template points (format from the extension); the mask goes to "
+        "<stem>_mask.txt beside it, one 0/1 per template point",
+    )
+    sel = p.add_mutually_exclusive_group()
+    sel.add_argument(
+        "--k", type=positive_int, help="keep the k highest scores (default: k = source points)"
+    )
+    sel.add_argument(
+        "--threshold", type=finite_float, help="keep scores >= this (the paper's epsilon)"
+    )
+    add_file_options(p)
+    add_model_options(p)
+
+
+def run(args: argparse.Namespace) -> None:
+    """Predict the mask; write the inlier points and ``<stem>_mask.txt`` (and views)."""
+    import numpy as np
+
+    from masknet.io import read_points, write_mask, write_points
+
+    template = read_points(args.template, drop_nonfinite=args.drop_nonfinite)
+    source = read_points(args.source, drop_nonfinite=args.drop_nonfinite)
+    model = load_model(args)
+    mask, scores = model.predict_mask(
+        template,
+        source,
+        k=args.k,
+        threshold=args.threshold,
+        precision=args.inference_precision,
+        return_scores=True,
+    )
+    out = Path(args.output)
+    mask_path = out.with_name(out.stem + "_mask.txt")
+    write_all(
+        [
+            (out, lambda p: write_points(p, template[mask])),
+            (mask_path, lambda p: write_mask(p, mask)),
+        ]
+    )
+    if args.threshold is not None:
+        rule = f"threshold {args.threshold}"
+    else:
+        k = args.k if args.k is not None else len(source)
+        rule = f"top-k, k={min(k, len(template))}"
+    print(
+        f"kept {int(mask.sum())} of {len(template)} template points ({rule}); "
+        f"mean score {float(np.mean(scores)):.3f}"
+    )
+    print(f"wrote {out} and {mask_path}")
+    if args.html:
+        views = write_views(
+            args.html,
+            {"template": template, "source": source, "inliers": template[mask]},
+            title=f"MaskNet inliers: {Path(args.template).name} seen by {Path(args.source).name}",
+        )
+        print(f"wrote {views[0]} and {views[1]}")

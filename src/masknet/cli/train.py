@@ -1,0 +1,193 @@
+"""``masknet train``: MaskNet, the denoiser or a registration network on ModelNet40."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import TYPE_CHECKING, NamedTuple
+
+from masknet.cli._common import (
+    add_pair_options,
+    json_object,
+    pair_config,
+    positive_int,
+    seed,
+)
+from masknet.errors import MaskNetError
+from masknet.models import REGISTRATION_NETWORKS
+
+if TYPE_CHECKING:
+    from masknet.training import Task
+
+MODELS = ("masknet", "denoise", *REGISTRATION_NETWORKS)
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``train`` to the ``masknet`` subparsers."""
+    p = subparsers.add_parser(
+        "train",
+        help="train MaskNet or a registration network on ModelNet40 (CPU or GPU), resumable",
+    )
+    p.add_argument(
+        "--model",
+        choices=list(MODELS),
+        default="masknet",
+        help="masknet (partial pairs), denoise (MaskNet scoring the points of a source "
+        "with outliers, 10%% by default), or a registration network: pointnetlk, dcp, "
+        "pcrnet (full-cloud pairs, as their papers train) or prnet, rpmnet (partial pairs)",
+    )
+    p.add_argument("--data", help="ModelNet40 folder or .npz (default: $MASKNET_DATA)")
+    p.add_argument(
+        "--out", required=True, help="run folder: checkpoint.pt, log.csv, best.safetensors"
+    )
+    p.add_argument("--epochs", type=positive_int, default=100)
+    p.add_argument("--batch-size", type=positive_int, default=32)
+    p.add_argument("--lr", type=float, default=1e-4)
+    p.add_argument("--lr-schedule", choices=["constant", "cosine"], default="constant")
+    p.add_argument("--loss", choices=["mse", "bce"], default="mse", help="masknet only")
+    p.add_argument(
+        "--feature-size",
+        type=positive_int,
+        help="PointNet feature size K (last encoder width); default 1024",
+    )
+    p.add_argument(
+        "--iterations",
+        "--lk-iterations",
+        dest="iterations",
+        type=positive_int,
+        help="registration networks: refinement iterations per training pair (default: "
+        "pointnetlk 10, dcp 1, pcrnet 3, prnet 2, rpmnet 2)",
+    )
+    p.add_argument(
+        "--model-config",
+        type=json_object,
+        default=None,
+        metavar="JSON",
+        help="registration networks: keyword arguments of the network class, e.g. "
+        '\'{"embedding": 128, "k": 16}\' for dcp (default: the paper\'s sizes)',
+    )
+    p.add_argument(
+        "--precision",
+        choices=["auto", "fp32", "bf16"],
+        default="auto",
+        help="autocast dtype; auto = bf16 where the hardware has it (masknet only: the "
+        "registration networks train in fp32)",
+    )
+    p.add_argument(
+        "--num-points", type=positive_int, default=1024, help="template points per training pair"
+    )
+    p.add_argument(
+        "--val-fraction", type=float, default=0.1, help="training shapes held out for validation"
+    )
+    p.add_argument(
+        "--val-pairs",
+        type=positive_int,
+        default=512,
+        help="validation pairs made from those shapes",
+    )
+    p.add_argument("--seed", type=seed, default=0)
+    p.add_argument("--device", default="auto")
+    p.add_argument("--threads", type=positive_int, help="torch CPU threads")
+    p.add_argument(
+        "--max-minutes",
+        type=float,
+        help="minutes for this invocation: no epoch starts that would end past it",
+    )
+    p.add_argument("--resume", action="store_true", help="continue the checkpoint in --out")
+    p.add_argument("--init", help="start from these weights (.safetensors), e.g. to fine-tune")
+    add_pair_options(p)
+
+
+class TrainSetup(NamedTuple):
+    """What :func:`build_task` makes of the options."""
+
+    task: Task
+    model_class: type  # reads --init weights (``from_file``)
+    precision: str  # the autocast precision: "auto", "fp32" or "bf16"
+
+
+def build_task(args: argparse.Namespace) -> TrainSetup:
+    """The training task of ``--model`` (and the pair options), its model class and the
+    precision to train in.
+
+    Raises:
+        MaskNetError: ``--model-config`` does not fit the network, or bf16 for a
+            registration network.
+    """
+    from masknet.models import MaskNet
+    from masknet.training import TRAINING_DEFAULTS, MaskNetTask, RegistrationTask
+
+    encoder = {}
+    if args.feature_size:
+        encoder = {"encoder_channels": [64, 64, 64, 128, args.feature_size]}
+    precision = args.precision
+    if args.model == "denoise":
+        task = MaskNetTask.denoising(
+            pair_config(args, default_outliers=0.1),
+            num_points=args.num_points,
+            loss=args.loss,
+            model_config=encoder,
+        )
+        return TrainSetup(task, MaskNet, precision)
+    if args.model == "masknet":
+        task = MaskNetTask(
+            pairs=pair_config(args),
+            num_points=args.num_points,
+            loss=args.loss,
+            model_config=encoder,
+        )
+        return TrainSetup(task, MaskNet, precision)
+    defaults = TRAINING_DEFAULTS[args.model]
+    model_config = args.model_config if args.model_config is not None else encoder
+    task = RegistrationTask(
+        pairs=pair_config(args, default_keep_ratio=defaults["keep_ratio"]),
+        num_points=args.num_points,
+        name=args.model,
+        iterations=args.iterations or defaults["iterations"],
+        model_config=model_config,
+    )
+    try:
+        task.build_model()
+    except TypeError as exc:
+        raise MaskNetError(f"--model-config does not fit {args.model}: {exc}") from None
+    if precision == "bf16":
+        raise MaskNetError(
+            f"--precision bf16 does not suit {args.model}: registration networks train "
+            "in fp32 (PointNetLK's finite-difference Jacobian and the SVDs need it)"
+        )
+    return TrainSetup(task, REGISTRATION_NETWORKS[args.model], "fp32")
+
+
+def run(args: argparse.Namespace) -> None:
+    """Train; prints where the best weights went."""
+    from masknet.data import load_modelnet40
+    from masknet.training import TrainConfig, fit
+
+    data = load_modelnet40(args.data, "train").subset(args.categories)
+    if not 16 <= args.num_points <= data.points.shape[1]:
+        raise MaskNetError(
+            f"--num-points must be in [16, {data.points.shape[1]}], got {args.num_points}"
+        )
+    task, model_class, precision = build_task(args)
+    config = TrainConfig(
+        out_dir=args.out,
+        epochs=args.epochs,
+        batch_size=args.batch_size,
+        lr=args.lr,
+        lr_schedule=args.lr_schedule,
+        precision=precision,
+        seed=args.seed,
+        val_fraction=args.val_fraction,
+        val_pairs=args.val_pairs,
+        device=args.device,
+        threads=args.threads,
+        max_minutes=args.max_minutes,
+        extra={"categories": args.categories},
+    )
+    init = model_class.from_file(args.init) if args.init else None
+    history = fit(task, data.points, config, resume=args.resume, init_weights=init)
+    if history:
+        last = history[-1]
+        print(
+            f"trained {last['epoch']} epochs; best weights: {Path(args.out) / 'best.safetensors'}"
+        )
