@@ -39,3 +39,23 @@ def test_deterministic():
     points = np.random.default_rng(4).normal(size=(3000, 3))
     a, b = farthest_point_sample(points, 64), farthest_point_sample(points, 64)
     np.testing.assert_array_equal(a.indices, b.indices)
+
+
+def _reference_fps(points: np.ndarray, k: int) -> list[int]:
+    chosen, nearest = [0], np.full(len(points), np.inf)
+    while len(chosen) < k:
+        nearest = np.minimum(nearest, ((points - points[chosen[-1]]) ** 2).sum(1))
+        chosen.append(int(nearest.argmax()))
+    return chosen
+
+
+def test_matches_exact_fps_order_and_reports_the_kept_set_radius_when_stopping_early():
+    points = np.random.default_rng(5).normal(size=(2000, 3))
+    result = farthest_point_sample(points, 100)
+    assert result.indices.tolist() == _reference_fps(points, 100)
+    early = farthest_point_sample(points, 1000, min_spacing=0.5)
+    assert result.indices.tolist() == early.indices[:100].tolist() and len(early.indices) < 1000
+    kept = points[early.indices]
+    covering = np.sqrt(((points[:, None] - kept[None]) ** 2).sum(-1)).min(1).max()
+    np.testing.assert_allclose(early.radius, covering, rtol=1e-5)
+    assert early.radius <= 0.5

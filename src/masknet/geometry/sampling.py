@@ -12,8 +12,9 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import fpsample
 import numpy as np
-import torch
+from scipy.spatial import cKDTree
 
 __all__ = ["FPSResult", "farthest_point_sample"]
 
@@ -35,9 +36,10 @@ def farthest_point_sample(
 ) -> FPSResult:
     """Keep at most ``max_points`` points of ``points`` (N, 3) by farthest point sampling.
 
-    Sampling stops early once the covering radius is at most ``min_spacing``: every
-    input point then lies within ``min_spacing`` of a kept one. With N <= max_points
-    and ``min_spacing=0`` every point is kept (in input order, radius 0).
+    Sampling starts at point 0 and stops early once the covering radius is at most
+    ``min_spacing``: every input point then lies within ``min_spacing`` of a kept one.
+    With N <= max_points and ``min_spacing=0`` every point is kept (in input order,
+    radius 0). The sampling itself is exact FPS in compiled code (``fpsample``).
 
     Returns:
         FPSResult(indices (K,), radius); K <= min(N, max_points).
@@ -48,16 +50,27 @@ def farthest_point_sample(
     pool = np.arange(n)
     if n > PRESAMPLE:
         pool = np.sort(np.random.default_rng(seed).choice(n, PRESAMPLE, replace=False))
-    cloud = torch.from_numpy(np.ascontiguousarray(points[pool], dtype=np.float32))
-    nearest = torch.full((len(pool),), float("inf"), dtype=torch.float32)
-    chosen = [0]
-    radius = 0.0
-    for _ in range(min(max_points, len(pool))):
-        d2 = (cloud - cloud[chosen[-1]]).square().sum(1)
-        torch.minimum(nearest, d2, out=nearest)
-        far = int(nearest.argmax())
-        radius = float(nearest[far].sqrt())
-        if radius <= min_spacing or len(chosen) == max_points:
-            break
-        chosen.append(far)
-    return FPSResult(pool[np.asarray(chosen)], radius)
+    cloud = np.ascontiguousarray(points[pool], dtype=np.float32)
+    k = min(max_points, len(pool))
+    order = np.asarray(fpsample.fps_sampling(cloud, k, start_idx=0), dtype=np.int64)
+    if min_spacing > 0:
+        # In FPS order, the covering radius of the first j points is the distance from
+        # point j (0-based) to them: the first j where it is small enough is the stop.
+        gaps = _gaps_in_order(cloud[order])
+        small = np.flatnonzero(gaps[1:] <= min_spacing)
+        if len(small):
+            j = int(small[0]) + 1
+            return FPSResult(pool[order[:j]], float(gaps[j]))
+    radius = float(cKDTree(cloud[order]).query(cloud, k=1)[0].max())
+    return FPSResult(pool[order], radius)
+
+
+def _gaps_in_order(chosen: np.ndarray, block: int = 512) -> np.ndarray:
+    """(K,) distance from each point of ``chosen`` (K, 3) to those before it (inf for the first)."""
+    gaps = np.full(len(chosen), np.inf)
+    for start in range(1, len(chosen), block):
+        rows = chosen[start : start + block].astype(np.float64)
+        d = np.linalg.norm(rows[:, None, :] - chosen[None, : start + len(rows)], axis=-1)
+        d[np.arange(len(rows))[:, None] + start <= np.arange(d.shape[1])[None]] = np.inf
+        gaps[start : start + len(rows)] = d.min(1)
+    return gaps
