@@ -57,7 +57,7 @@ def run(args: argparse.Namespace) -> None:
     import torch
 
     from masknet.data import bundled_sample_path
-    from masknet.evaluation.benchmark import EXPERIMENTS, BenchmarkContext, run_experiments
+    from masknet.experiments import EXPERIMENTS, BenchmarkContext, run_experiments
 
     names = list(EXPERIMENTS) if args.experiment == "all" else [args.experiment]
     if names[0] not in EXPERIMENTS:

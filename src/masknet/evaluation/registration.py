@@ -11,7 +11,8 @@ are against each pair's ground-truth transform (source -> template):
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import time
+from collections.abc import Iterable, Mapping
 
 import numpy as np
 import torch
@@ -19,22 +20,40 @@ from tqdm.auto import tqdm
 
 from masknet.data.pairs import Pairs
 from masknet.geometry.se3 import rotation_error_deg
-from masknet.registration.api import register
+from masknet.models.masknet import PAIRS_PER_CALL
+from masknet.registration.api import METHOD_TITLES, register
 
 __all__ = [
     "PIPELINES",
+    "x_and_mask_x",
+    "pair_arrays",
     "pose_errors",
     "summarize_errors",
+    "error_summary",
+    "batched_errors",
+    "time_pipeline",
     "benchmark_registration",
     "iteration_errors",
 ]
 
+
+def x_and_mask_x(methods: Iterable[str] | Mapping[str, str], **kwargs: object) -> dict[str, dict]:
+    """Pipelines ``X`` and ``Mask-X`` for each method, as :func:`register` keyword arguments.
+
+    ``methods``: method names of :func:`register` (titled by ``METHOD_TITLES``), or a
+    mapping title -> method name. ``kwargs`` are added to every pipeline.
+    """
+    titled = methods if isinstance(methods, Mapping) else {METHOD_TITLES[m]: m for m in methods}
+    pipelines = {}
+    for title, method in titled.items():
+        pipelines[title] = {"method": method, "use_mask": False, **kwargs}
+        pipelines[f"Mask-{title}"] = {"method": method, "use_mask": True, **kwargs}
+    return pipelines
+
+
 # The rows of the registration table; the paper's budget of 10 iterations throughout.
 PIPELINES: dict[str, dict] = {
-    "ICP": {"method": "icp", "use_mask": False},
-    "Mask-ICP": {"method": "icp", "use_mask": True},
-    "PointNetLK": {"method": "pointnetlk", "use_mask": False},
-    "Mask-PointNetLK": {"method": "pointnetlk", "use_mask": True},
+    **x_and_mask_x(["icp", "pointnetlk"]),
     "Mask-ICP, 3 rounds": {"method": "icp", "use_mask": True, "iterations": 3},
     "Mask-ICP + 10 ICP refine": {"method": "icp", "use_mask": True, "refine_iterations": 10},
     "ICP, 20 iterations": {"method": "icp", "use_mask": False, "max_iterations": 20},
@@ -42,6 +61,15 @@ PIPELINES: dict[str, dict] = {
     "Open3D RANSAC (FPFH)": {"method": "open3d-ransac", "use_mask": False},
     "Open3D FGR (FPFH)": {"method": "open3d-fgr", "use_mask": False},
 }
+
+
+def pair_arrays(pairs: Pairs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Float64 numpy template (P, N, 3), source (P, M, 3) and true transform (P, 4, 4)."""
+    return (
+        pairs.template.double().numpy(),
+        pairs.source.double().numpy(),
+        pairs.transform.double().numpy(),
+    )
 
 
 def pose_errors(estimate: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -63,6 +91,44 @@ def summarize_errors(rotation: np.ndarray, translation: np.ndarray) -> dict[str,
     return out
 
 
+def error_summary(estimate: np.ndarray, truth: np.ndarray) -> dict[str, float]:
+    """:func:`summarize_errors` of the :func:`pose_errors` of (P, 4, 4) estimates."""
+    return summarize_errors(*pose_errors(estimate, truth))
+
+
+def batched_errors(pairs: Pairs, chunk: int = PAIRS_PER_CALL, **kwargs: object) -> dict[str, float]:
+    """Errors of one pipeline (``kwargs`` for :func:`register`) over every pair, in
+    batched register calls of ``chunk`` pairs."""
+    template, source, truth = pair_arrays(pairs)
+    estimates = [
+        register(template[i : i + chunk], source[i : i + chunk], **kwargs).transform
+        for i in range(0, len(template), chunk)
+    ]
+    return error_summary(np.concatenate(estimates), truth)
+
+
+def time_pipeline(
+    pairs: Pairs, repeats: int, warmup: int = 5, **kwargs: object
+) -> dict[str, float]:
+    """Median wall time (ms) of single-pair :func:`register` calls, cycling over the pairs,
+    with the median time of each stage."""
+    template, source, _ = pair_arrays(pairs)
+    totals, stages = [], {"mask": [], "register": []}
+    for call in range(warmup + repeats):
+        i = call % len(template)
+        start = time.perf_counter()
+        result = register(template[i], source[i], **kwargs)
+        elapsed = time.perf_counter() - start
+        if call >= warmup:
+            totals.append(elapsed)
+            for key, values in stages.items():
+                values.append(result.times[key])
+    return {
+        "ms_per_pair": 1e3 * float(np.median(totals)),
+        **{f"ms_{key}": 1e3 * float(np.median(values)) for key, values in stages.items()},
+    }
+
+
 def benchmark_registration(
     pairs: Pairs,
     pipelines: Mapping[str, dict] | None = None,
@@ -82,8 +148,7 @@ def benchmark_registration(
         ms_refine (mean per stage)}.
     """
     pipelines = PIPELINES if pipelines is None else pipelines
-    template, source = pairs.template.double().numpy(), pairs.source.double().numpy()
-    truth = pairs.transform.double().numpy()
+    template, source, truth = pair_arrays(pairs)
     rows = {}
     for name, kwargs in pipelines.items():
         estimates = np.empty_like(truth)
@@ -94,7 +159,7 @@ def benchmark_registration(
             estimates[i] = result.transform
             for key in stage:
                 stage[key] += result.times[key]
-        rows[name] = summarize_errors(*pose_errors(estimates, truth))
+        rows[name] = error_summary(estimates, truth)
         rows[name].update(
             {
                 f"ms_{k}" if k != "total" else "ms_per_pair": 1e3 * v / len(truth)
@@ -111,13 +176,9 @@ def iteration_errors(
 
     Returns one row per round: ``round`` and the :func:`summarize_errors` keys.
     """
-    template, source = pairs.template.double().numpy(), pairs.source.double().numpy()
-    truth = pairs.transform.double().numpy()
+    template, source, truth = pair_arrays(pairs)
     per_round = np.empty((rounds, *truth.shape))
     for i in tqdm(range(len(truth)), desc=f"{rounds} rounds", disable=not progress, mininterval=1):
         result = register(template[i], source[i], iterations=rounds, **kwargs)
         per_round[:, i] = np.stack(result.rounds)
-    return [
-        {"round": r + 1, **summarize_errors(*pose_errors(per_round[r], truth))}
-        for r in range(rounds)
-    ]
+    return [{"round": r + 1, **error_summary(per_round[r], truth)} for r in range(rounds)]

@@ -1,0 +1,88 @@
+"""`masknet benchmark all --quick`: every experiment runs and writes readable output."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+
+from masknet.cli import main
+from masknet.experiments import EXPERIMENTS
+
+
+@pytest.fixture(scope="module")
+def quick_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("bench")
+    mp = pytest.MonkeyPatch()
+    mp.delenv("MASKNET_DATA", raising=False)  # the bundled sample, as in CI without data
+    try:
+        code = main(["benchmark", "all", "--quick", "--out", str(out), "--threads", "1"])
+    finally:
+        mp.undo()
+    assert code == 0
+    return out
+
+
+@pytest.mark.parametrize("name", [n for n in EXPERIMENTS if n != "scans"])
+def test_every_experiment_writes_a_table(quick_run, name):
+    payload = json.loads((quick_run / f"{name}.json").read_text())
+    assert payload["experiment"] == name and payload["quick"] is True
+    assert payload["rows"] and payload["wall_time_s"] > 0
+    numbers = [v for row in payload["rows"] for v in row.values() if isinstance(v, float)]
+    assert numbers and all(math.isfinite(v) or math.isnan(v) for v in numbers)
+    assert (quick_run / f"{name}.csv").read_text().count("\n") == len(payload["rows"]) + 1
+
+
+def test_plots_and_contents(quick_run):
+    for name in ("registration", "iterations", "precision-vs-missing", "rotation-sweep", "noise"):
+        assert (quick_run / f"{name}.png").stat().st_size > 10_000
+    registration = json.loads((quick_run / "registration.json").read_text())["rows"]
+    assert {"ICP", "Mask-ICP", "PointNetLK", "Mask-PointNetLK"} <= {
+        r["pipeline"] for r in registration
+    }
+    missing = json.loads((quick_run / "precision-vs-missing.json").read_text())["rows"]
+    assert [r["chance"] for r in missing] == pytest.approx([0.9, 0.7, 0.5])
+    assert all(r["precision"] > r["chance"] for r in missing)  # the shipped model beats chance
+    rounds = json.loads((quick_run / "iterations.json").read_text())["rows"]
+    assert [r["round"] for r in rounds] == [1, 2, 3, 1, 2, 3]
+    networks = {
+        r["pipeline"]: r for r in json.loads((quick_run / "networks.json").read_text())["rows"]
+    }
+    learned = [f"{p}{n}" for n in ("DCP", "PRNet", "PCRNet", "RPM-Net") for p in ("", "Mask-")]
+    assert set(networks) == {"Identity (no motion)", *learned}  # every shipped network runs
+    assert all(networks[n]["ms_per_pair"] > 0 for n in learned)
+    assert all(networks[n]["ms_mask"] > 0 for n in learned if n.startswith("Mask-"))
+    outliers = {
+        r["pipeline"] for r in json.loads((quick_run / "outliers.json").read_text())["rows"]
+    }
+    assert "Mask-ICP (MaskNet trained with 10% outliers)" in outliers
+    sweep = {
+        r["pipeline"] for r in json.loads((quick_run / "rotation-sweep.json").read_text())["rows"]
+    }
+    assert set(learned) <= sweep
+
+
+def test_benchmark_help_names_every_experiment(capsys, monkeypatch):
+    monkeypatch.setenv("COLUMNS", "300")  # no line breaks inside hyphenated names
+    with pytest.raises(SystemExit):
+        main(["benchmark", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert all(name in text for name in EXPERIMENTS)
+
+
+def test_benchmark_resume_from_the_command_line(tmp_path, monkeypatch, capsys):
+    monkeypatch.delenv("MASKNET_DATA", raising=False)
+    argv = ["benchmark", "iterations", "--quick", "--out", str(tmp_path), "--threads", "1"]
+    assert main(argv) == 0
+    first = json.loads((tmp_path / "iterations.json").read_text())
+    # stderr is not a terminal here: one line per row stands in for the progress bars
+    log = capsys.readouterr().err.splitlines()
+    assert sum(line.startswith("iterations: pipeline Mask-") for line in log) == 2, log
+    assert main([*argv, "--resume"]) == 0
+    assert (
+        "iterations: pipeline Mask-ICP: kept from an earlier invocation" in capsys.readouterr().err
+    )
+    again = json.loads((tmp_path / "iterations.json").read_text())
+    assert first["resumed_rows"] == 0 and again["resumed_rows"] == 2  # Mask-ICP, Mask-PointNetLK
+    assert again["rows"] == first["rows"]
