@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING, NamedTuple
 
+from masknet.cli import _scans
 from masknet.cli._common import (
     add_pair_options,
     json_object,
@@ -94,8 +95,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="minutes for this invocation: no epoch starts that would end past it",
     )
     p.add_argument("--resume", action="store_true", help="continue the checkpoint in --out")
-    p.add_argument("--init", help="start from these weights (.safetensors), e.g. to fine-tune")
+    p.add_argument(
+        "--init",
+        help="start from these weights, e.g. to fine-tune: a .safetensors file or the name "
+        "of shipped weights (modelnet40, scans, ...)",
+    )
     add_pair_options(p)
+    _scans.add_train_options(p)
 
 
 class TrainSetup(NamedTuple):
@@ -136,7 +142,11 @@ def build_task(args: argparse.Namespace) -> TrainSetup:
             loss=args.loss,
             model_config=encoder,
         )
+        if args.scans:
+            task = _scans.scan_task(args, task)
         return TrainSetup(task, MaskNet, precision)
+    if args.scans:
+        raise MaskNetError(f"--scans trains MaskNet (--model masknet), not {args.model}")
     defaults = TRAINING_DEFAULTS[args.model]
     model_config = args.model_config if args.model_config is not None else encoder
     task = RegistrationTask(
@@ -160,15 +170,14 @@ def build_task(args: argparse.Namespace) -> TrainSetup:
 
 def run(args: argparse.Namespace) -> None:
     """Train; prints where the best weights went."""
-    from masknet.data import load_modelnet40
     from masknet.training import TrainConfig, fit
 
-    data = load_modelnet40(args.data, "train").subset(args.categories)
-    if not 16 <= args.num_points <= data.points.shape[1]:
-        raise MaskNetError(
-            f"--num-points must be in [16, {data.points.shape[1]}], got {args.num_points}"
-        )
     task, model_class, precision = build_task(args)
+    points = _training_shapes(args)
+    if len(points) and not 16 <= args.num_points <= points.shape[1]:
+        raise MaskNetError(
+            f"--num-points must be in [16, {points.shape[1]}], got {args.num_points}"
+        )
     config = TrainConfig(
         out_dir=args.out,
         epochs=args.epochs,
@@ -184,10 +193,37 @@ def run(args: argparse.Namespace) -> None:
         max_minutes=args.max_minutes,
         extra={"categories": args.categories},
     )
-    init = model_class.from_file(args.init) if args.init else None
-    history = fit(task, data.points, config, resume=args.resume, init_weights=init)
+    init = _init_weights(model_class, args.init) if args.init else None
+    if init is not None and not getattr(task, "model_config", True):
+        # Fine-tuning keeps the architecture of the weights it starts from.
+        task.model_config = dict(init.config)
+    history = fit(task, points, config, resume=args.resume, init_weights=init)
     if history:
         last = history[-1]
         print(
             f"trained {last['epoch']} epochs; best weights: {Path(args.out) / 'best.safetensors'}"
         )
+
+
+def _training_shapes(args: argparse.Namespace):
+    """ModelNet40's training shapes (S, N, 3), or none (S = 0) when scans train alone:
+    ``--modelnet-fraction 0``, or ``--scans`` with no ModelNet40 data given."""
+    import os
+
+    import numpy as np
+
+    from masknet.data import load_modelnet40
+
+    if args.scans and (
+        args.modelnet_fraction == 0 or not (args.data or os.environ.get("MASKNET_DATA"))
+    ):
+        print("training on the scans alone (no ModelNet40 shapes)")
+        return np.zeros((0, args.num_points, 3), np.float32)
+    return load_modelnet40(args.data, "train").subset(args.categories).points
+
+
+def _init_weights(model_class: type, name: str):
+    """``--init``: a weights file, or the name of shipped weights of that class."""
+    if Path(name).suffix == ".safetensors" or Path(name).exists():
+        return model_class.from_file(name)
+    return model_class.pretrained(name)

@@ -111,7 +111,13 @@ def load_scans(
         if len(points) > max_points:
             rng = np.random.default_rng(zlib.crc32(path.name.encode()))
             points = points[np.sort(rng.choice(len(points), max_points, replace=False))]
-        points = points.astype(np.float32)
+        with np.errstate(over="ignore"):
+            points = points.astype(np.float32)
+        problem = _implausible(points)
+        if problem:
+            if not quiet:
+                _warn(f"{path}: {problem}; skipped")
+            continue
         scans.append(Scan(path.stem, points, cKDTree(points)))
     if not scans:
         raise MaskNetError(
@@ -119,6 +125,16 @@ def load_scans(
             f"with at least {min_points} points)"
         )
     return scans
+
+
+def _implausible(points: np.ndarray) -> str | None:
+    """Why (P, 3) float32 points cannot be a scan, or None."""
+    if not np.isfinite(points).all():
+        return "coordinates beyond the float32 range"
+    extent = points.max(0) - points.min(0)
+    if np.count_nonzero(extent > 1e-6 * max(float(extent.max()), 1e-30)) < 2 or not extent.max():
+        return "all points identical or on one line"
+    return None
 
 
 def default_validation_scans(names: Sequence[str]) -> list[str]:
