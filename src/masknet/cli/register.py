@@ -81,7 +81,7 @@ def run(args: argparse.Namespace) -> None:
 
     from masknet.io import read_points, write_points, write_text_atomic
     from masknet.registration import register
-    from masknet.registration.api import GLOBAL_METHODS
+    from masknet.registration.methods import GLOBAL_METHODS
 
     if args.refine < 0:
         raise MaskNetError(f"--refine must be >= 0, got {args.refine}")

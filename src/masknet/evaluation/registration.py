@@ -21,7 +21,8 @@ from tqdm.auto import tqdm
 from masknet.data.pairs import Pairs
 from masknet.geometry.se3 import rotation_error_deg
 from masknet.models.masknet import PAIRS_PER_CALL
-from masknet.registration.api import METHOD_TITLES, register
+from masknet.registration.api import register
+from masknet.registration.methods import METHOD_TITLES
 
 __all__ = [
     "PIPELINES",

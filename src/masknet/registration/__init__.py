@@ -1,7 +1,16 @@
-"""Registration: batched torch ICP, an Open3D ICP backend and ``register`` (Mask-ICP)."""
+"""Registration: ``register`` (Mask-X for every method) and the algorithms behind it.
 
-from masknet.registration.api import METHOD_TITLES, METHODS, RegistrationResult, register
+* :mod:`.api`: the facade, :func:`register` and :class:`RegistrationResult`;
+* :mod:`.methods`: method names, titles, options and defaults;
+* :mod:`.validation` and :mod:`.sampling`: argument checks, large clouds to network size;
+* :mod:`.backends`: one adapter per method, ``(template, source, mask, options) -> run``;
+* :mod:`.icp`, :mod:`.open3d_icp`, :mod:`.open3d_global`: the algorithms (batched torch
+  ICP, Open3D's ICP, Open3D's RANSAC / FGR on FPFH).
+"""
+
+from masknet.registration.api import RegistrationResult, register
 from masknet.registration.icp import ICPSolution, icp
+from masknet.registration.methods import METHOD_TITLES, METHODS
 from masknet.registration.open3d_icp import open3d_icp
 
 __all__ = [

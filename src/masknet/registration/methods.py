@@ -1,0 +1,53 @@
+"""The methods :func:`masknet.register` runs: names, display titles, options and defaults."""
+
+from __future__ import annotations
+
+from masknet.models import REGISTRATION_NETWORKS
+
+__all__ = [
+    "DEFAULT_ITERATIONS",
+    "GLOBAL_METHODS",
+    "INITS",
+    "METHODS",
+    "METHOD_TITLES",
+    "NETWORK_METHODS",
+    "OPTIONS",
+]
+
+NETWORK_METHODS = tuple(REGISTRATION_NETWORKS)  # pointnetlk, dcp, prnet, pcrnet, rpmnet
+# Open3D's global registration on FPFH features: no iteration budget, no init.
+GLOBAL_METHODS = ("open3d-ransac", "open3d-fgr")
+METHODS = ("icp", "open3d-icp", *NETWORK_METHODS, *GLOBAL_METHODS)
+# Each method's display name (X of "Mask-X").
+METHOD_TITLES = {
+    "icp": "ICP",
+    "open3d-icp": "Open3D-ICP",
+    "pointnetlk": "PointNetLK",
+    "dcp": "DCP",
+    "prnet": "PRNet",
+    "pcrnet": "PCRNet",
+    "rpmnet": "RPM-Net",
+    "open3d-ransac": "Open3D-RANSAC",
+    "open3d-fgr": "Open3D-FGR",
+}
+# The options (``**options`` of register) each method accepts.
+OPTIONS = {
+    "icp": ("max_iterations", "tolerance", "max_correspondence_distance"),
+    "open3d-icp": (
+        "max_iterations",
+        "max_correspondence_distance",
+        "relative_fitness",
+        "relative_rmse",
+    ),
+    "pointnetlk": ("max_iterations", "tolerance", "network"),
+    **{name: ("max_iterations", "network") for name in NETWORK_METHODS if name != "pointnetlk"},
+    "open3d-ransac": ("max_iterations", "voxel_size", "confidence", "seed"),
+    "open3d-fgr": ("max_iterations", "voxel_size"),
+}
+DEFAULT_MAX_ITERATIONS = 10  # the paper's budget for ICP and PointNetLK
+# Each method's default max_iterations; each learned network its paper's: DCP 1, PRNet 3, ...
+DEFAULT_ITERATIONS = {
+    **{m: DEFAULT_MAX_ITERATIONS for m in METHODS},
+    **{name: cls.default_iterations for name, cls in REGISTRATION_NETWORKS.items()},
+}
+INITS = ("centroid", "identity")

@@ -1,0 +1,40 @@
+"""Large single pairs brought to the network's size, and the mask spread back to every point."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from masknet.errors import MaskNetError
+from masknet.geometry.knn import knn_points
+from masknet.geometry.sampling import farthest_point_sample
+
+__all__ = ["fit_to_network", "spread_mask"]
+
+
+def fit_to_network(
+    template: np.ndarray, source: np.ndarray, single: bool, max_points: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Subsample a single large pair, template (1, N, 3) and source (1, M, 3), to at most
+    ``max_points`` each; returns (template, source, template indices or None)."""
+    n, m = template.shape[1], source.shape[1]
+    if n <= max_points and m <= max_points:
+        return template, source, None
+    if not single:
+        raise MaskNetError(
+            f"batched clouds must have at most max_points={max_points} points "
+            f"(got template {n}, source {m}); pass large clouds one pair at a time"
+        )
+    kept = farthest_point_sample(template[0], max_points)
+    # The source at the template's spacing, so its size still reflects the overlap
+    # (top-k selection uses it).
+    src_idx = farthest_point_sample(source[0], max_points, min_spacing=kept.radius).indices
+    return template[:, kept.indices], source[:, src_idx], kept.indices
+
+
+def spread_mask(template: np.ndarray, sampled: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Give every template point (N, 3) the mask label (K,) of its nearest sampled point
+    (indices (K,)); returns (N,)."""
+    full = torch.from_numpy(template)[None]
+    nearest = knn_points(full, full[:, sampled], 1).idx[0, :, 0].numpy()
+    return mask[nearest]

@@ -1,0 +1,60 @@
+"""Checks of :func:`masknet.register`'s arguments, raising :class:`MaskNetError`."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from masknet.errors import MaskNetError
+from masknet.models.masknet import _as_batch
+from masknet.registration.methods import INITS, METHODS, OPTIONS
+
+__all__ = ["as_numpy_batch", "check_arguments"]
+
+
+def check_arguments(
+    method: str,
+    options: dict,
+    iterations: Any,
+    k: Any,
+    threshold: Any,
+    use_mask: bool,
+    init: str,
+    refine_iterations: Any,
+) -> None:
+    """Raise :class:`MaskNetError` for an unknown method, option or init, or bad
+    iterations, refine_iterations, k or threshold."""
+    if method not in METHODS:
+        raise MaskNetError(f"unknown registration method {method!r}; choose from {METHODS}")
+    unknown = sorted(set(options) - set(OPTIONS[method]))
+    if unknown:
+        raise MaskNetError(
+            f"unknown option(s) for method {method!r}: {', '.join(unknown)} "
+            f"(accepted: {', '.join(OPTIONS[method])})"
+        )
+    for name, value, low in (
+        ("iterations", iterations, 1),
+        ("refine_iterations", refine_iterations, 0),
+    ):
+        if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < low:
+            raise MaskNetError(f"{name} must be an integer >= {low}, got {value!r}")
+    if init not in INITS:
+        raise MaskNetError(f"unknown init {init!r}; choose from {INITS}")
+    if k is not None and threshold is not None:
+        raise MaskNetError("give either k or threshold, not both")
+    if k is not None and (isinstance(k, bool) or not isinstance(k, int | np.integer) or k < 1):
+        raise MaskNetError(f"k must be an integer >= 1, got {k!r}")
+    if not use_mask and (k is not None or threshold is not None):
+        raise MaskNetError("k and threshold select MaskNet's inliers; they need use_mask=True")
+
+
+def as_numpy_batch(template: Any, source: Any) -> tuple[np.ndarray, np.ndarray, bool]:
+    """Validate as :meth:`MaskNet.predict` does; return float64 (B, N, 3), (B, M, 3), single."""
+    t, s = np.asarray(template), np.asarray(source)
+    for name, a in (("template", t), ("source", s)):
+        if a.dtype.kind not in "iuf":
+            raise MaskNetError(f"{name} must hold numbers, got an array of dtype {a.dtype}")
+    _, _, single = _as_batch(t, s)
+    t, s = t.astype(np.float64), s.astype(np.float64)
+    return (t[None], s[None], True) if single else (t, s, False)
