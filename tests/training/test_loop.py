@@ -173,7 +173,7 @@ def test_resume_with_other_settings_is_refused(tmp_path, shapes):
 
 def test_corrupt_checkpoint_is_one_clear_error(tmp_path, shapes):
     fit(_task(), shapes, _config(tmp_path, 1))
-    (tmp_path / "checkpoint.pt").write_bytes(b"not a checkpoint")
+    (tmp_path / "checkpoint.safetensors").write_bytes(b"not a checkpoint")
     with pytest.raises(MaskNetError, match="cannot resume"):
         fit(_task(), shapes, _config(tmp_path, 2), resume=True)
 
@@ -244,3 +244,23 @@ def test_bce_trains_a_saturated_network_out_of_keeping_everything(shapes):
     loss.backward()
     assert model.head[-1].bias.grad.abs().item() > 0.1  # ~ the outlier share, 1/6
     assert metrics["recall"] == 1.0 and metrics["precision"] < 0.9  # keeps the outliers too
+
+
+def test_checkpoint_holds_no_pickle_and_an_earlier_pt_checkpoint_still_resumes(tmp_path, shapes):
+    fit(_task(), shapes, _config(tmp_path, 1))
+    raw = (tmp_path / "checkpoint.safetensors").read_bytes()
+    assert b"\x80\x04" not in raw[:64] and (tmp_path / "checkpoint.safetensors").stat().st_size
+    # The same run state written the way earlier versions did (torch.save) resumes too.
+    model, legacy = MaskNet(**TINY), tmp_path / "legacy"
+    legacy.mkdir()
+    optimizer = torch.optim.Adam(model.parameters())
+    from masknet.training.checkpoint import load_checkpoint
+
+    state = load_checkpoint(tmp_path / "checkpoint.safetensors", model, optimizer)
+    torch.save(
+        {"model": model.state_dict(), "optimizer": optimizer.state_dict(), **state},
+        legacy / "checkpoint.pt",
+    )
+    history = fit(_task(), shapes, _config(legacy, 2), resume=True)
+    assert [row["epoch"] for row in history] == [1, 2]
+    assert (legacy / "checkpoint.safetensors").exists()

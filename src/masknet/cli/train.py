@@ -39,7 +39,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--data", help="ModelNet40 folder or .npz (default: $MASKNET_DATA)")
     p.add_argument(
-        "--out", required=True, help="run folder: checkpoint.pt, log.csv, best.safetensors"
+        "--out", required=True, help="run folder: checkpoint.safetensors, log.csv, best.safetensors"
     )
     p.add_argument("--epochs", type=positive_int, default=100)
     p.add_argument("--batch-size", type=positive_int, default=32)

@@ -6,7 +6,8 @@ compute the loss and export weights). The loop owns the rest:
 * Adam, optional cosine learning-rate decay, fp32 or bf16 autocast;
 * validation on a split held out of the *training* shapes (never the test set);
 * a progress bar with loss and the task's metric;
-* an atomic checkpoint every epoch (``checkpoint.pt``, written to a temporary
+* an atomic checkpoint every epoch (``checkpoint.safetensors``, nothing pickled,
+  :mod:`masknet.training.checkpoint`; written to a temporary
   file then renamed), so a kill at any moment loses at most the current epoch,
   and ``resume=True`` continues where it stopped;
 * a CSV log (``log.csv``) and the best weights by validation metric
@@ -42,6 +43,7 @@ from tqdm.auto import tqdm
 
 from masknet.errors import MaskNetError
 from masknet.runtime import default_precision, resolve_device
+from masknet.training.checkpoint import load_checkpoint, save_checkpoint
 
 __all__ = ["Task", "TrainConfig", "fit", "split_train_val"]
 
@@ -108,6 +110,8 @@ def _check_config(config: TrainConfig, n_train: int) -> None:
 def _check_resumable(path: Path, saved: dict | None, current: dict) -> None:
     if saved is None:
         return  # checkpoints from before run_info was stored
+    # Compare as stored: JSON turns tuples into lists.
+    saved, current = (json.loads(json.dumps(x, default=list)) for x in (saved, current))
     changed = [
         key
         for key in sorted(set(saved["train"]) | set(current["train"]))
@@ -131,13 +135,13 @@ def split_train_val(
     return np.sort(order[n_val:]), np.sort(order[:n_val])
 
 
-def _atomic_torch_save(obj: Any, path: Path) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as fh:
-        torch.save(obj, fh)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+CHECKPOINT = "checkpoint.safetensors"
+
+
+def _checkpoint_path(out: Path) -> Path:
+    """The run's checkpoint: ``checkpoint.safetensors``, or an earlier version's ``.pt``."""
+    legacy = out / "checkpoint.pt"
+    return legacy if legacy.exists() and not (out / CHECKPOINT).exists() else out / CHECKPOINT
 
 
 def _write_csv(rows: list[dict], path: Path) -> None:
@@ -182,7 +186,7 @@ def fit(
     out = Path(config.out_dir)
     if out.exists() and not out.is_dir():
         raise MaskNetError(f"{out}: exists and is not a folder; choose another --out")
-    ckpt_path = out / "checkpoint.pt"
+    ckpt_path = _checkpoint_path(out)
     if ckpt_path.exists() and not resume:
         raise MaskNetError(
             f"{ckpt_path} exists: pass --resume to continue it, or choose another --out"
@@ -216,7 +220,7 @@ def _fit(
     """fit() once the process group, if any, is joined."""
     train_idx, val_idx = split_train_val(len(train_points), config.val_fraction, config.seed)
     out = Path(config.out_dir)
-    ckpt_path = out / "checkpoint.pt"
+    ckpt_path = _checkpoint_path(out)
     if world > 1 and device.type == "cuda":
         device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
     if config.batch_size % world:
@@ -252,12 +256,7 @@ def _fit(
     best = -math.inf
     start_epoch = 0
     if resume and ckpt_path.exists():
-        try:
-            state = torch.load(ckpt_path, map_location=device, weights_only=True)
-            model.load_state_dict(state["model"])
-            optimizer.load_state_dict(state["optimizer"])
-        except Exception as exc:  # unpickling and shape errors come in many types
-            raise MaskNetError(f"{ckpt_path}: cannot resume from it ({exc})") from None
+        state = load_checkpoint(ckpt_path, model, optimizer, device)
         _check_resumable(ckpt_path, state.get("run_info"), run_info)
         history, best, start_epoch = state["history"], state["best"], state["epoch"]
         if lead:
@@ -339,16 +338,16 @@ def _fit(
                 best = score
                 task.export(model, out / "best.safetensors", meta)
             task.export(model, out / "last.safetensors", meta)
-            _atomic_torch_save(
+            save_checkpoint(
+                out / CHECKPOINT,
+                model,
+                optimizer,
                 {
-                    "model": model.state_dict(),
-                    "optimizer": optimizer.state_dict(),
                     "epoch": epoch + 1,
                     "history": history,
                     "best": best,
                     "run_info": run_info,
                 },
-                ckpt_path,
             )
             _write_csv(history, out / "log.csv")
             print(
