@@ -46,6 +46,7 @@ from types import ModuleType
 
 import numpy as np
 
+from masknet._atomic import atomic_target, write_text_atomic
 from masknet.errors import MaskNetError
 
 __all__ = [
@@ -331,44 +332,8 @@ _READERS: dict[str, Callable[[str], np.ndarray]] = {
 
 # --------------------------------------------------------------------------- writing
 
-
-@contextlib.contextmanager
-def _atomic_target(path: PathLike, suffix: str = "") -> Iterator[str]:
-    """Yield a temporary path beside ``path``; on success move it over ``path``.
-
-    The temporary name is ``.<name>.tmpXXXX<suffix>``. Parent directories are
-    created. On any exception the temporary file is removed and ``path`` is untouched.
-    """
-    name = os.fspath(path)
-    target = Path(name)
-    try:
-        target.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.tmp", suffix=suffix, dir=target.parent)
-        os.close(fd)
-    except OSError as exc:
-        raise MaskNetError(f"{name}: cannot write ({exc.strerror or exc})") from exc
-    try:
-        yield tmp
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes it 0600
-        os.replace(tmp, target)
-    except BaseException as exc:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        if isinstance(exc, OSError):
-            raise MaskNetError(f"{name}: cannot write ({exc.strerror or exc})") from exc
-        raise
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-def write_text_atomic(path: PathLike, text: str) -> None:
-    """Write ``text`` (UTF-8) to ``path`` atomically, creating parent directories."""
-    with _atomic_target(path) as tmp, open(tmp, "w", encoding="utf-8") as f:
-        f.write(text)
+# The atomic-write helper lives in masknet._atomic; this name stays for older imports.
+_atomic_target = atomic_target
 
 
 def write_mask(path: PathLike, mask: np.ndarray) -> None:
@@ -409,7 +374,7 @@ def write_points(path: PathLike, points: np.ndarray) -> None:
         if len(points) == 0:
             raise MaskNetError(f"{name}: cannot write an empty cloud as {ext} (Open3D refuses)")
         o3d = require_open3d(f"{name}: writing {ext} files")
-    with _atomic_target(name, suffix=ext) as tmp:
+    with atomic_target(name, suffix=ext) as tmp:
         if o3d is not None:
             cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
             verbosity = o3d.utility.VerbosityLevel.Warning

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+from masknet._atomic import atomic_target
+
 __all__ = ["display_points", "plot_clouds", "plot_mask"]
 
 GREY, BLUE = "#b0b0b0", "#1f77b4"
@@ -134,9 +136,9 @@ def _save(fig, path: str | os.PathLike) -> Path:
 
     fig.tight_layout()
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.stem + ".tmp.png")
-    fig.savefig(tmp)
-    plt.close(fig)
-    os.replace(tmp, path)
+    try:
+        with atomic_target(path, suffix=".png") as tmp:
+            fig.savefig(tmp)
+    finally:
+        plt.close(fig)
     return path

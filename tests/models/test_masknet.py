@@ -326,7 +326,7 @@ def test_save_and_from_file_round_trip(model, clouds, tmp_path):
     template, source = clouds
     path = tmp_path / "weights.safetensors"
     model.save(path, metadata={"epochs": 3, "note": "test"})
-    assert path.exists() and not (tmp_path / "weights.safetensors.tmp").exists()
+    assert [p.name for p in tmp_path.iterdir()] == ["weights.safetensors"]  # no temporary left
     loaded = MaskNet.from_file(path)
     assert not loaded.training
     assert loaded.config == model.config

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from masknet._atomic import atomic_target
 from masknet.data.modelnet import load_modelnet40
 
 __all__ = ["build_sample"]
@@ -30,15 +31,13 @@ def build_sample(
     scale = np.float32(1 / 32767)
     quantised = np.round(test.points[picks] / scale).clip(-32767, 32767).astype(np.int16)
     out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.stem + ".tmp.npz")
-    np.savez_compressed(
-        tmp,
-        test_points=quantised,
-        test_labels=test.labels[picks],
-        test_names=test.names[picks].astype(str),
-        shape_names=np.array(test.shape_names),
-        scale=scale,
-    )
-    os.replace(tmp, out)
+    with atomic_target(out, suffix=".npz") as tmp:  # np.savez appends .npz to other names
+        np.savez_compressed(
+            tmp,
+            test_points=quantised,
+            test_labels=test.labels[picks],
+            test_names=test.names[picks].astype(str),
+            shape_names=np.array(test.shape_names),
+            scale=scale,
+        )
     return out

@@ -18,6 +18,7 @@ from typing import TypeVar
 import torch
 from safetensors.torch import load_file, save_file
 
+from masknet._atomic import atomic_target
 from masknet.errors import MaskNetError
 
 __all__ = ["SafetensorsWeights", "shipped_weights_path"]
@@ -46,11 +47,10 @@ class SafetensorsWeights:
         meta.update(
             {k: v if isinstance(v, str) else json.dumps(v) for k, v in (metadata or {}).items()}
         )
-        path = Path(path)
-        tmp = path.with_name(path.name + ".tmp")
         state = self.state_dict()  # type: ignore[attr-defined]
-        save_file({k: v.detach().cpu().contiguous() for k, v in state.items()}, str(tmp), meta)
-        os.replace(tmp, path)
+        tensors = {k: v.detach().cpu().contiguous() for k, v in state.items()}
+        with atomic_target(path) as tmp:
+            save_file(tensors, tmp, meta)
 
     @classmethod
     def from_file(

@@ -41,6 +41,7 @@ import torch
 from torch import Tensor, nn
 from tqdm.auto import tqdm
 
+from masknet._atomic import atomic_target
 from masknet.errors import MaskNetError
 from masknet.runtime import default_precision, resolve_device
 from masknet.training.checkpoint import load_checkpoint, save_checkpoint
@@ -145,13 +146,11 @@ def _checkpoint_path(out: Path) -> Path:
 
 
 def _write_csv(rows: list[dict], path: Path) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w", newline="") as fh:
+    with atomic_target(path) as tmp, open(tmp, "w", newline="") as fh:
         # Every key of every row, in first-seen order: a mixed task's kinds vary by epoch.
         writer = csv.DictWriter(fh, fieldnames=list(dict.fromkeys(k for r in rows for k in r)))
         writer.writeheader()
         writer.writerows(rows)
-    os.replace(tmp, path)
 
 
 def _learning_rate(config: TrainConfig, epoch: int) -> float:
