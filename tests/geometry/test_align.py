@@ -1,11 +1,17 @@
-"""Tests for masknet.geometry.align.rigid_align (weighted Kabsch, no scale)."""
+"""Tests for masknet.geometry.align: rigid_align (weighted Kabsch, no scale) and centroids."""
 
 from __future__ import annotations
 
 import pytest
 import torch
 
-from masknet.geometry import random_rotation, rigid_align, transform_points
+from masknet.geometry import (
+    centroid,
+    centroid_alignment,
+    random_rotation,
+    rigid_align,
+    transform_points,
+)
 from masknet.geometry.se3 import make_transform
 
 
@@ -102,3 +108,15 @@ def test_bad_shapes_raise():
         rigid_align(source[0], target[0])
     with pytest.raises(ValueError):
         rigid_align(source, target, torch.ones(2, 9))
+
+
+def test_centroid_alignment_moves_the_source_centroid_onto_the_valid_template_points():
+    g = torch.Generator().manual_seed(3)
+    template = torch.randn(2, 20, 3, generator=g, dtype=torch.float64)
+    source = torch.randn(2, 12, 3, generator=g, dtype=torch.float64) + 5.0
+    valid = torch.rand(2, 20, generator=g) < 0.5
+    transform = centroid_alignment(template=template, source=source, template_valid=valid)
+    assert transform.shape == (2, 4, 4) and transform.dtype == torch.float64
+    moved = transform_points(transform, source)
+    torch.testing.assert_close(moved.mean(1), centroid(template, valid))
+    torch.testing.assert_close(transform, centroid_alignment(template, source, valid))

@@ -40,7 +40,7 @@ def _open3d_or_skip():
 
 def test_recovers_known_transform_on_full_overlap(shapes):
     pairs = _pairs(shapes, 4, seed=0, keep_ratio=1.0)
-    sol = icp(pairs.source.double(), pairs.template.double(), max_iterations=50, tolerance=1e-12)
+    sol = icp(pairs.template.double(), pairs.source.double(), max_iterations=50, tolerance=1e-12)
     assert isinstance(sol, ICPSolution)
     truth = pairs.transform.double()
     assert (_angle(sol.transform[:, :3, :3], truth[:, :3, :3]) < 1e-4).all()
@@ -60,21 +60,21 @@ def test_init_near_truth_is_refined(shapes):
     )
     offset = make_transform(so3_exp(axis * np.radians(10)), torch.full((2, 3), 0.05).double())
     init = offset @ truth
-    sol = icp(pairs.source.double(), pairs.template.double(), init=init, max_iterations=60)
+    sol = icp(pairs.template.double(), pairs.source.double(), init=init, max_iterations=60)
     assert (_angle(sol.transform[:, :3, :3], truth[:, :3, :3]) < 1e-4).all()
     assert ((sol.transform[:, :3, 3] - truth[:, :3, 3]).norm(dim=-1) < 1e-4).all()
 
 
 def test_shapes_and_dtypes(shapes):
     pairs = _pairs(shapes, 3, seed=2)
-    sol = icp(pairs.source, pairs.template, max_iterations=3)
+    sol = icp(pairs.template, pairs.source, max_iterations=3)
     assert sol.transform.shape == (3, 4, 4) and sol.transform.dtype == torch.float32
     assert sol.converged.shape == (3,) and sol.converged.dtype == torch.bool
     assert sol.iterations.shape == (3,) and sol.iterations.dtype == torch.int64
     assert sol.fitness.shape == (3,) and sol.fitness.dtype == torch.float32
     assert sol.inlier_rmse.shape == (3,) and sol.inlier_rmse.dtype == torch.float32
     assert (sol.iterations <= 3).all()
-    sol64 = icp(pairs.source.double(), pairs.template.double(), max_iterations=3)
+    sol64 = icp(pairs.template.double(), pairs.source.double(), max_iterations=3)
     torch.testing.assert_close(sol.transform.double(), sol64.transform, atol=1e-5, rtol=0)
 
 
@@ -82,9 +82,9 @@ def test_batched_equals_per_pair(shapes):
     pairs = _pairs(shapes, 3, seed=3, max_angle_deg=30, max_translation=0.3)
     src, tpl = pairs.source.double(), pairs.template.double()
     kwargs = {"max_iterations": 30, "tolerance": 1e-6, "max_correspondence_distance": 0.2}
-    batched = icp(src, tpl, **kwargs)
+    batched = icp(tpl, src, **kwargs)
     for b in range(3):
-        single = icp(src[b : b + 1], tpl[b : b + 1], **kwargs)
+        single = icp(tpl[b : b + 1], src[b : b + 1], **kwargs)
         for got, want in zip(batched, single, strict=True):
             torch.testing.assert_close(got[b : b + 1], want, atol=1e-12, rtol=0)
     assert len(set(batched.iterations.tolist())) > 1  # pairs really stopped separately
@@ -93,7 +93,7 @@ def test_batched_equals_per_pair(shapes):
 def test_max_iterations_zero_evaluates_init(shapes):
     pairs = _pairs(shapes, 2, seed=4)
     init = pairs.transform.double()
-    sol = icp(pairs.source.double(), pairs.template.double(), init=init, max_iterations=0)
+    sol = icp(pairs.template.double(), pairs.source.double(), init=init, max_iterations=0)
     torch.testing.assert_close(sol.transform, init)
     assert (sol.iterations == 0).all() and not sol.converged.any()
     assert (sol.inlier_rmse < 1e-6).all()
@@ -104,8 +104,8 @@ def test_single_init_broadcasts(shapes):
     src, tpl = pairs.source.double(), pairs.template.double()
     init = torch.eye(4, dtype=torch.float64)
     init[:3, 3] = 0.02
-    a = icp(src, tpl, init=init, max_iterations=4)
-    b = icp(src, tpl, init=init.expand(2, 4, 4), max_iterations=4)
+    a = icp(tpl, src, init=init, max_iterations=4)
+    b = icp(tpl, src, init=init.expand(2, 4, 4), max_iterations=4)
     torch.testing.assert_close(a.transform, b.transform)
 
 
@@ -114,15 +114,15 @@ def test_template_valid_equals_icp_on_the_subset(shapes):
     src, tpl = pairs.source.double(), pairs.template.double()
     g = torch.Generator().manual_seed(6)
     valid = torch.rand(tpl.shape[:2], generator=g) < 0.6
-    masked = icp(src, tpl, template_valid=valid, max_iterations=8, max_correspondence_distance=0.3)
+    masked = icp(tpl, src, template_valid=valid, max_iterations=8, max_correspondence_distance=0.3)
     for b in range(2):
         subset = tpl[b : b + 1, valid[b]]
-        want = icp(src[b : b + 1], subset, max_iterations=8, max_correspondence_distance=0.3)
+        want = icp(subset, src[b : b + 1], max_iterations=8, max_correspondence_distance=0.3)
         for got, exp in zip(masked, want, strict=True):
             torch.testing.assert_close(got[b : b + 1], exp, atol=1e-12, rtol=0)
     # The masked-out points really are excluded: moving them far away changes nothing.
     far = torch.where(valid[..., None], tpl, tpl + 100.0)
-    again = icp(src, far, template_valid=valid, max_iterations=8, max_correspondence_distance=0.3)
+    again = icp(far, src, template_valid=valid, max_iterations=8, max_correspondence_distance=0.3)
     torch.testing.assert_close(again.transform, masked.transform, atol=1e-12, rtol=0)
 
 
@@ -135,18 +135,18 @@ def test_equal_count_masks_take_the_gathered_path_with_the_same_result(shapes):
     g = torch.Generator().manual_seed(9)
     order = torch.rand(tpl.shape[:2], generator=g).argsort(1)
     valid = torch.zeros(tpl.shape[:2], dtype=torch.bool).scatter_(1, order[:, :600], True)
-    gathered = icp(src, tpl, template_valid=valid, max_correspondence_distance=0.3)
+    gathered = icp(tpl, src, template_valid=valid, max_correspondence_distance=0.3)
     mixed = torch.cat([valid, torch.ones(1, valid.shape[1], dtype=torch.bool)])
     forced = icp(
-        torch.cat([src, src[:1]]),
         torch.cat([tpl, tpl[:1]]),
+        torch.cat([src, src[:1]]),
         template_valid=mixed,
         max_correspondence_distance=0.3,
     )
     for got, exp in zip(gathered, forced, strict=True):
         torch.testing.assert_close(got, exp[:3], atol=1e-12, rtol=0)
     far = torch.where(valid[..., None], tpl, tpl + 100.0)
-    again = icp(src, far, template_valid=valid, max_correspondence_distance=0.3)
+    again = icp(far, src, template_valid=valid, max_correspondence_distance=0.3)
     torch.testing.assert_close(again.transform, gathered.transform, atol=1e-12, rtol=0)
 
 
@@ -154,7 +154,7 @@ def test_no_valid_template_point_gives_identity(shapes):
     pairs = _pairs(shapes, 2, seed=7)
     valid = torch.ones(pairs.template.shape[:2], dtype=torch.bool)
     valid[1] = False
-    sol = icp(pairs.source.double(), pairs.template.double(), template_valid=valid)
+    sol = icp(pairs.template.double(), pairs.source.double(), template_valid=valid)
     torch.testing.assert_close(sol.transform[1], torch.eye(4, dtype=torch.float64))
     assert sol.fitness[1] == 0 and sol.inlier_rmse[1] == 0
     assert not sol.converged[1] and sol.iterations[1] == 0
@@ -165,8 +165,8 @@ def test_fitness_and_inlier_rmse_match_direct_computation(shapes):
     pairs = _pairs(shapes, 3, seed=8, max_angle_deg=20, max_translation=0.2)
     max_dist = 0.05
     sol = icp(
-        pairs.source.double(),
         pairs.template.double(),
+        pairs.source.double(),
         max_iterations=5,
         max_correspondence_distance=max_dist,
     )
@@ -184,17 +184,17 @@ def test_bad_arguments_raise(shapes):
     pairs = _pairs(shapes, 2, seed=9)
     src, tpl = pairs.source, pairs.template
     with pytest.raises(ValueError):
-        icp(src[0], tpl[0])
+        icp(tpl[0], src[0])
     with pytest.raises(ValueError):
-        icp(src, tpl[:1])
+        icp(tpl[:1], src)
     with pytest.raises(ValueError, match="dtype"):
-        icp(src, tpl.double())
+        icp(tpl.double(), src)
     with pytest.raises(ValueError, match="init"):
-        icp(src, tpl, init=torch.eye(3))
+        icp(tpl, src, init=torch.eye(3))
     with pytest.raises(ValueError, match="max_correspondence_distance"):
-        icp(src, tpl, max_correspondence_distance=0.0)
+        icp(tpl, src, max_correspondence_distance=0.0)
     with pytest.raises(ValueError, match="max_iterations"):
-        icp(src, tpl, max_iterations=-1)
+        icp(tpl, src, max_iterations=-1)
 
 
 @pytest.mark.parametrize("max_dist", [None, 0.1])
@@ -203,12 +203,12 @@ def test_agrees_with_open3d_step_by_step(shapes, max_dist):
     _open3d_or_skip()
     pairs = _pairs(shapes, 2, seed=10, max_angle_deg=30, max_translation=0.3)
     src, tpl = pairs.source.double(), pairs.template.double()
-    ours = icp(src, tpl, max_iterations=5, tolerance=0, max_correspondence_distance=max_dist)
+    ours = icp(tpl, src, max_iterations=5, tolerance=0, max_correspondence_distance=max_dist)
     assert (ours.iterations == 5).all()
     for b in range(2):
         theirs = open3d_icp(
-            src[b].numpy(),
             tpl[b].numpy(),
+            src[b].numpy(),
             max_iterations=5,
             max_correspondence_distance=max_dist,
             relative_fitness=0,
@@ -223,9 +223,9 @@ def test_agrees_with_open3d_when_converged(shapes):
     _open3d_or_skip()
     pairs = _pairs(shapes, 2, seed=11, keep_ratio=1.0)
     truth = pairs.transform.double()
-    ours = icp(pairs.source.double(), pairs.template.double(), max_iterations=50)
+    ours = icp(pairs.template.double(), pairs.source.double(), max_iterations=50)
     for b in range(2):
-        theirs = open3d_icp(pairs.source[b].numpy(), pairs.template[b].numpy(), max_iterations=50)
+        theirs = open3d_icp(pairs.template[b].numpy(), pairs.source[b].numpy(), max_iterations=50)
         assert theirs.transform.shape == (1, 4, 4) and theirs.iterations.item() == -1
         torch.testing.assert_close(ours.transform[b], theirs.transform[0], atol=1e-6, rtol=0)
         assert _angle(theirs.transform[0, :3, :3], truth[b, :3, :3]) < 1e-4
@@ -237,19 +237,27 @@ def test_open3d_icp_empty_template_and_init():
     source = g.normal(size=(30, 3))
     init = np.eye(4)
     init[:3, 3] = [0.1, 0.2, 0.3]
-    sol = open3d_icp(source, np.empty((0, 3)), init=init)
+    sol = open3d_icp(np.empty((0, 3)), source, init=init)
     np.testing.assert_array_equal(sol.transform[0].numpy(), init)
     assert sol.fitness.item() == 0
     moved = source @ init[:3, :3].T + init[:3, 3]
-    sol = open3d_icp(source, moved, init=init, max_iterations=1)  # already aligned
+    sol = open3d_icp(moved, source, init=init, max_iterations=1)  # already aligned
     np.testing.assert_allclose(sol.transform[0].numpy(), init, atol=1e-12)
     assert sol.fitness.item() == 1 and sol.inlier_rmse.item() < 1e-12
     with pytest.raises(ValueError, match="init"):
-        open3d_icp(source, moved, init=np.eye(3))
+        open3d_icp(moved, source, init=np.eye(3))
 
 
 def test_template_valid_must_be_bool(shapes):
     pairs = _pairs(shapes, 2, seed=10)
     ones = torch.ones(pairs.template.shape[:2], dtype=torch.int64)  # equal counts, wrong dtype
     with pytest.raises(ValueError, match="reference_valid must be a bool tensor"):
-        icp(pairs.source.double(), pairs.template.double(), template_valid=ones)
+        icp(pairs.template.double(), pairs.source.double(), template_valid=ones)
+
+
+def test_keyword_names_follow_the_template_source_order(shapes):
+    pairs = _pairs(shapes, 2, seed=12)
+    tpl, src = pairs.template.double(), pairs.source.double()
+    positional = icp(tpl, src, max_iterations=3)
+    keywords = icp(source=src, template=tpl, max_iterations=3)
+    torch.testing.assert_close(positional.transform, keywords.transform, atol=0, rtol=0)

@@ -26,10 +26,14 @@ def centroid(points: Tensor, valid: Tensor | None = None) -> Tensor:
 
 
 def centroid_alignment(
-    source: Tensor, template: Tensor, template_valid: Tensor | None = None
+    template: Tensor, source: Tensor, template_valid: Tensor | None = None
 ) -> Tensor:
     """The translation-only transform (B, 4, 4), float64, that moves each source
-    centroid onto its (valid) template centroid: a registration initialisation."""
+    centroid onto its (valid) template centroid: a registration initialisation.
+
+    Arguments in masknet's order: template (B, N, 3), source (B, M, 3), and
+    ``template_valid`` (B, N) bool selecting the template points that count.
+    """
     shift = centroid(template.double(), template_valid) - centroid(source.double())
     eye = torch.eye(3, dtype=torch.float64, device=source.device).expand(len(shift), 3, 3)
     return make_transform(eye, shift)

@@ -241,4 +241,6 @@ def _initial_transform(
     if init == "identity":
         return np.broadcast_to(np.eye(4), (source.shape[0], 4, 4)).copy()
     valid = None if mask is None else torch.from_numpy(mask)
-    return centroid_alignment(torch.from_numpy(source), torch.from_numpy(template), valid).numpy()
+    return centroid_alignment(
+        template=torch.from_numpy(template), source=torch.from_numpy(source), template_valid=valid
+    ).numpy()

@@ -55,8 +55,8 @@ class _Matches(NamedTuple):
 
 def _match(
     transform: Tensor,
-    source: Tensor,
     template: Tensor,
+    source: Tensor,
     max_distance: float | None,
     template_valid: Tensor | None,
 ) -> _Matches:
@@ -74,19 +74,21 @@ def _match(
 
 
 def icp(
-    source: Tensor,
     template: Tensor,
+    source: Tensor,
     init: Tensor | None = None,
     max_iterations: int = 10,
     tolerance: float = 1e-6,
     max_correspondence_distance: float | None = None,
     template_valid: Tensor | None = None,
 ) -> ICPSolution:
-    """Point-to-point ICP for a batch of pairs.
+    """Point-to-point ICP for a batch of pairs: moves ``source`` onto ``template``.
+
+    Arguments in masknet's order, ``(template, source)``, as :func:`masknet.register`.
 
     Args:
-        source: (B, M, 3) points to move.
-        template: (B, N, 3) points to move them onto (same dtype and device).
+        template: (B, N, 3) points to move the source onto.
+        source: (B, M, 3) points to move (same dtype and device as the template).
         init: (B, 4, 4) or (4, 4) initial source -> template transform; None is the
             identity.
         max_iterations: most updates per pair (0 just evaluates ``init``).
@@ -103,20 +105,20 @@ def icp(
         inlier stops at once with the identity update and ``converged`` False.
     """
     if (
-        source.dim() != 3
-        or template.dim() != 3
-        or source.shape[-1] != 3
+        template.dim() != 3
+        or source.dim() != 3
         or template.shape[-1] != 3
-        or source.shape[0] != template.shape[0]
+        or source.shape[-1] != 3
+        or template.shape[0] != source.shape[0]
     ):
         raise ValueError(
-            f"expected source (B,M,3) and template (B,N,3), got {tuple(source.shape)} "
-            f"and {tuple(template.shape)}"
+            f"expected template (B,N,3) and source (B,M,3), got {tuple(template.shape)} "
+            f"and {tuple(source.shape)}"
         )
     if not source.is_floating_point() or template.dtype != source.dtype:
         raise ValueError(
-            f"source and template must share a floating dtype, got {source.dtype} "
-            f"and {template.dtype}"
+            f"template and source must share a floating dtype, got {template.dtype} "
+            f"and {source.dtype}"
         )
     if max_iterations < 0:
         raise ValueError(f"max_iterations must be >= 0, got {max_iterations}")
@@ -144,7 +146,7 @@ def icp(
             template = template[template_valid].view(b, int(counts[0]), 3)
             template_valid = None
 
-    m = _match(transform, source, template, max_correspondence_distance, template_valid)
+    m = _match(transform, template, source, max_correspondence_distance, template_valid)
     converged = torch.zeros(b, dtype=torch.bool, device=device)
     iterations = torch.zeros(b, dtype=torch.int64, device=device)
     done = m.fitness == 0
@@ -156,7 +158,7 @@ def icp(
         transform = torch.where(done[:, None, None], transform, update)
         iterations += (~done).long()
         prev_mse = m.mse
-        m = _match(transform, source, template, max_correspondence_distance, template_valid)
+        m = _match(transform, template, source, max_correspondence_distance, template_valid)
         has_inliers = m.fitness > 0
         newly = ~done & has_inliers & ((prev_mse - m.mse).abs() < tolerance)
         converged |= newly

@@ -29,8 +29,8 @@ def _cloud_and_features(o3d, points: np.ndarray, voxel_size: float):
 
 
 def open3d_fpfh_ransac(
-    source: np.ndarray,
     template: np.ndarray,
+    source: np.ndarray,
     voxel_size: float = 0.05,
     max_iterations: int = 100_000,
     confidence: float = 0.999,
@@ -38,6 +38,7 @@ def open3d_fpfh_ransac(
 ) -> tuple[np.ndarray, float, float]:
     """RANSAC on FPFH matches (Open3D); returns (transform (4, 4), fitness, inlier_rmse).
 
+    Arguments in masknet's order: template (N, 3), then source (M, 3), the points to move.
     ``seed`` fixes Open3D's random generator, so a run is repeatable.
     """
     o3d = require_open3d("Open3D RANSAC registration")
@@ -65,9 +66,13 @@ def open3d_fpfh_ransac(
 
 
 def open3d_fgr(
-    source: np.ndarray, template: np.ndarray, voxel_size: float = 0.05
+    template: np.ndarray, source: np.ndarray, voxel_size: float = 0.05
 ) -> tuple[np.ndarray, float, float]:
-    """Fast Global Registration (Zhou et al., 2016) on FPFH features (Open3D)."""
+    """Fast Global Registration (Zhou et al., 2016) on FPFH features (Open3D); returns
+    (transform (4, 4), fitness, inlier_rmse).
+
+    Arguments in masknet's order: template (N, 3), then source (M, 3), the points to move.
+    """
     o3d = require_open3d("Open3D fast global registration")
     reg = o3d.pipelines.registration
     src, src_f = _cloud_and_features(o3d, source, voxel_size)

@@ -18,19 +18,21 @@ __all__ = ["open3d_icp"]
 
 
 def open3d_icp(
-    source: np.ndarray,
     template: np.ndarray,
+    source: np.ndarray,
     init: np.ndarray | None = None,
     max_iterations: int = 10,
     max_correspondence_distance: float | None = None,
     relative_fitness: float = 1e-6,
     relative_rmse: float = 1e-6,
 ) -> ICPSolution:
-    """Register one pair with Open3D's ICP.
+    """Register one pair with Open3D's ICP: moves ``source`` onto ``template``.
+
+    Arguments in masknet's order, ``(template, source)``, as :func:`masknet.register`.
 
     Args:
-        source: (M, 3) points to move.
         template: (N, 3) target points.
+        source: (M, 3) points to move.
         init: (4, 4) initial source -> template transform; None is the identity.
         max_iterations: Open3D's ``max_iteration``.
         max_correspondence_distance: Open3D's threshold; None uses 1e3, so that every

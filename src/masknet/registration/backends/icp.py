@@ -32,8 +32,8 @@ def run_icp(
         )
     try:
         solution = icp(
-            torch.from_numpy(source - shift).float(),
-            torch.from_numpy(template - shift).float(),
+            template=torch.from_numpy(template - shift).float(),
+            source=torch.from_numpy(source - shift).float(),
             template_valid=valid,
             **options,
         )
@@ -64,7 +64,7 @@ def run_open3d_icp(
     for i in range(template.shape[0]):
         target = template[i] if mask is None else template[i][mask[i]]
         try:
-            parts.append(open3d_icp(source[i], target, **options))
+            parts.append(open3d_icp(template=target, source=source[i], **options))
         except (ValueError, TypeError) as exc:
             raise MaskNetError(f"open3d-icp: {exc}") from exc
     solution = type(parts[0])(*(torch.cat(field_parts) for field_parts in zip(*parts, strict=True)))

@@ -27,7 +27,9 @@ def open3d_global_backend(method: str) -> Backend:
         for i in range(template.shape[0]):
             target = template[i] if mask is None else template[i][mask[i]]
             radius = float(unit_radius(torch.from_numpy(template[i][None]))[0])
-            tf, fit, err = solver(source[i], target, voxel_size=relative_voxel * radius, **options)
+            tf, fit, err = solver(
+                template=target, source=source[i], voxel_size=relative_voxel * radius, **options
+            )
             transforms.append(tf)
             fitness.append(fit)
             rmse.append(err)
