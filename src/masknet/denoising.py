@@ -21,8 +21,9 @@ import numpy as np
 import torch
 
 from masknet.errors import MaskNetError
+from masknet.geometry.clouds import as_cloud_batch, unit_radius
 from masknet.geometry.knn import knn_points
-from masknet.models.masknet import MaskNet, _as_batch, unit_radius
+from masknet.models.masknet import MaskNet
 
 __all__ = [
     "DenoiseResult",
@@ -89,7 +90,7 @@ def denoise(
         raise MaskNetError(f"unknown denoising method {method!r}; choose masknet or distance")
     if not 0 <= threshold <= 1:
         raise MaskNetError(f"threshold must be in [0, 1], got {threshold}")
-    y, x, single = _as_batch(np.asarray(noisy), np.asarray(template))
+    y, x, single = as_cloud_batch(np.asarray(noisy), np.asarray(template))
     if not single:
         raise MaskNetError("denoise takes one noisy cloud (P, 3) and one template (N, 3)")
     if method == "distance":

@@ -7,7 +7,8 @@ import pytest
 import torch
 
 from masknet.errors import MaskNetError
-from masknet.models.masknet import FusedMaskNet, MaskNet, centre, select_mask, unit_radius
+from masknet.geometry import unit_radius
+from masknet.models.masknet import FusedMaskNet, MaskNet, centre, select_mask
 from masknet.models.pointnet import PointNetEncoder, fold_batchnorm
 
 SMALL = {"encoder_channels": (16, 32, 32, 64, 128), "head_channels": (128, 64, 32, 16)}
@@ -227,12 +228,6 @@ def test_predict_single_and_batched(model, clouds):
         np.testing.assert_allclose(
             model.predict(t, s, precision="fp32", pairs_per_call=pairs_per_call), batched, atol=1e-6
         )
-
-
-def test_unit_radius():
-    pts = torch.tensor([[[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [1.0, 3.0, 0.0], [1.0, -1.0, 0.0]]])
-    # Bounding-box centre (1, 1, 0); farthest point (1, -1, 0) or (1, 3, 0) at distance 2.
-    torch.testing.assert_close(unit_radius(pts), torch.tensor([2.0]))
 
 
 def test_predict_normalize_makes_units_irrelevant(model, clouds):

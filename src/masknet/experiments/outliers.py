@@ -11,7 +11,7 @@ from masknet.evaluation.registration import batched_errors, error_summary
 from masknet.experiments.context import BenchmarkContext, ExperimentResult
 from masknet.experiments.pipelines import SWEEP_PIPELINES, shipped_masknet
 from masknet.experiments.plots import line_plot, series_by
-from masknet.models.masknet import MIN_POINTS
+from masknet.geometry.clouds import MIN_POINTS
 from masknet.registration.api import register
 
 

@@ -1,6 +1,8 @@
-"""Geometry: the SE(3) module, the k-NN helper and rigid alignment."""
+"""Geometry: the SE(3) module, the k-NN helper, rigid alignment, and clouds as the networks
+take them (validated batches, unit radius)."""
 
 from masknet.geometry.align import centroid, centroid_alignment, rigid_align
+from masknet.geometry.clouds import MIN_POINTS, as_cloud_batch, unit_radius
 from masknet.geometry.knn import KNN, knn_points
 from masknet.geometry.se3 import (
     invert_transform,
@@ -16,6 +18,8 @@ from masknet.geometry.se3 import (
 
 __all__ = [
     "KNN",
+    "MIN_POINTS",
+    "as_cloud_batch",
     "centroid",
     "centroid_alignment",
     "knn_points",
@@ -29,4 +33,5 @@ __all__ = [
     "split_transform",
     "transform_points",
     "translation_error",
+    "unit_radius",
 ]

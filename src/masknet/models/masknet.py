@@ -38,7 +38,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from masknet.errors import MaskNetError
+from masknet.geometry.clouds import MIN_POINTS, as_cloud_batch, unit_radius
 from masknet.models.pointnet import PointNetEncoder, fold_batchnorm
 from masknet.models.weights import SafetensorsWeights
 from masknet.runtime import default_precision
@@ -49,7 +49,6 @@ __all__ = [
     "select_mask",
     "centre",
     "centre_pair",
-    "unit_radius",
     "PAIRS_PER_CALL",
     "MIN_POINTS",
 ]
@@ -61,9 +60,6 @@ _DTYPES = {"fp32": torch.float32, "bf16": torch.bfloat16}
 # pairs keep each layer's (B, N, C) activations in cache: MaskNet's bf16 path runs about
 # 2x faster per pair at 8 than at 64, PointNetLK and PRNet 1.5-2.5x (2-core EPYC, 2 threads).
 PAIRS_PER_CALL = 8
-
-# The fewest points a template or source may have for MaskNet and the registration networks.
-MIN_POINTS = 3
 
 
 def centre(points: Tensor) -> Tensor:
@@ -78,12 +74,6 @@ def centre_pair(template: Tensor, source: Tensor, centring: str) -> tuple[Tensor
         return centre(template), centre(source)
     offset = source.mean(dim=1, keepdim=True)
     return template - offset, source - offset
-
-
-def unit_radius(points: Tensor) -> Tensor:
-    """Largest distance from each cloud's bounding-box centre: (B, N, 3) -> (B,)."""
-    mid = (points.amax(1, keepdim=True) + points.amin(1, keepdim=True)) / 2
-    return (points - mid).norm(dim=-1).amax(1).clamp_min(1e-12)
 
 
 def select_mask(
@@ -213,7 +203,7 @@ class MaskNet(SafetensorsWeights, nn.Module):
         Returns:
             scores (N,) or (B, N), float32 in [0, 1].
         """
-        t, s, single = _as_batch(template, source)
+        t, s, single = as_cloud_batch(template, source)
         if normalize:
             radius = unit_radius(t)[:, None, None]
             t, s = t / radius, s / radius
@@ -323,29 +313,3 @@ class FusedMaskNet(nn.Module):
                 x = torch.addmm(bias, torch.relu(x), w.t())
             out.append(torch.sigmoid(x.float()).reshape(b, part.shape[1]))
         return torch.cat(out, dim=1)
-
-
-def _as_batch(template: np.ndarray, source: np.ndarray) -> tuple[Tensor, Tensor, bool]:
-    """Validate numpy clouds and return batched float32 tensors plus 'was single'."""
-    t, s = np.asarray(template), np.asarray(source)
-    if t.ndim != s.ndim or t.ndim not in (2, 3):
-        raise MaskNetError(
-            f"template and source must both be (N,3) or (B,N,3); got {t.shape} and {s.shape}"
-        )
-    single = t.ndim == 2
-    if single:
-        t, s = t[None], s[None]
-    for name, a in (("template", t), ("source", s)):
-        if a.shape[-1] != 3:
-            raise MaskNetError(f"{name} must have 3 columns (x, y, z); got shape {a.shape}")
-        if a.shape[1] < MIN_POINTS:
-            raise MaskNetError(f"{name} has {a.shape[1]} points; at least {MIN_POINTS} are needed")
-        if not np.isfinite(a).all():
-            raise MaskNetError(f"{name} contains NaN or inf coordinates")
-    if t.shape[0] != s.shape[0]:
-        raise MaskNetError(f"batch sizes differ: template {t.shape[0]}, source {s.shape[0]}")
-    return (
-        torch.from_numpy(np.ascontiguousarray(t, np.float32)),
-        torch.from_numpy(np.ascontiguousarray(s, np.float32)),
-        single,
-    )

@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 
 from masknet.errors import MaskNetError
-from masknet.models.masknet import _as_batch
+from masknet.geometry.clouds import as_cloud_batch
 from masknet.registration.methods import INITS, METHODS, OPTIONS
 
 __all__ = ["as_numpy_batch", "check_arguments"]
@@ -55,6 +55,6 @@ def as_numpy_batch(template: Any, source: Any) -> tuple[np.ndarray, np.ndarray, 
     for name, a in (("template", t), ("source", s)):
         if a.dtype.kind not in "iuf":
             raise MaskNetError(f"{name} must hold numbers, got an array of dtype {a.dtype}")
-    _, _, single = _as_batch(t, s)
+    _, _, single = as_cloud_batch(t, s)
     t, s = t.astype(np.float64), s.astype(np.float64)
     return (t[None], s[None], True) if single else (t, s, False)

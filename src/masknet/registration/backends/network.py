@@ -6,8 +6,8 @@ import numpy as np
 import torch
 
 from masknet.errors import MaskNetError
+from masknet.geometry.clouds import MIN_POINTS, unit_radius
 from masknet.geometry.sampling import farthest_point_sample
-from masknet.models.masknet import MIN_POINTS, unit_radius
 from masknet.registration.backends.base import BackendRun
 
 __all__ = ["run_network"]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from masknet.models.masknet import unit_radius
+from masknet.geometry.clouds import unit_radius
 from masknet.registration.backends.base import Backend, BackendRun
 
 __all__ = ["open3d_global_backend"]

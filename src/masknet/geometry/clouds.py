@@ -1,0 +1,52 @@
+"""Point clouds as the networks take them: validated (B, N, 3) batches, and their scale."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from masknet.errors import MaskNetError
+
+__all__ = ["MIN_POINTS", "as_cloud_batch", "unit_radius"]
+
+# The fewest points a template or source may have for MaskNet and the registration networks.
+MIN_POINTS = 3
+
+
+def unit_radius(points: Tensor) -> Tensor:
+    """Largest distance from each cloud's bounding-box centre: (B, N, 3) -> (B,)."""
+    mid = (points.amax(1, keepdim=True) + points.amin(1, keepdim=True)) / 2
+    return (points - mid).norm(dim=-1).amax(1).clamp_min(1e-12)
+
+
+def as_cloud_batch(template: np.ndarray, source: np.ndarray) -> tuple[Tensor, Tensor, bool]:
+    """Validate numpy clouds, template (N, 3) or (B, N, 3) and source (M, 3) or (B, M, 3);
+    return batched float32 tensors (B, N, 3), (B, M, 3) and whether the input was one pair.
+
+    Raises:
+        MaskNetError: mismatched or wrong shapes, fewer than :data:`MIN_POINTS` points,
+            NaN or inf coordinates, or different batch sizes.
+    """
+    t, s = np.asarray(template), np.asarray(source)
+    if t.ndim != s.ndim or t.ndim not in (2, 3):
+        raise MaskNetError(
+            f"template and source must both be (N,3) or (B,N,3); got {t.shape} and {s.shape}"
+        )
+    single = t.ndim == 2
+    if single:
+        t, s = t[None], s[None]
+    for name, a in (("template", t), ("source", s)):
+        if a.shape[-1] != 3:
+            raise MaskNetError(f"{name} must have 3 columns (x, y, z); got shape {a.shape}")
+        if a.shape[1] < MIN_POINTS:
+            raise MaskNetError(f"{name} has {a.shape[1]} points; at least {MIN_POINTS} are needed")
+        if not np.isfinite(a).all():
+            raise MaskNetError(f"{name} contains NaN or inf coordinates")
+    if t.shape[0] != s.shape[0]:
+        raise MaskNetError(f"batch sizes differ: template {t.shape[0]}, source {s.shape[0]}")
+    return (
+        torch.from_numpy(np.ascontiguousarray(t, np.float32)),
+        torch.from_numpy(np.ascontiguousarray(s, np.float32)),
+        single,
+    )

@@ -1,0 +1,39 @@
+"""Tests for masknet.geometry.clouds: validated cloud batches and unit radius."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from masknet.errors import MaskNetError
+from masknet.geometry import MIN_POINTS, as_cloud_batch, unit_radius
+
+
+def test_unit_radius():
+    pts = torch.tensor([[[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [1.0, 3.0, 0.0], [1.0, -1.0, 0.0]]])
+    # Bounding-box centre (1, 1, 0); farthest point (1, -1, 0) or (1, 3, 0) at distance 2.
+    torch.testing.assert_close(unit_radius(pts), torch.tensor([2.0]))
+
+
+def test_as_cloud_batch_single_and_batched():
+    t, s, single = as_cloud_batch(np.zeros((10, 3)), np.ones((5, 3), np.float64))
+    assert single and t.shape == (1, 10, 3) and s.shape == (1, 5, 3)
+    assert t.dtype == s.dtype == torch.float32
+    t, s, single = as_cloud_batch(np.zeros((2, 10, 3)), np.zeros((2, 5, 3)))
+    assert not single and t.shape == (2, 10, 3) and s.shape == (2, 5, 3)
+
+
+@pytest.mark.parametrize(
+    ("template", "source", "match"),
+    [
+        (np.zeros((10, 2)), np.zeros((5, 2)), "3 columns"),
+        (np.zeros((10, 3)), np.zeros((2, 5, 3)), "both be"),
+        (np.zeros((2, 10, 3)), np.zeros((3, 5, 3)), "batch sizes"),
+        (np.zeros((10, 3)), np.zeros((MIN_POINTS - 1, 3)), "at least"),
+        (np.full((10, 3), np.nan), np.zeros((5, 3)), "NaN"),
+    ],
+)
+def test_as_cloud_batch_rejects_bad_clouds(template, source, match):
+    with pytest.raises(MaskNetError, match=match):
+        as_cloud_batch(template, source)
