@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import torch
 
 from masknet import MaskNetError
 from masknet.cli import main
@@ -14,13 +13,6 @@ from masknet.denoising import (
     open3d_statistical_outlier_removal,
 )
 from masknet.io import require_open3d
-from masknet.models import MaskNet
-
-
-@pytest.fixture(scope="module")
-def model() -> MaskNet:
-    torch.manual_seed(0)
-    return MaskNet(encoder_channels=(16, 32), head_channels=(32, 16)).eval()
 
 
 @pytest.fixture(scope="module")
@@ -32,34 +24,34 @@ def clouds():
     return sphere, noisy
 
 
-def test_denoise_keeps_points_scoring_above_threshold(model, clouds):
+def test_denoise_keeps_points_scoring_above_threshold(small_masknet, clouds):
     template, noisy = clouds
     result = denoise(
-        noisy, template, method="masknet", model=model, threshold=0.5, precision="fp32"
+        noisy, template, method="masknet", model=small_masknet, threshold=0.5, precision="fp32"
     )
     assert result.mask.shape == (440,) and result.scores.shape == (440,)
     np.testing.assert_array_equal(result.mask, result.scores >= 0.5)
     np.testing.assert_array_equal(result.points, noisy[result.mask])
-    everything = denoise(noisy, template, method="masknet", model=model, threshold=0.0)
+    everything = denoise(noisy, template, method="masknet", model=small_masknet, threshold=0.0)
     assert everything.mask.all()
 
 
-def test_denoise_scale_comes_from_the_template(model, clouds):
+def test_denoise_scale_comes_from_the_template(small_masknet, clouds):
     """Outliers far away must not change the scores of the other points' scaling."""
     template, noisy = clouds
-    a = denoise(noisy, template, method="masknet", model=model, precision="fp32").scores
+    a = denoise(noisy, template, method="masknet", model=small_masknet, precision="fp32").scores
     b = denoise(
-        noisy * 1000, template * 1000, method="masknet", model=model, precision="fp32"
+        noisy * 1000, template * 1000, method="masknet", model=small_masknet, precision="fp32"
     ).scores
     np.testing.assert_allclose(a, b, atol=1e-5)
 
 
-def test_denoise_refuses_batches_and_bad_thresholds(model, clouds):
+def test_denoise_refuses_batches_and_bad_thresholds(small_masknet, clouds):
     template, noisy = clouds
     with pytest.raises(MaskNetError, match="one noisy cloud"):
-        denoise(noisy[None], template[None], model=model)
+        denoise(noisy[None], template[None], model=small_masknet)
     with pytest.raises(MaskNetError, match="threshold"):
-        denoise(noisy, template, method="masknet", model=model, threshold=2.0)
+        denoise(noisy, template, method="masknet", model=small_masknet, threshold=2.0)
 
 
 def _has_open3d() -> bool:
@@ -83,10 +75,10 @@ def test_open3d_filters_remove_an_isolated_cluster(clouds):
         assert not kept[-3:].any() and kept[:600].mean() > 0.9
 
 
-def test_cli_denoise_writes_points_and_mask(tmp_path, model, clouds, capsys):
+def test_cli_denoise_writes_points_and_mask(tmp_path, small_masknet, clouds, capsys):
     template, noisy = clouds
     weights = tmp_path / "w.safetensors"
-    model.save(weights)
+    small_masknet.save(weights)
     np.savetxt(tmp_path / "noisy.xyz", noisy)
     np.save(tmp_path / "template.npy", template)
     out = tmp_path / "clean.xyz"

@@ -8,20 +8,10 @@ import sys
 
 import numpy as np
 import pytest
-import torch
 
 from masknet.cli import main
 from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
 from masknet.io import read_points
-from masknet.models import MaskNet
-
-
-@pytest.fixture(scope="module")
-def weights(tmp_path_factory):
-    torch.manual_seed(0)
-    path = tmp_path_factory.mktemp("w") / "tiny.safetensors"
-    MaskNet(encoder_channels=(16, 32), head_channels=(32, 16)).eval().save(path)
-    return path
 
 
 @pytest.fixture(scope="module")
@@ -34,11 +24,22 @@ def pair_files(tmp_path_factory):
     return folder / "template.xyz", folder / "source.npy", pair
 
 
-def test_mask_writes_inliers_and_mask(tmp_path, weights, pair_files, capsys):
+def test_mask_writes_inliers_and_mask(tmp_path, small_masknet_weights, pair_files, capsys):
     template, source, pair = pair_files
     out = tmp_path / "inliers.xyz"
     assert (
-        main(["mask", str(template), str(source), "-o", str(out), "--weights", str(weights)]) == 0
+        main(
+            [
+                "mask",
+                str(template),
+                str(source),
+                "-o",
+                str(out),
+                "--weights",
+                str(small_masknet_weights),
+            ]
+        )
+        == 0
     )
     mask = np.loadtxt(tmp_path / "inliers_mask.txt", dtype=int)
     assert mask.shape == (1024,) and mask.sum() == pair.source.shape[1]
@@ -47,7 +48,7 @@ def test_mask_writes_inliers_and_mask(tmp_path, weights, pair_files, capsys):
     assert "kept 717 of 1024" in capsys.readouterr().out
 
 
-def test_mask_threshold_rule(tmp_path, weights, pair_files):
+def test_mask_threshold_rule(tmp_path, small_masknet_weights, pair_files):
     template, source, _ = pair_files
     out = tmp_path / "t.npy"
     args = [
@@ -57,7 +58,7 @@ def test_mask_threshold_rule(tmp_path, weights, pair_files):
         "-o",
         str(out),
         "--weights",
-        str(weights),
+        str(small_masknet_weights),
         "--threshold",
         "2",
     ]
@@ -76,7 +77,7 @@ def test_mask_threshold_rule(tmp_path, weights, pair_files):
     ],
 )
 def test_bad_input_is_one_line_and_writes_nothing(
-    tmp_path, weights, pair_files, content, name, needle
+    tmp_path, small_masknet_weights, pair_files, content, name, needle
 ):
     template, _, _ = pair_files
     bad = tmp_path / name
@@ -94,7 +95,7 @@ def test_bad_input_is_one_line_and_writes_nothing(
             "-o",
             str(out),
             "--weights",
-            str(weights),
+            str(small_masknet_weights),
         ],
         capture_output=True,
         text=True,
@@ -109,7 +110,7 @@ def test_bad_input_is_one_line_and_writes_nothing(
     assert list(tmp_path.glob("out*")) == []
 
 
-def test_evaluate_json(tmp_path, weights, capsys):
+def test_evaluate_json(tmp_path, small_masknet_weights, capsys):
     out = tmp_path / "r.json"
     args = [
         "evaluate",
@@ -120,7 +121,7 @@ def test_evaluate_json(tmp_path, weights, capsys):
         "--seed",
         "3",
         "--weights",
-        str(weights),
+        str(small_masknet_weights),
         "--json",
         str(out),
     ]
@@ -140,8 +141,21 @@ def test_evaluate_missing_data_says_what_to_download(monkeypatch, capsys):
     assert "modelnet40_ply_hdf5_2048" in capsys.readouterr().err
 
 
-def test_demo_writes_picture_and_metrics(tmp_path, weights, capsys):
-    assert main(["demo", "--out", str(tmp_path), "--pairs", "16", "--weights", str(weights)]) == 0
+def test_demo_writes_picture_and_metrics(tmp_path, small_masknet_weights, capsys):
+    assert (
+        main(
+            [
+                "demo",
+                "--out",
+                str(tmp_path),
+                "--pairs",
+                "16",
+                "--weights",
+                str(small_masknet_weights),
+            ]
+        )
+        == 0
+    )
     png = (tmp_path / "masknet_demo.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 20_000
     assert json.loads((tmp_path / "metrics.json").read_text())["pairs"] == 16
@@ -180,7 +194,7 @@ def _read_transform(path) -> np.ndarray:
 
 
 @pytest.mark.parametrize("extension", [".ply", ".xyz", ".npy"])
-def test_register_round_trip_through_the_files(tmp_path, weights, extension, capsys):
+def test_register_round_trip_through_the_files(tmp_path, small_masknet_weights, extension, capsys):
     """A source made from the template by a known motion comes back through the files:
     the transform file maps the source onto the template (template ~= R source + t)
     and the written cloud is the source moved by it."""
@@ -196,7 +210,20 @@ def test_register_round_trip_through_the_files(tmp_path, weights, extension, cap
     np.save(tmp_path / "source.npy", source)
     out = tmp_path / f"registered{extension}"
     args = ["register", str(tmp_path / "template.xyz"), str(tmp_path / "source.npy")]
-    assert main([*args, "-o", str(out), "--weights", str(weights), "--max-iterations", "50"]) == 0
+    assert (
+        main(
+            [
+                *args,
+                "-o",
+                str(out),
+                "--weights",
+                str(small_masknet_weights),
+                "--max-iterations",
+                "50",
+            ]
+        )
+        == 0
+    )
     transform = _read_transform(tmp_path / "registered_transform.txt")
     np.testing.assert_allclose(transform[:3, :3], rot.T, atol=1e-5)
     np.testing.assert_allclose(transform[:3, 3], -rot.T @ shift, atol=1e-5)
@@ -246,7 +273,7 @@ def test_register_bad_source_is_one_line_and_writes_nothing(tmp_path, pair_files
     assert list(tmp_path.iterdir()) == [bad]
 
 
-def test_show_and_html_write_offline_views(tmp_path, weights, pair_files, capsys):
+def test_show_and_html_write_offline_views(tmp_path, small_masknet_weights, pair_files, capsys):
     template, source, _ = pair_files
     view = tmp_path / "view.html"
     assert main(["show", str(template), str(source), "-o", str(view)]) == 0
@@ -255,7 +282,7 @@ def test_show_and_html_write_offline_views(tmp_path, weights, pair_files, capsys
     assert (tmp_path / "view.png").stat().st_size > 10_000
     out, html = tmp_path / "moved.xyz", tmp_path / "reg.html"
     args = ["register", str(template), str(source), "-o", str(out), "--html", str(html)]
-    assert main([*args, "--weights", str(weights)]) == 0
+    assert main([*args, "--weights", str(small_masknet_weights)]) == 0
     page = html.read_text()
     for layer in ("template", "source", "registered", "inliers"):
         assert f'"name":"{layer}"' in page

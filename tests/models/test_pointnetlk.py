@@ -10,7 +10,7 @@ import torch
 from masknet import MaskNetError
 from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
 from masknet.geometry import rotation_error_deg, se3_exp, transform_points
-from masknet.models import MaskNet, PointNetLK
+from masknet.models import PointNetLK
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -104,8 +104,6 @@ def test_save_and_load_round_trip(network, tmp_path, full_pairs):
         )
 
 
-def test_masknet_weights_are_refused_clearly(tmp_path):
-    path = tmp_path / "m.safetensors"
-    MaskNet(encoder_channels=(16, 32), head_channels=(32, 16)).save(path)
+def test_masknet_weights_are_refused_clearly(small_masknet_weights):
     with pytest.raises(MaskNetError, match="not PointNetLK weights.*masknet"):
-        PointNetLK.from_file(path)
+        PointNetLK.from_file(small_masknet_weights)

@@ -29,12 +29,11 @@ def test_median_ms_measures_time():
     assert 4 <= median_ms(lambda: time.sleep(0.005), repeats=3, warmup=1) < 50
 
 
-def test_variant_agreement_and_timing_of_every_variant():
+def test_variant_agreement_and_timing_of_every_variant(small_masknet):
     from masknet.data import bundled_sample_path, load_modelnet40
     from masknet.evaluation.timing import masknet_variants, time_variants, variant_agreement
 
-    torch.manual_seed(0)
-    model = MaskNet(encoder_channels=(16, 32), head_channels=(32, 16)).eval()
+    model = small_masknet
     points = load_modelnet40(bundled_sample_path(), "test").points[:8]
     variants = masknet_variants(model, extended=True)
     variants.pop("torch.compile (split head, fp32)")  # compiling takes a minute; measured in docs

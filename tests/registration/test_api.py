@@ -16,13 +16,6 @@ pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 @pytest.fixture(scope="module")
-def model() -> MaskNet:
-    """A small random MaskNet, so that the tests do not depend on the shipped weights."""
-    torch.manual_seed(0)
-    return MaskNet(encoder_channels=(16, 32), head_channels=(32, 16)).eval()
-
-
-@pytest.fixture(scope="module")
 def pairs():
     shapes = load_modelnet40(bundled_sample_path()).points
     return make_test_pairs(shapes, 3, PairConfig(max_angle_deg=10, max_translation=0.1), seed=0)
@@ -81,9 +74,9 @@ def test_plain_icp_recovers_pair_transform(full_pairs):
     assert result.info["converged"].all()
 
 
-def test_single_pair_shapes(pairs, model):
+def test_single_pair_shapes(pairs, small_masknet):
     template, source = pairs.template[0].numpy(), pairs.source[0].numpy()
-    result = register(template, source, model=model)
+    result = register(template, source, model=small_masknet)
     assert isinstance(result, RegistrationResult)
     assert result.R.shape == (3, 3) and result.t.shape == (3,) and result.transform.shape == (4, 4)
     assert result.transform.dtype == np.float64
@@ -97,33 +90,35 @@ def test_single_pair_shapes(pairs, model):
     np.testing.assert_allclose(np.linalg.det(result.R), 1.0, atol=1e-9)
 
 
-def test_batch_shapes_and_equals_single(pairs, model):
+def test_batch_shapes_and_equals_single(pairs, small_masknet):
     template, source = pairs.template.numpy(), pairs.source.numpy()
     b, n, _ = template.shape
-    result = register(template, source, model=model, iterations=2)
+    result = register(template, source, model=small_masknet, iterations=2)
     assert result.R.shape == (b, 3, 3) and result.t.shape == (b, 3)
     assert result.transform.shape == (b, 4, 4) and result.mask.shape == (b, n)
     assert len(result.rounds) == 2 and all(r.shape == (b, 4, 4) for r in result.rounds)
     for key in ("converged", "fitness", "inlier_rmse", "iterations"):
         assert result.info[key].shape == (b,), key
-    one = register(template[1], source[1], model=model, iterations=2)
+    one = register(template[1], source[1], model=small_masknet, iterations=2)
     np.testing.assert_allclose(one.transform, result.transform[1], atol=1e-9)
     np.testing.assert_array_equal(one.mask, result.mask[1])
 
 
 @pytest.mark.parametrize("iterations", [1, 3])
-def test_rounds_are_cumulative(pairs, model, iterations):
+def test_rounds_are_cumulative(pairs, small_masknet, iterations):
     template, source = pairs.template.numpy(), pairs.source.numpy()
-    result = register(template, source, model=model, iterations=iterations, max_iterations=3)
+    result = register(
+        template, source, model=small_masknet, iterations=iterations, max_iterations=3
+    )
     assert len(result.rounds) == iterations
     np.testing.assert_array_equal(result.rounds[-1], result.transform)
     # Each round registers the source moved by the previous rounds' estimate.
-    first = register(template, source, model=model, iterations=1, max_iterations=3)
+    first = register(template, source, model=small_masknet, iterations=1, max_iterations=3)
     np.testing.assert_allclose(result.rounds[0], first.transform, atol=1e-12)
 
 
-def test_times_keys(pairs, model):
-    result = register(pairs.template[0].numpy(), pairs.source[0].numpy(), model=model)
+def test_times_keys(pairs, small_masknet):
+    result = register(pairs.template[0].numpy(), pairs.source[0].numpy(), model=small_masknet)
     assert set(result.times) == {"sample", "mask", "register", "refine", "total"}
     assert all(v >= 0 for v in result.times.values())
     assert result.times["total"] >= result.times["mask"] + result.times["register"]
@@ -131,16 +126,16 @@ def test_times_keys(pairs, model):
     assert plain.times["mask"] == 0 and plain.mask is None
 
 
-def test_mask_is_top_k_with_k_equal_m(pairs, model):
+def test_mask_is_top_k_with_k_equal_m(pairs, small_masknet):
     template, source = pairs.template.numpy(), pairs.source.numpy()
-    result = register(template, source, model=model)
+    result = register(template, source, model=small_masknet)
     assert (result.mask.sum(-1) == source.shape[1]).all()
-    np.testing.assert_array_equal(result.mask, model.predict_mask(template, source))
-    k = register(template, source, model=model, k=100)
+    np.testing.assert_array_equal(result.mask, small_masknet.predict_mask(template, source))
+    k = register(template, source, model=small_masknet, k=100)
     assert (k.mask.sum(-1) == 100).all()
-    scores = model.predict(template, source)
+    scores = small_masknet.predict(template, source)
     thr = float(np.median(scores))
-    by_threshold = register(template, source, model=model, threshold=thr)
+    by_threshold = register(template, source, model=small_masknet, threshold=thr)
     np.testing.assert_array_equal(by_threshold.mask, scores >= thr)
 
 
@@ -188,14 +183,14 @@ def test_each_round_masks_the_moved_source(pairs):
             np.testing.assert_allclose(src, expected, atol=1e-12)
 
 
-def test_default_model_is_loaded_once(monkeypatch, pairs, model):
+def test_default_model_is_loaded_once(monkeypatch, pairs, small_masknet):
     from masknet.registration import api
 
     calls = []
 
     def fake_pretrained(*args, **kwargs):
         calls.append(1)
-        return model
+        return small_masknet
 
     api._default_model.cache_clear()
     monkeypatch.setattr(MaskNet, "pretrained", staticmethod(fake_pretrained))
@@ -223,25 +218,25 @@ def test_bad_clouds_raise(template, source, match):
         register(template, source, use_mask=False)
 
 
-def test_bad_arguments_raise(pairs, model):
+def test_bad_arguments_raise(pairs, small_masknet):
     template, source = pairs.template[0].numpy(), pairs.source[0].numpy()
     with pytest.raises(MaskNetError, match="method"):
-        register(template, source, method="ndt", model=model)
+        register(template, source, method="ndt", model=small_masknet)
     with pytest.raises(MaskNetError, match="iterations"):
-        register(template, source, iterations=0, model=model)
+        register(template, source, iterations=0, model=small_masknet)
     with pytest.raises(MaskNetError, match="unknown option"):
-        register(template, source, model=model, max_iters=3)
+        register(template, source, model=small_masknet, max_iters=3)
     with pytest.raises(MaskNetError, match="either k or threshold"):
-        register(template, source, model=model, k=10, threshold=0.5)
+        register(template, source, model=small_masknet, k=10, threshold=0.5)
     with pytest.raises(MaskNetError, match="k must be"):
-        register(template, source, model=model, k=0)
+        register(template, source, model=small_masknet, k=0)
     with pytest.raises(MaskNetError, match="use_mask"):
         register(template, source, use_mask=False, k=10)
     with pytest.raises(MaskNetError, match="max_correspondence_distance"):
         register(template, source, use_mask=False, max_correspondence_distance=-1.0)
 
 
-def test_open3d_icp_method(pairs, full_pairs, model):
+def test_open3d_icp_method(pairs, full_pairs, small_masknet):
     _open3d_or_skip()
     template, source = full_pairs.template.numpy(), full_pairs.source.numpy()
     theirs = register(template, source, method="open3d-icp", use_mask=False, max_iterations=50)
@@ -251,7 +246,7 @@ def test_open3d_icp_method(pairs, full_pairs, model):
     assert (theirs.info["iterations"] == -1).all()
     # Mask-ICP through Open3D: the same fixed number of steps as ours on the same mask.
     template, source = pairs.template.numpy(), pairs.source.numpy()
-    kwargs = {"model": model, "max_iterations": 4, "max_correspondence_distance": 0.2}
+    kwargs = {"model": small_masknet, "max_iterations": 4, "max_correspondence_distance": 0.2}
     theirs = register(
         template, source, method="open3d-icp", relative_fitness=0, relative_rmse=0, **kwargs
     )
@@ -345,30 +340,30 @@ def test_refinement_runs_on_the_whole_template(pairs):
     assert _angle(refined.R, truth[:, :3, :3]).mean() < _angle(coarse.R, truth[:, :3, :3]).mean()
 
 
-def test_large_single_pair_is_sampled_and_the_mask_covers_every_point(model):
+def test_large_single_pair_is_sampled_and_the_mask_covers_every_point(small_masknet):
     rng = np.random.default_rng(0)
     template = rng.normal(size=(5000, 3))
     template /= np.linalg.norm(template, axis=1, keepdims=True)  # a dense sphere
     source = template[template[:, 2] > -0.3] + 0.05
-    result = register(template, source, model=model, max_points=256)
+    result = register(template, source, model=small_masknet, max_points=256)
     n, m = result.sampled
     assert n == 256 and 100 < m < 256  # the source at the template's spacing
     assert result.mask.shape == (5000,) and result.mask.any() and not result.mask.all()
     assert result.times["sample"] > 0
 
 
-def test_large_batches_are_refused(model):
+def test_large_batches_are_refused(small_masknet):
     template = np.zeros((2, 2000, 3)) + np.random.default_rng(0).normal(size=(2, 2000, 3))
     with pytest.raises(MaskNetError, match="one pair at a time"):
-        register(template, template, model=model)
+        register(template, template, model=small_masknet)
 
 
-def test_unknown_init_and_bad_refine_are_refused(pairs, model):
+def test_unknown_init_and_bad_refine_are_refused(pairs, small_masknet):
     template, source = pairs.template.numpy(), pairs.source.numpy()
     with pytest.raises(MaskNetError, match="unknown init"):
-        register(template, source, model=model, init="ransac")
+        register(template, source, model=small_masknet, init="ransac")
     with pytest.raises(MaskNetError, match="refine_iterations"):
-        register(template, source, model=model, refine_iterations=-1)
+        register(template, source, model=small_masknet, refine_iterations=-1)
 
 
 @pytest.mark.parametrize("method", ["open3d-ransac", "open3d-fgr"])
