@@ -61,8 +61,8 @@ $M train --model denoise --out runs/denoise_aligned --init $W/masknet_modelnet40
 #  v1.2 on, $W/masknet_modelnet40.safetensors holds the run below)
 # v1.2: the MaskNet continued from the v1.1 weights with BCE on logits and 512-point
 # training pairs (validation and test at 1,024), alone on the 2 cores; then shipped:
-#   python scripts/ship_weights.py runs/modelnet40_bce512 modelnet40 --data $MASKNET_DATA \
-#       --kind masknet --previous <the v1.1 card>
+#   python scripts/ship.py masknet runs/modelnet40_bce512 modelnet40 --data $MASKNET_DATA \
+#       --previous <the v1.1 card>
 $M train --out runs/modelnet40_bce512 --init $W/masknet_modelnet40.safetensors --loss bce --num-points 512 \
     --epochs 22 --lr 7e-5 --lr-schedule cosine --seed 1 --max-minutes 92 --threads 2 $(resume runs/modelnet40_bce512)
 # v1.3 and v1.4: two more cosine cycles of the same recipe, each from the previous best, then shipped

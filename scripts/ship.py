@@ -1,0 +1,161 @@
+"""Ship a training run's best weights inside the package, with a measured model card.
+
+    python scripts/ship.py masknet runs/modelnet40 modelnet40 --data PATH
+    python scripts/ship.py masknet runs/seen20 modelnet40_seen20 --data PATH
+    python scripts/ship.py masknet runs/ft modelnet40 --data PATH --previous OLD_CARD.json
+    python scripts/ship.py denoise runs/denoise denoise_modelnet40 --data PATH
+    python scripts/ship.py pointnetlk runs/pointnetlk modelnet40 --data PATH
+    python scripts/ship.py dcp runs/dcp modelnet40 --data PATH  (prnet, pcrnet, rpmnet)
+
+The subcommand is the kind of weights. Every figure on the card comes from the run
+folder (run.json, log.csv) or is measured here on ``--pairs`` (default 1,000) seeded
+ModelNet40 *test* pairs; nothing is typed by hand. ``--previous`` names the card of
+the weights a run was started from (``masknet train --init``), so the card states
+the whole training. The cards are rendered by :mod:`masknet.cards`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from masknet import cards
+from masknet.data import PairConfig, load_modelnet40, make_test_pairs
+from masknet.denoising import open3d_radius_outlier_removal, open3d_statistical_outlier_removal
+from masknet.evaluation.evaluate import evaluate_masknet, format_table
+from masknet.evaluation.metrics import outlier_removal_metrics
+from masknet.evaluation.registration import batched_errors, error_summary
+from masknet.models import REGISTRATION_NETWORKS, MaskNet
+
+WEIGHTS = Path(__file__).resolve().parents[1] / "src" / "masknet" / "resources" / "weights"
+
+
+def install(run: Path, filename: str, card: dict, markdown: str) -> None:
+    """Copy the run's best weights into the package, with the card as JSON and markdown."""
+    WEIGHTS.mkdir(parents=True, exist_ok=True)
+    stem = Path(filename).stem
+    shutil.copyfile(run / "best.safetensors", WEIGHTS / filename)
+    (WEIGHTS / f"{stem}.json").write_text(json.dumps(card, indent=2) + "\n")
+    (WEIGHTS / f"{stem}.md").write_text(markdown)
+    print(f"wrote {WEIGHTS / filename} and its model card")
+
+
+def ship_masknet(args: argparse.Namespace, previous: dict | None) -> None:
+    """MaskNet: mask metrics on all, seen and unseen test categories."""
+    run, log = cards.read_run(args.run)
+    model = MaskNet.from_file(args.run / "best.safetensors")
+    best = max(log, key=lambda row: float(row["val_precision"]))
+    test = load_modelnet40(args.data, "test")
+    pair_config = PairConfig(**run["task"]["pairs"])
+    evaluations = {}
+    for subset in ("all", "seen", "unseen"):
+        points = test.subset(subset).points
+        evaluations[subset] = evaluate_masknet(model, points, args.pairs, args.seed, pair_config)
+        print(subset, format_table(evaluations[subset].rows), sep="\n")
+
+    test_results = {subset: ev.to_dict() for subset, ev in evaluations.items()}
+    card = cards.base_card(args.name, run, log, model.config, best, test_results, previous)
+    install(args.run, f"masknet_{args.name}.safetensors", card, cards.render_masknet_card(card))
+
+
+def ship_denoise(args: argparse.Namespace, previous: dict | None) -> None:
+    """Denoising MaskNet: outlier removal at 5, 10 and 20% uniform outliers, threshold 0.5,
+    beside Open3D's statistical and radius outlier removal."""
+    run, log = cards.read_run(args.run)
+    model = MaskNet.from_file(args.run / "best.safetensors")
+    test = load_modelnet40(args.data, "test").points
+    base = run["task"]["pairs"]
+    results = {}
+    for ratio in (0.05, 0.1, 0.2):
+        pairs = make_test_pairs(
+            test, args.pairs, PairConfig(**(base | {"outlier_ratio": ratio})), args.seed
+        )
+        noisy, real = pairs.source.numpy(), pairs.source_mask.numpy()
+        scores = model.predict(noisy, pairs.template.numpy(), precision="fp32", normalize=False)
+        results[f"{ratio:.0%}"] = {
+            "MaskNet (threshold 0.5)": outlier_removal_metrics(scores >= 0.5, real),
+            "Open3D statistical (20, 2.0)": outlier_removal_metrics(
+                np.stack([open3d_statistical_outlier_removal(c) for c in noisy]), real
+            ),
+            "Open3D radius (8, 0.1)": outlier_removal_metrics(
+                np.stack([open3d_radius_outlier_removal(c) for c in noisy]), real
+            ),
+        }
+        print(ratio, results[f"{ratio:.0%}"])
+    best = max(log, key=lambda row: float(row["val_f1"]))
+    test = {"pairs": args.pairs, "seed": args.seed, "results": results}
+    card = cards.base_card(args.name, run, log, model.config, best, test, previous)
+    install(args.run, f"masknet_{args.name}.safetensors", card, cards.render_denoise_card(card))
+
+
+def ship_network(args: argparse.Namespace, previous: dict | None) -> None:
+    """A registration network beside the same architecture at its starting (untrained,
+    seeded) weights and beside identity (no motion), on the network's training protocol
+    and the default 30%-missing one, where Mask-X (the shipped MaskNet) is measured too."""
+    method = args.kind
+    cls = REGISTRATION_NETWORKS[method]
+    run, log = cards.read_run(args.run)
+    trained = cls.from_file(args.run / "best.safetensors").eval()
+    torch.manual_seed(run["train"]["seed"])  # the loop's seeding: the starting weights
+    untrained = cls(**trained.config).eval()
+    test = load_modelnet40(args.data, "test").points
+    protocols = {
+        f"training protocol (keep ratio {run['task']['pairs']['keep_ratio']})": PairConfig(
+            **run["task"]["pairs"]
+        ),
+        "30% missing (default protocol)": PairConfig(),
+    }
+
+    def errors(network: torch.nn.Module, pairs, use_mask: bool = False) -> dict:
+        return batched_errors(pairs, chunk=100, method=method, use_mask=use_mask, network=network)
+
+    results = {}
+    for label, config in protocols.items():
+        pairs = make_test_pairs(test, args.pairs, config, args.seed)
+        truth = pairs.transform.double().numpy()
+        results[label] = {
+            "trained": errors(trained, pairs),
+            "untrained (starting weights)": errors(untrained, pairs),
+            "identity (no motion)": error_summary(np.broadcast_to(np.eye(4), truth.shape), truth),
+        }
+        if label.startswith("30%"):
+            results[label]["trained, Mask-X"] = errors(trained, pairs, use_mask=True)
+        print(label, results[label], flush=True)
+    best = min(log, key=lambda row: float(row["val_rotation_error_deg"]))
+    test = {"pairs": args.pairs, "seed": args.seed, "results": results}
+    card = cards.base_card(args.name, run, log, trained.config, best, test, previous)
+    markdown = cards.render_network_card(card, method)
+    install(args.run, f"{cls.weights_prefix}{args.name}.safetensors", card, markdown)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="kind", required=True)
+    for kind in ("masknet", "denoise", *REGISTRATION_NETWORKS):
+        p = sub.add_parser(kind, help=f"ship {kind} weights")
+        p.add_argument("run", type=Path, help="the training run folder")
+        p.add_argument("name", help="name of the shipped weights, e.g. modelnet40")
+        p.add_argument("--data", required=True)
+        p.add_argument("--pairs", type=int, default=1000)
+        p.add_argument("--seed", type=int, default=0)
+        p.add_argument("--previous", type=Path, help="card (.json) of the --init weights")
+        p.add_argument(
+            "--previous-run",
+            type=Path,
+            help="run folder of the --init weights, when they have no card",
+        )
+    args = parser.parse_args()
+    previous = json.loads(args.previous.read_text()) if args.previous else None
+    if args.previous_run:
+        previous = cards.run_summary(args.previous_run)
+    ship = {"masknet": ship_masknet, "denoise": ship_denoise}.get(args.kind, ship_network)
+    ship(args, previous)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,34 @@
+"""masknet.cards: the shipped cards' JSON renders as markdown model cards."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from masknet import cards
+from masknet.models.weights import shipped_weights_path
+
+CARDS = sorted(shipped_weights_path("").glob("*.json"))
+
+
+@pytest.mark.parametrize("path", CARDS, ids=[p.stem for p in CARDS])
+def test_shipped_cards_render(path):
+    card = json.loads(path.read_text())
+    if path.stem.startswith("masknet_"):
+        text = cards.render_masknet_card(card)
+    else:
+        text = cards.render_network_card(card, path.stem.split("_")[0])
+    assert text.startswith(f"# Model card: `{path.stem}`")
+    assert "## Training actually done" in text and "## Training curve" in text
+    assert cards.epochs_text(card).split()[0] == str(card["epochs_trained"])
+
+
+def test_base_card_from_a_run(tmp_path):
+    (tmp_path / "run.json").write_text(json.dumps({"train": {"threads": 2, "epochs": 3}}))
+    (tmp_path / "log.csv").write_text("epoch,elapsed_min,val_precision\n1,0.5,0.8\n2,1.0,0.9\n")
+    run, log = cards.read_run(tmp_path)
+    card = cards.base_card("demo", run, log, {"k": 1}, log[1], {"pairs": 5}, previous=None)
+    assert card["name"] == "demo" and card["epochs_trained"] == 2 and card["best_epoch"] == 2
+    assert card["training_minutes"] == 1.0 and "2 threads" in card["machine"]
+    assert cards.epochs_text(card) == "2 of 3 planned"
