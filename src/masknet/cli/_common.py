@@ -116,6 +116,12 @@ def pair_config(
         raise MaskNetError(str(exc)) from None
 
 
+def add_cloud_arguments(p: argparse.ArgumentParser, source_help: str) -> None:
+    """The positional ``template`` and ``source`` files of ``mask`` and ``register``."""
+    p.add_argument("template", help="full cloud: .ply .pcd .xyz .txt .npy .bin")
+    p.add_argument("source", help=source_help)
+
+
 def add_file_options(p: argparse.ArgumentParser, html: bool = True) -> None:
     """Options of every command that reads clouds from files (and optionally shows them)."""
     p.add_argument(

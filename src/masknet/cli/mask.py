@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from masknet.cli._common import (
+    add_cloud_arguments,
     add_file_options,
     add_model_options,
     finite_float,
@@ -21,8 +22,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "mask", help="predict which TEMPLATE points SOURCE sees; write them and the mask"
     )
-    p.add_argument("template", help="full cloud: .ply .pcd .xyz .txt .npy .bin")
-    p.add_argument("source", help="partial cloud of the same object")
+    add_cloud_arguments(p, source_help="partial cloud of the same object")
     p.add_argument(
         "-o",
         "--output",

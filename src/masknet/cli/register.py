@@ -7,6 +7,7 @@ import argparse
 from pathlib import Path
 
 from masknet.cli._common import (
+    add_cloud_arguments,
     add_file_options,
     add_model_options,
     load_model,
@@ -25,8 +26,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="align SOURCE to TEMPLATE (Mask-X, or plain X with --no-mask); write the "
         "moved source, the 4x4 transform and the inlier template",
     )
-    p.add_argument("template", help="full cloud: .ply .pcd .xyz .txt .npy .bin")
-    p.add_argument("source", help="partial cloud of the same object, any pose")
+    add_cloud_arguments(p, source_help="partial cloud of the same object, any pose")
     p.add_argument(
         "-o",
         "--output",
@@ -130,7 +130,7 @@ def run(args: argparse.Namespace) -> None:
     print(f"{name}: template {len(template)} points, source {len(source)}{sampled}")
     if result.mask is not None:
         print(f"inliers: {int(result.mask.sum())} of {len(template)} template points")
-    angle = float(np.degrees(np.arccos(np.clip((np.trace(result.R) - 1) / 2, -1, 1))))
+    angle = float(result.rotation_deg)
     print(
         f"rotation {angle:.2f} deg, translation {np.linalg.norm(result.t):.4g} "
         f"(input units); {1e3 * result.times['total']:.1f} ms"

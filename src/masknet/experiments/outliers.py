@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from masknet.data.pairs import PairConfig, Pairs
-from masknet.evaluation.registration import batched_errors, error_summary
+from masknet.evaluation.registration import batched_errors, error_summary, pair_arrays
 from masknet.experiments.context import BenchmarkContext, ExperimentResult
 from masknet.experiments.pipelines import SWEEP_PIPELINES, shipped_masknet
 from masknet.experiments.plots import line_plot, series_by
@@ -20,12 +20,11 @@ def register_denoise_register(pairs: Pairs, how: dict, kwargs: dict) -> dict[str
     register again, pair by pair."""
     from masknet.denoising import denoise
 
-    truth = pairs.transform.double().numpy()
+    templates, sources, truth = pair_arrays(pairs)
     estimates = np.empty_like(truth)
     skipped = 0
     for i in range(len(truth)):
-        template = pairs.template[i].double().numpy()
-        source = pairs.source[i].double().numpy()
+        template, source = templates[i], sources[i]
         first = register(template, source, **kwargs).transform
         moved = source @ first[:3, :3].T + first[:3, 3]
         cleaned = denoise(moved, template, **how).points

@@ -96,9 +96,7 @@ def run(ctx: BenchmarkContext) -> ExperimentResult:
                 "points": f"{len(template)} / {len(source)}",
                 "sampled": f"{result.sampled[0]} / {result.sampled[1]}",
                 "ms": 1e3 * result.times["total"],
-                "rotation_deg": float(
-                    np.degrees(np.arccos(np.clip((np.trace(result.R) - 1) / 2, -1, 1)))
-                ),
+                "rotation_deg": float(result.rotation_deg),
                 "rot_error_deg": np.nan,
                 "trans_error": np.nan,
             }

@@ -94,6 +94,12 @@ class RegistrationResult:
     sampled: tuple[int, int] | None = None
     correspondence_inliers: np.ndarray | None = None
 
+    @property
+    def rotation_deg(self) -> np.ndarray:
+        """The angle of ``R`` in degrees, arccos((trace R - 1) / 2): () or (B,)."""
+        cos = (np.trace(self.R, axis1=-2, axis2=-1) - 1) / 2
+        return np.degrees(np.arccos(np.clip(cos, -1, 1)))
+
 
 @functools.lru_cache(maxsize=1)
 def _default_model() -> MaskNet:
