@@ -60,7 +60,39 @@ def ship_masknet(args: argparse.Namespace, previous: dict | None) -> None:
 
     test_results = {subset: ev.to_dict() for subset, ev in evaluations.items()}
     card = cards.base_card(args.name, run, log, model.config, best, test_results, previous)
+    if "scans" in run["task"]:
+        card["scans_test"] = scan_results(model, run, args)
     install(args.run, f"masknet_{args.name}.safetensors", card, cards.render_masknet_card(card))
+
+
+def scan_results(model: MaskNet, run: dict, args: argparse.Namespace) -> dict:
+    """Mask metrics on pairs cut from the run's held-out scans (``--scans``: the training
+    folder) and from ``--eval-scans`` (a folder never trained on), 0.2% noise."""
+    from masknet.data.scans import load_scans
+    from masknet.data.views import ViewConfig
+    from masknet.evaluation.scans import evaluate_scans
+
+    stored = run["task"]["view"]
+    view = ViewConfig(
+        **stored,
+        **{
+            "noise_sigma": 0.002,
+            "random_noise": False,
+            "view_distance": tuple(stored["view_distance"]),
+        },
+    )
+    sets = {}
+    if args.scans:
+        held = [s for s in load_scans(args.scans) if s.name in run["task"]["val_scans"]]
+        sets["held-out training scans"] = held
+    if args.eval_scans:
+        sets["evaluation scans"] = load_scans(args.eval_scans)
+    out = {}
+    for label, scans in sets.items():
+        result = evaluate_scans(model, scans, args.pairs_per_scan, args.seed, view, pipelines=None)
+        out[label] = result.to_dict() | {"folder_scans": [s.name for s in scans]}
+        print(label, format_table(result.mask.rows), sep="\n")
+    return out
 
 
 def ship_denoise(args: argparse.Namespace, previous: dict | None) -> None:
@@ -144,6 +176,9 @@ def main() -> None:
         p.add_argument("--pairs", type=int, default=1000)
         p.add_argument("--seed", type=int, default=0)
         p.add_argument("--previous", type=Path, help="card (.json) of the --init weights")
+        p.add_argument("--scans", help="masknet: the --scans folder of the run (held-out scans)")
+        p.add_argument("--eval-scans", help="masknet: a folder of scans never trained on")
+        p.add_argument("--pairs-per-scan", type=int, default=100)
         p.add_argument(
             "--previous-run",
             type=Path,

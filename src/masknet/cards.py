@@ -184,7 +184,7 @@ points); random top-k is the chance baseline.
 |---|---|---|---|---|---|
 {chr(10).join(rows)}
 
-## Training curve
+{scans_text(card)}## Training curve
 | epoch | lr | train loss | train precision | val precision | minutes |
 |---|---|---|---|---|---|
 {curve}
@@ -193,6 +193,36 @@ points); random top-k is the chance baseline.
 Trained on clean, synthetic, unit-radius CAD samples with {100 * (1 - pairs["keep_ratio"]):.0f}% missing points.
 Expect lower precision on real sensor data, other missing ratios, larger rotations, noise and outliers.
 """
+
+
+def scans_text(card: dict) -> str:
+    """The real-scan part of a card trained with ``--scans`` (empty otherwise)."""
+    task = card["training"]["task"]
+    if "scans" not in task:
+        return ""
+    view = task["view"]
+    lines = [
+        "## Real scans",
+        f"- Trained on {len(task['scans'])} scans as well ({', '.join(task['scans'])}); "
+        f"{task['scan_batches']} batches of scan pairs per epoch beside ModelNet40 pairs on "
+        f"{task['modelnet_fraction']:.0%} of the shapes ({task['modelnet_view_fraction']:.0%} of "
+        f"those batches cut as sensor-like views). Scan pairs: {view['template_points']} template "
+        f"points, keep ratio {view['keep_ratio']}, noise up to {view['noise_sigma']} of the crop radius.",
+        f"- Held out whole for validation: {', '.join(task['val_scans'])}.",
+        "",
+        "Top-k precision on seeded pairs cut from scans (noise 0.002 of the crop radius, "
+        f"{view['keep_ratio']} kept), fp32:",
+        "",
+        "| scans | pairs | top-k precision | recall | IoU | random top-k |",
+        "|---|---|---|---|---|---|",
+    ]
+    for label, result in card.get("scans_test", {}).items():
+        topk, rand = result["metrics"]["top-k (k=M)"], result["metrics"]["random top-k"]
+        lines.append(
+            f"| {label} ({len(result['scans'])}) | {result['pairs']} | {topk['precision']:.4f} "
+            f"| {topk['recall']:.4f} | {topk['iou']:.4f} | {rand['precision']:.4f} |"
+        )
+    return "\n".join(lines) + "\n\n"
 
 
 def render_denoise_card(card: dict) -> str:
