@@ -467,3 +467,15 @@ def test_learned_methods_refuse_a_mask_of_fewer_than_three_points(pairs):
     with pytest.raises(MaskNetError, match="kept 2 template point"):
         register(template, source, method="dcp", model=_FixedMask(mask), network=network)
     assert network.training  # the caller's mode is restored
+
+
+def test_result_carries_open3d_names_and_converged_is_none_where_not_reported(one_thread):
+    shapes = load_modelnet40(bundled_sample_path(), "test").points[:1]
+    pair = make_test_pairs(shapes, 1, PairConfig(), seed=2)
+    template, source = pair.template[0].double().numpy(), pair.source[0].double().numpy()
+    icp = register(template, source, use_mask=False)
+    assert icp.transformation is icp.transform
+    assert isinstance(icp.converged, bool)
+    assert 0 <= float(icp.fitness) <= 1 and float(icp.inlier_rmse) >= 0
+    dcp = register(template, source, method="dcp", use_mask=False)
+    assert dcp.converged is None and dcp.fitness is None

@@ -94,6 +94,32 @@ class RegistrationResult:
     sampled: tuple[int, int] | None = None
     correspondence_inliers: np.ndarray | None = None
 
+    # Open3D's names (``RegistrationResult`` of ``open3d.pipelines.registration``).
+    @property
+    def transformation(self) -> np.ndarray:
+        """Open3D's name for :attr:`transform`: (4, 4) or (B, 4, 4)."""
+        return self.transform
+
+    @property
+    def fitness(self) -> np.ndarray | None:
+        """Fraction of source points with a template point within the correspondence
+        distance (Open3D's definition), () or (B,); None where the method does not report it."""
+        return self.info.get("fitness")
+
+    @property
+    def inlier_rmse(self) -> np.ndarray | None:
+        """RMSE over those correspondences, in the input's units; None where not reported."""
+        return self.info.get("inlier_rmse")
+
+    @property
+    def converged(self) -> bool | np.ndarray | None:
+        """Whether the method's own stopping rule was met: a bool for one pair, (B,) bool
+        for a batch; None where the method has no such rule (global registration, DCP)."""
+        value = self.info.get("converged")
+        if value is None:
+            return None
+        return bool(value) if np.ndim(value) == 0 else np.asarray(value, bool)
+
     @property
     def rotation_deg(self) -> np.ndarray:
         """The angle of ``R`` in degrees, arccos((trace R - 1) / 2): () or (B,)."""

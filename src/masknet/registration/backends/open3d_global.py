@@ -36,7 +36,6 @@ def open3d_global_backend(method: str) -> Backend:
         info = {
             "fitness": np.asarray(fitness),
             "inlier_rmse": np.asarray(rmse),
-            "converged": np.zeros(len(fitness), bool),
             "iterations": np.full(len(fitness), -1),
         }
         return BackendRun(np.stack(transforms), info)
