@@ -73,14 +73,8 @@ def scan_results(model: MaskNet, run: dict, args: argparse.Namespace) -> dict:
     from masknet.evaluation.scans import evaluate_scans
 
     stored = run["task"]["view"]
-    view = ViewConfig(
-        **stored,
-        **{
-            "noise_sigma": 0.002,
-            "random_noise": False,
-            "view_distance": tuple(stored["view_distance"]),
-        },
-    )
+    changes = {"noise_sigma": 0.002, "random_noise": False}
+    view = ViewConfig(**(stored | changes | {"view_distance": tuple(stored["view_distance"])}))
     sets = {}
     if args.scans:
         held = [s for s in load_scans(args.scans) if s.name in run["task"]["val_scans"]]
