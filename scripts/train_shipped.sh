@@ -75,3 +75,10 @@ $M train --out runs/modelnet40_bce512c --init runs/modelnet40_bce512b/best.safet
 # shipped weights, then shipped (--previous: the v1.4 card).
 $M train --out runs/modelnet40_bce1024d --init $W/masknet_modelnet40.safetensors --loss bce --num-points 1024 \
     --epochs 3 --lr 2e-5 --lr-schedule cosine --seed 1 --max-minutes 45 --threads 2 $(resume runs/modelnet40_bce1024d)
+# masknet_scans v1.0: MaskNet v1.5 fine-tuned on ModelNet40 mixed with the scans of
+# ../shared/data/scans_train (4 held out by the default rule), then shipped with its card.
+$M train --out runs/scans_v1 --init $W/masknet_modelnet40.safetensors --scans ../shared/data/scans_train \
+    --loss bce --lr 5e-5 --lr-schedule cosine --epochs 20 --seed 1 --threads 2 $(resume runs/scans_v1)
+# (stopped after epoch 12, where scan precision had flattened)
+# python scripts/ship.py masknet runs/scans_v1 scans --data $MASKNET_DATA --previous $W/masknet_modelnet40.json \
+#     --scans ../shared/data/scans_train --eval-scans ../shared/data/scans
