@@ -17,6 +17,7 @@ import torch
 from safetensors.torch import load_file, save_file
 from torch import nn
 
+from masknet._atomic import atomic_target
 from masknet.errors import MaskNetError
 
 __all__ = ["load_checkpoint", "save_checkpoint"]
@@ -34,8 +35,6 @@ def save_checkpoint(
     path: str | Path, model: nn.Module, optimizer: torch.optim.Optimizer, state: dict
 ) -> None:
     """Write model, optimizer and ``state`` (JSON-serialisable) to ``path``, atomically."""
-    from masknet.io import _atomic_target
-
     tensors = {f"model/{k}": v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
     optim = optimizer.state_dict()
     scalars: dict[str, dict[str, float]] = {}
@@ -50,7 +49,7 @@ def save_checkpoint(
         "param_groups": json.dumps(optim["param_groups"], default=_json_default),
         "optim_scalars": json.dumps(scalars),
     }
-    with _atomic_target(path) as tmp:
+    with atomic_target(path) as tmp:
         save_file(tensors, tmp, meta)
 
 
