@@ -101,3 +101,39 @@ def test_distance_method_removes_far_points(clouds):
     assert default.mask[:400].all() and not default.mask.all()
     with pytest.raises(MaskNetError, match="unknown denoising method"):
         denoise(noisy, template, method="median")
+
+
+def _rotated(points: np.ndarray, degrees: float) -> np.ndarray:
+    a = np.radians(degrees)
+    rot = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    return points @ rot.T
+
+
+def test_shipped_two_sided_denoiser_needs_no_alignment(clouds):
+    template, noisy = clouds
+    result = denoise(_rotated(noisy, 30), template, method="masknet", precision="fp32")
+    real = np.arange(len(noisy)) < 400
+    assert (~result.mask[~real]).mean() >= 0.8  # outliers removed
+    assert result.mask[real].mean() >= 0.9  # real points kept
+
+
+def test_two_sided_denoiser_labels_every_point_of_a_large_cloud(clouds):
+    template, noisy = clouds
+    rng = np.random.default_rng(1)
+    large = np.concatenate([noisy + rng.normal(0, 0.005, noisy.shape) for _ in range(6)])
+    result = denoise(large, template, method="masknet")
+    assert result.mask.shape == result.scores.shape == (len(large),)
+    # Copies of one point sit within 0.02 of each other and take their sample's label.
+    real = np.tile(np.arange(len(noisy)) < 400, 6)
+    assert result.mask[real].mean() >= 0.9 and (~result.mask[~real]).mean() >= 0.8
+
+
+def test_cli_denoise_masknet_uses_the_shipped_two_sided_weights(tmp_path, clouds, capsys):
+    template, noisy = clouds
+    np.save(tmp_path / "noisy.npy", _rotated(noisy, 20))
+    np.save(tmp_path / "template.npy", template)
+    args = ["denoise", str(tmp_path / "noisy.npy"), str(tmp_path / "template.npy")]
+    assert main([*args, "-o", str(tmp_path / "clean.npy"), "--method", "masknet"]) == 0
+    mask = np.loadtxt(tmp_path / "clean_mask.txt").astype(bool)
+    assert mask[:400].mean() >= 0.9 and (~mask[400:]).mean() >= 0.8
+    assert "MaskNet score >= 0.5" in capsys.readouterr().out

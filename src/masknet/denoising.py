@@ -1,12 +1,12 @@
 """Denoising: remove the points of a scan that a clean template does not explain.
 
 Given a noisy cloud Y (a scan with outliers) and a clean template X of the same
-object, aligned, :func:`denoise` decides for every point of Y whether X explains it:
-by its distance to X (``method="distance"``, the default), or by MaskNet applied the
-other way round (``method="masknet"``, the paper's denoising use, with a model from
-``masknet train --model denoise``: 10% uniform outliers in the source). No denoising
-MaskNet ships yet: four training runs on this project's CPU learnt to remove few or none
-of the outliers (docs/RESULTS.md#denoising).
+object, :func:`denoise` decides for every point of Y whether X explains it: by its
+distance to X (``method="distance"``, the default; the clouds must be aligned), or by
+the two-sided MaskNet's source mask (``method="masknet"``; the shipped
+``masknet2_scans`` weights), which needs no alignment: it was trained on pairs
+misaligned by up to 45 degrees. A paper MaskNet trained the other way round (``masknet
+train --model denoise``) can be passed as ``model`` too.
 
 Open3D's statistical and radius outlier removal are wrapped here too, as the
 peers the benchmark compares against (they need no template).
@@ -23,7 +23,10 @@ import torch
 from masknet.errors import MaskNetError
 from masknet.geometry.clouds import as_cloud_batch, unit_radius
 from masknet.geometry.knn import knn_points
+from masknet.geometry.sampling import farthest_point_sample
 from masknet.models.masknet import MaskNet
+from masknet.models.two_sided import TwoSidedMaskNet
+from masknet.registration.sampling import spread_mask
 
 __all__ = [
     "DenoiseResult",
@@ -43,9 +46,14 @@ class DenoiseResult(NamedTuple):
     scores: np.ndarray
 
 
+# Clouds larger than this are scored on a farthest-point sample and the labels spread
+# to every point from its nearest sampled one (the network saw 512-1024 points).
+NETWORK_POINTS = 2048
+
+
 @functools.lru_cache(maxsize=1)
-def _default_model() -> MaskNet:
-    return MaskNet.pretrained("denoise_modelnet40")
+def _default_model() -> TwoSidedMaskNet:
+    return TwoSidedMaskNet.pretrained("scans")
 
 
 def template_spacing(template: np.ndarray) -> float:
@@ -58,26 +66,31 @@ def denoise(
     noisy: np.ndarray,
     template: np.ndarray,
     method: str = "distance",
-    model: MaskNet | None = None,
+    model: TwoSidedMaskNet | MaskNet | None = None,
     threshold: float = 0.5,
     max_distance: float | None = None,
     precision: str = "auto",
 ) -> DenoiseResult:
     """Remove the points of ``noisy`` (P, 3) that the clean ``template`` (N, 3) does not explain.
 
-    The clouds must be aligned: denoise after a registration, e.g. ``register`` and then
-    this on the moved source. Every noisy point is scored (in chunks), so large scans
-    work at full resolution.
+    For ``"distance"`` the clouds must be aligned (denoise after a registration, e.g.
+    ``register`` and then this on the moved source); ``"masknet"`` with the two-sided
+    network does not need it.
+
+    Example::
+
+        kept = denoise(scan, model_cloud, method="masknet").points
 
     Args:
         method: ``"distance"`` (the default: keep points within ``max_distance`` of their
             nearest template point; default three times the template's point spacing) or
-            ``"masknet"`` (MaskNet the other way round: the network scores each noisy
-            point given the template; both are scaled by the template's radius, so the
-            outliers cannot set the scale).
-        model: for ``"masknet"``: a MaskNet trained for denoising (``masknet train --model
-            denoise``). None loads shipped ``"denoise_modelnet40"`` weights; none ship yet,
-            because no training run so far learnt to reject most outliers (docs/RESULTS.md).
+            ``"masknet"`` (the network scores each noisy point given the template; both
+            are scaled by the template's radius, so the outliers cannot set the scale).
+            Noisy clouds over 2,048 points are scored on a farthest-point sample of
+            2,048 and each point takes the label of its nearest sampled point.
+        model: for ``"masknet"``: a :class:`TwoSidedMaskNet` (None: the shipped
+            ``masknet2_scans`` weights) or a paper MaskNet trained for denoising
+            (``masknet train --model denoise``; aligned clouds only).
         threshold: for ``"masknet"``: keep points scoring at least this.
         max_distance: for ``"distance"``, in the clouds' units.
         precision: MaskNet's inference precision (``"auto"``: bf16 where native).
@@ -102,10 +115,21 @@ def denoise(
         scores = np.exp(-((d / limit) ** 2)).astype(np.float32)
         return DenoiseResult(np.asarray(noisy)[mask], mask, scores)
     model = model or _default_model()
+    y_np = y[0].numpy()
+    sampled = None
+    if len(y_np) > NETWORK_POINTS:
+        sampled = farthest_point_sample(y_np, NETWORK_POINTS).indices
+        y = y[:, sampled]
     radius = unit_radius(x)[:, None, None]
-    scores = model.predict(
-        (y / radius).numpy(), (x / radius).numpy(), precision=precision, normalize=False
-    )[0]
+    if isinstance(model, TwoSidedMaskNet):
+        # The template's radius sets the scale (predict's normalize does the same).
+        scores = model.predict(x.numpy(), y.numpy(), precision=precision)[1][0]
+    else:
+        scores = model.predict(
+            (y / radius).numpy(), (x / radius).numpy(), precision=precision, normalize=False
+        )[0]
+    if sampled is not None:
+        scores = spread_mask(y_np, sampled, scores)
     mask = scores >= threshold
     return DenoiseResult(np.asarray(noisy)[mask], mask, scores)
 

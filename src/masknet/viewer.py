@@ -30,6 +30,7 @@ LAYER_COLOURS = {
     "registered": "#d62728",
     "kept": "#2ca02c",
     "removed": "#ff7f0e",
+    "rejected": "#ff7f0e",
 }
 _PALETTE = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2"]
 MAX_POINTS_PER_LAYER = 30_000  # keeps files small and drawing fast; subsampled evenly

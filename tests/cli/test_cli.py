@@ -287,3 +287,26 @@ def test_show_and_html_write_offline_views(tmp_path, small_masknet_weights, pair
     for layer in ("template", "source", "registered", "inliers"):
         assert f'"name":"{layer}"' in page
     assert (tmp_path / "reg.png").exists()
+
+
+def test_register_two_sided_drops_source_outliers(tmp_path, capsys):
+    rng = np.random.default_rng(3)
+    sphere = rng.normal(size=(900, 3))
+    sphere /= np.linalg.norm(sphere, axis=1, keepdims=True)
+    part = sphere[sphere[:, 0] > -0.3]
+    outliers = rng.uniform(-3, 3, size=(60, 3))
+    source = np.concatenate([part + [0.2, 0.0, 0.1], outliers])
+    np.save(tmp_path / "t.npy", sphere)
+    np.save(tmp_path / "s.npy", source)
+    out = tmp_path / "r.npy"
+    # --max-points below the source size: the mask is spread back to every source row.
+    args = ["register", str(tmp_path / "t.npy"), str(tmp_path / "s.npy"), "-o", str(out)]
+    assert (
+        main([*args, "--two-sided", "--max-points", "400", "--html", str(tmp_path / "v.html")]) == 0
+    )
+    kept = np.loadtxt(tmp_path / "r_source_mask.txt").astype(bool)
+    assert kept.shape == (len(source),)
+    assert kept[: len(part)].mean() >= 0.9 and (~kept[len(part) :]).mean() >= 0.8
+    assert "source kept:" in capsys.readouterr().out
+    assert "rejected" in (tmp_path / "v.html").read_text()
+    assert main([*args, "--two-sided", "--no-mask"]) == 2

@@ -89,3 +89,19 @@ def test_evaluate_on_scans_reports_masks_per_scan_and_registration(
     # The same seed gives the same pairs, hence the same figures.
     assert main([*args[:-2], "--no-registration", "--scan-names", "room0,room1"]) == 0
     assert "4 pairs from 2 scans" in capsys.readouterr().out
+
+
+def test_train_two_sided_on_scans_exports_loadable_weights(tmp_path, scan_folder, weights):
+    from masknet.models import TwoSidedMaskNet
+
+    out = tmp_path / "run2"
+    args = ["train", "--model", "masknet2", "--scans", str(scan_folder), "--out", str(out)]
+    args += ["--init", str(weights), "--modelnet-fraction", "0", "--scan-batches", "2"]
+    args += ["--val-scans", "desk", "--val-pairs", "8", "--epochs", "1", *SMALL]
+    assert main(args) == 0
+    log = (out / "log.csv").read_text().splitlines()
+    assert "val_outliers_removed" in log[0] and "val_template_precision" in log[0]
+    model = TwoSidedMaskNet.from_file(out / "best.safetensors")
+    # The frozen paper network inside is the --init weights, unchanged.
+    start = MaskNet.from_file(weights).state_dict()
+    assert all(torch.equal(v, start[k]) for k, v in model.masknet.state_dict().items())

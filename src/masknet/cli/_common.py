@@ -155,15 +155,30 @@ def add_model_options(p: argparse.ArgumentParser, default_pretrained: str = "mod
     )
 
 
-def load_model(args: argparse.Namespace) -> MaskNet:
-    """The MaskNet of the ``model`` options; resolves ``--inference-precision auto``."""
+def load_model(args: argparse.Namespace, two_sided: bool = False) -> MaskNet:
+    """The MaskNet of the ``model`` options; resolves ``--inference-precision auto``.
+
+    ``two_sided``: shipped names are two-sided MaskNets (``masknet2_<name>``), and a
+    ``--weights`` file may hold either kind.
+    """
     from masknet.models import MaskNet
+    from masknet.models.two_sided import TwoSidedMaskNet
     from masknet.runtime import default_precision
 
     if args.inference_precision == "auto":
         args.inference_precision = default_precision("cpu")
-
-    return MaskNet.from_file(args.weights) if args.weights else MaskNet.pretrained(args.pretrained)
+    if not two_sided:
+        return (
+            MaskNet.from_file(args.weights) if args.weights else MaskNet.pretrained(args.pretrained)
+        )
+    if not args.weights:
+        return TwoSidedMaskNet.pretrained(args.pretrained)
+    try:
+        return TwoSidedMaskNet.from_file(args.weights)
+    except MaskNetError as exc:
+        if "not TwoSidedMaskNet weights" not in str(exc):
+            raise
+        return MaskNet.from_file(args.weights)
 
 
 def write_views(path: str, layers: dict[str, np.ndarray | tuple], title: str) -> list[Path]:

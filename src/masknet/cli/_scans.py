@@ -115,10 +115,15 @@ def read_scans(folder: str, only: list[str] | None = None) -> list[Scan]:
     return scans
 
 
-def scan_task(args: argparse.Namespace, base: MaskNetTask) -> MaskNetTask:
-    """``base`` (the MaskNet task of the other options) extended with the scans."""
+def scan_task(
+    args: argparse.Namespace, base: MaskNetTask, task_class: type | None = None, **extra
+) -> MaskNetTask:
+    """``base`` (the MaskNet task of the other options) extended with the scans, as a
+    ``task_class`` (default :class:`ScanMaskNetTask`) with ``extra`` settings."""
     from masknet.data.scans import split_scans
     from masknet.training.scan_task import ScanMaskNetTask
+
+    task_class = task_class or ScanMaskNetTask
 
     if not 0 <= args.modelnet_fraction <= 1:
         raise MaskNetError(f"--modelnet-fraction must be in [0, 1], got {args.modelnet_fraction}")
@@ -129,7 +134,7 @@ def scan_task(args: argparse.Namespace, base: MaskNetTask) -> MaskNetTask:
         f"scans: {len(train)} for training, {len(val)} held out "
         f"({', '.join(s.name for s in val) or 'none'})"
     )
-    return ScanMaskNetTask(
+    return task_class(
         pairs=base.pairs,
         num_points=base.num_points,
         loss=base.loss,
@@ -139,4 +144,5 @@ def scan_task(args: argparse.Namespace, base: MaskNetTask) -> MaskNetTask:
         view=view_config(args, args.scan_noise, random_noise=True),
         scan_batches=args.scan_batches,
         modelnet_fraction=args.modelnet_fraction,
+        **extra,
     )

@@ -39,8 +39,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "--method",
         choices=["distance", "masknet"],
         default="distance",
-        help="distance (default): keep points near the template; masknet: a denoising "
-        "network (--weights from masknet train --model denoise)",
+        help="distance (default): keep points near the template (aligned clouds); "
+        "masknet: the two-sided MaskNet's source mask, no alignment needed (shipped "
+        "masknet2_scans, or --weights from masknet train --model masknet2 or denoise)",
     )
     p.add_argument(
         "--threshold", type=finite_float, default=0.5, help="masknet: keep points scoring >= this"
@@ -52,7 +53,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "(default 3x the template's point spacing)",
     )
     add_file_options(p)
-    add_model_options(p, default_pretrained="denoise_modelnet40")
+    add_model_options(p, default_pretrained="scans")
 
 
 def run(args: argparse.Namespace) -> None:
@@ -68,10 +69,11 @@ def run(args: argparse.Namespace) -> None:
         result = denoise(noisy, template, method="distance", max_distance=args.max_distance)
         rule = f"distance <= {args.max_distance or '3x template spacing'}"
     else:
-        model = load_model(args)
+        model = load_model(args, two_sided=True)
         result = denoise(
             noisy,
             template,
+            method="masknet",
             model=model,
             threshold=args.threshold,
             precision=args.inference_precision,

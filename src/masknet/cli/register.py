@@ -48,6 +48,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="weights (.safetensors from masknet train --model NAME) for a learned --method",
     )
     p.add_argument("--no-mask", action="store_true", help="plain X instead of Mask-X")
+    p.add_argument(
+        "--two-sided",
+        action="store_true",
+        help="mask both clouds with the two-sided MaskNet (shipped masknet2_scans, or "
+        "--weights from masknet train --model masknet2): outliers and clutter in SOURCE "
+        "are dropped before registering; writes <stem>_source_mask.txt, one 0/1 per "
+        "source point",
+    )
     p.add_argument("--iterations", type=positive_int, default=1, help="rounds of mask -> register")
     p.add_argument(
         "--max-iterations",
@@ -87,7 +95,11 @@ def run(args: argparse.Namespace) -> None:
         raise MaskNetError(f"--refine must be >= 0, got {args.refine}")
     template = read_points(args.template, drop_nonfinite=args.drop_nonfinite)
     source = read_points(args.source, drop_nonfinite=args.drop_nonfinite)
-    model = None if args.no_mask else load_model(args)
+    if args.two_sided and args.no_mask:
+        raise MaskNetError("--two-sided and --no-mask exclude each other")
+    if args.two_sided and args.pretrained == "modelnet40":
+        args.pretrained = "scans"  # the shipped two-sided weights
+    model = None if args.no_mask else load_model(args, two_sided=args.two_sided)
     options = {}
     if args.max_iterations is not None and args.method not in GLOBAL_METHODS:
         options["max_iterations"] = args.max_iterations
@@ -122,6 +134,11 @@ def run(args: argparse.Namespace) -> None:
     if result.mask is not None:
         inliers_path = out.with_name(out.stem + "_inliers" + out.suffix)
         writers.append((inliers_path, lambda p: write_points(p, template[result.mask])))
+    if result.source_mask is not None:
+        from masknet.io import write_mask
+
+        source_mask_path = out.with_name(out.stem + "_source_mask.txt")
+        writers.append((source_mask_path, lambda p: write_mask(p, result.source_mask)))
     write_all(writers)
 
     name = ("" if args.no_mask else "Mask-") + METHOD_TITLES[args.method]
@@ -130,6 +147,8 @@ def run(args: argparse.Namespace) -> None:
     print(f"{name}: template {len(template)} points, source {len(source)}{sampled}")
     if result.mask is not None:
         print(f"inliers: {int(result.mask.sum())} of {len(template)} template points")
+    if result.source_mask is not None:
+        print(f"source kept: {int(result.source_mask.sum())} of {len(source)} points")
     angle = float(result.rotation_deg)
     print(
         f"rotation {angle:.2f} deg, translation {np.linalg.norm(result.t):.4g} "
@@ -143,6 +162,9 @@ def run(args: argparse.Namespace) -> None:
         layers = {"template": template, "source": source, "registered": moved}
         if result.mask is not None:
             layers["inliers"] = template[result.mask]
+        if result.source_mask is not None:
+            layers["registered"] = moved[result.source_mask]
+            layers["rejected"] = moved[~result.source_mask]
         views = write_views(
             args.html,
             layers,

@@ -20,7 +20,7 @@ from masknet.models import REGISTRATION_NETWORKS
 if TYPE_CHECKING:
     from masknet.training import Task
 
-MODELS = ("masknet", "denoise", *REGISTRATION_NETWORKS)
+MODELS = ("masknet", "masknet2", "denoise", *REGISTRATION_NETWORKS)
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -33,7 +33,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "--model",
         choices=list(MODELS),
         default="masknet",
-        help="masknet (partial pairs), denoise (MaskNet scoring the points of a source "
+        help="masknet (partial pairs), masknet2 (the two-sided MaskNet: template and "
+        "source masks, trained with outliers and clutter in the source; --init names the "
+        "MaskNet it starts from, default modelnet40), denoise (MaskNet scoring the points of a source "
         "with outliers, 10%% by default), or a registration network: pointnetlk, dcp, "
         "pcrnet (full-cloud pairs, as their papers train) or prnet, rpmnet (partial pairs)",
     )
@@ -145,6 +147,18 @@ def build_task(args: argparse.Namespace) -> TrainSetup:
         if args.scans:
             task = _scans.scan_task(args, task)
         return TrainSetup(task, MaskNet, precision)
+    if args.model == "masknet2":
+        from masknet.models.two_sided import TwoSidedMaskNet
+        from masknet.training.two_sided_task import TwoSidedTask
+
+        init = {"init": args.init} if args.init else {}
+        base = MaskNetTask(pairs=pair_config(args), num_points=args.num_points)
+        if args.scans:
+            task = _scans.scan_task(args, base, TwoSidedTask, **init)
+        else:
+            task = TwoSidedTask(pairs=base.pairs, num_points=args.num_points, **init)
+        args.init = None  # the task starts from those MaskNet weights itself
+        return TrainSetup(task, TwoSidedMaskNet, precision)
     if args.scans:
         raise MaskNetError(f"--scans trains MaskNet (--model masknet), not {args.model}")
     defaults = TRAINING_DEFAULTS[args.model]

@@ -1,4 +1,5 @@
-"""Models: the PointNet encoder, MaskNet, and the learned registration networks."""
+"""Models: the PointNet encoder, MaskNet, the two-sided MaskNet, and the learned registration
+networks."""
 
 from masknet.models.dcp import DCP
 from masknet.models.layers import RegistrationSolution
@@ -8,6 +9,7 @@ from masknet.models.pointnet import PointNetEncoder, fold_batchnorm
 from masknet.models.pointnetlk import LKSolution, PointNetLK
 from masknet.models.prnet import PRNet
 from masknet.models.rpmnet import RPMNet
+from masknet.models.two_sided import TwoSidedMaskNet
 
 # Learned registration networks by method name. Each takes (template, source,
 # max_iterations=...) and returns a solution with a ``transform`` (B, 4, 4).
@@ -31,6 +33,7 @@ __all__ = [
     "REGISTRATION_NETWORKS",
     "RPMNet",
     "RegistrationSolution",
+    "TwoSidedMaskNet",
     "fold_batchnorm",
     "select_mask",
 ]

@@ -31,6 +31,7 @@ from masknet.geometry.align import centroid_alignment
 from masknet.geometry.se3 import transform_points
 from masknet.models import REGISTRATION_NETWORKS
 from masknet.models.masknet import MaskNet
+from masknet.models.two_sided import TwoSidedMaskNet
 from masknet.registration.backends import BACKENDS, BackendRun, run_icp
 from masknet.registration.methods import (
     DEFAULT_ITERATIONS,
@@ -82,6 +83,10 @@ class RegistrationResult:
             is in :mod:`masknet.models.prnet` and :mod:`masknet.models.rpmnet`); template
             points the network did not see (sampled away for its input size) are False;
             None for other methods.
+        source_mask: (M,) or (B, M) bool over the source: the points a two-sided MaskNet
+            kept in the last round (for a large single pair, each point takes the label
+            of its nearest sampled point); None for the paper's MaskNet and without a
+            mask.
     """
 
     R: np.ndarray
@@ -93,6 +98,7 @@ class RegistrationResult:
     rounds: list[np.ndarray] = field(default_factory=list)
     sampled: tuple[int, int] | None = None
     correspondence_inliers: np.ndarray | None = None
+    source_mask: np.ndarray | None = None
 
     # Open3D's names (``RegistrationResult`` of ``open3d.pipelines.registration``).
     @property
@@ -145,7 +151,7 @@ def register(
     method: str = "icp",
     use_mask: bool = True,
     iterations: int = 1,
-    model: MaskNet | None = None,
+    model: MaskNet | TwoSidedMaskNet | None = None,
     k: int | None = None,
     threshold: float | None = None,
     precision: str = "auto",
@@ -166,7 +172,9 @@ def register(
             (Open3D's global registration on FPFH features).
         use_mask: Mask-X (True) or plain X (False).
         iterations: rounds of {mask -> initialise -> register -> move the source}.
-        model: the MaskNet to use; None loads the shipped weights once.
+        model: the MaskNet to use; None loads the shipped weights once. A
+            :class:`~masknet.models.two_sided.TwoSidedMaskNet` masks both clouds: the
+            method then sees only the source points it keeps.
         k, threshold: inlier selection, as :meth:`MaskNet.predict_mask` (default
             top-k with k = M); only with ``use_mask=True``.
         precision: MaskNet's inference precision, as :meth:`MaskNet.predict`
@@ -210,17 +218,25 @@ def register(
 
     times = {"sample": 0.0, "mask": 0.0, "register": 0.0, "refine": 0.0}
     tic = time.perf_counter()
-    tpl, src, template_index = fit_to_network(tpl_full, src_full, single, max_points)
+    tpl, src, template_index, source_index = fit_to_network(tpl_full, src_full, single, max_points)
     times["sample"] = time.perf_counter() - tic
 
     b = tpl.shape[0]
     total = np.broadcast_to(np.eye(4), (b, 4, 4)).copy()
     rounds: list[np.ndarray] = []
     mask: np.ndarray | None = None
+    source_mask: np.ndarray | None = None
     run: BackendRun | None = None
     for _ in range(iterations):
         moved = _apply(total, src)
-        if use_mask:
+        if use_mask and isinstance(model, TwoSidedMaskNet):
+            tic = time.perf_counter()
+            mask, source_mask = model.predict_masks(
+                tpl, moved, k=k, threshold=threshold, precision=precision
+            )
+            moved = keep_source_points(moved, source_mask)
+            times["mask"] += time.perf_counter() - tic
+        elif use_mask:
             tic = time.perf_counter()
             mask = model.predict_mask(tpl, moved, k=k, threshold=threshold, precision=precision)
             times["mask"] += time.perf_counter() - tic
@@ -237,6 +253,8 @@ def register(
         times["refine"] = time.perf_counter() - tic
 
     inliers = run.correspondence_inliers
+    if source_index is not None and source_mask is not None:
+        source_mask = spread_mask(src_full[0], source_index, source_mask[0])[None]
     if template_index is not None:
         if mask is not None:
             mask = spread_mask(tpl_full[0], template_index, mask[0])[None]
@@ -259,7 +277,20 @@ def register(
         rounds=rounds,
         sampled=(tpl.shape[1], src.shape[1]) if single else None,
         correspondence_inliers=None if inliers is None else out(inliers),
+        source_mask=None if source_mask is None else out(source_mask),
     )
+
+
+def keep_source_points(source: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """Sources (B, M, 3) whose rejected points (``keep`` (B, M) False) are replaced by
+    kept ones, cycled in order, so a batch keeps one shape and every back-end sees only
+    kept points. A pair with fewer than 3 kept points stays as it was."""
+    out = source.copy()
+    for b in range(source.shape[0]):
+        kept = np.flatnonzero(keep[b])
+        if len(kept) >= 3 and len(kept) < source.shape[1]:
+            out[b] = source[b, np.resize(kept, source.shape[1])]
+    return out
 
 
 def _apply(transform: np.ndarray, points: np.ndarray) -> np.ndarray:

@@ -1,0 +1,121 @@
+"""Training the two-sided MaskNet: the real-scan task's pairs, corrupted in the source.
+
+:class:`TwoSidedTask` takes every batch of :class:`ScanMaskNetTask` (ModelNet40 pairs,
+sensor-like ModelNet40 views and pairs cut from real scans) and puts noise, uniform
+outliers and clutter into its source (:mod:`masknet.data.corruption`), each pair
+drawing its own amounts. The loss is BCE on the source scores against ``source_mask``.
+The encoder and the template branch start from a shipped MaskNet and stay frozen
+(:class:`~masknet.models.two_sided.TwoSidedMaskNet`), so only the source branch learns.
+
+Metrics: the source mask at score 0.5 (``f1``, ``outliers_removed``: the fraction of
+corrupted points rejected, ``inliers_kept``), and in validation the template mask's
+top-k precision with k = the kept source points (``template_precision``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from masknet.data.corruption import CorruptionConfig, corrupt_source
+from masknet.data.pairs import Pairs, derive_seed
+from masknet.evaluation.metrics import mask_metrics
+from masknet.models.masknet import MaskNet, select_mask
+from masknet.models.two_sided import TwoSidedMaskNet
+from masknet.training.scan_task import KIND_OF, ScanMaskNetTask
+
+__all__ = ["TwoSidedTask"]
+
+
+class _Corrupted:
+    """An epoch's batches with their sources corrupted; keeps the length and batch kinds."""
+
+    def __init__(self, batches, config: CorruptionConfig, seed: int, epoch: int) -> None:
+        self.batches, self.config, self.seed, self.epoch = batches, config, seed, epoch
+
+    def __len__(self) -> int:
+        return len(self.batches)
+
+    def __iter__(self) -> Iterator[Pairs]:
+        for i, batch in enumerate(self.batches):
+            gen = torch.Generator().manual_seed(derive_seed(self.seed, self.epoch, 0xC0, i))
+            yield corrupt_source(batch, self.config, gen)
+
+
+@dataclass
+class TwoSidedTask(ScanMaskNetTask):
+    """See the module docstring.
+
+    corruption: what goes into the sources.
+    init: the shipped MaskNet weights the encoder and template branch start from
+        (a name for :meth:`MaskNet.pretrained`), or "" for random ones.
+    """
+
+    corruption: CorruptionConfig = field(default_factory=CorruptionConfig)
+    init: str = "modelnet40"
+    name: str = "masknet2"
+    metric: str = "f1"
+    loss: str = "bce"
+
+    def __post_init__(self) -> None:
+        if not self.scans:  # ModelNet40 alone
+            self.scan_batches = 0
+            return
+        super().__post_init__()
+
+    def build_model(self) -> nn.Module:
+        if not self.init:
+            return TwoSidedMaskNet(**self.model_config)
+        if self.init.endswith(".safetensors"):
+            masknet = MaskNet.from_file(self.init)
+        else:
+            masknet = MaskNet.pretrained(self.init)
+        return TwoSidedMaskNet.from_masknet(masknet, **self.model_config)
+
+    def train_batches(self, points: np.ndarray, batch_size: int, seed: int, epoch: int):
+        return _Corrupted(
+            super().train_batches(points, batch_size, seed, epoch), self.corruption, seed, epoch
+        )
+
+    def val_batches(
+        self, points: np.ndarray, num_pairs: int, batch_size: int, seed: int
+    ) -> list[Pairs]:
+        batches = super().val_batches(points, num_pairs, batch_size, seed)
+        return list(_Corrupted(batches, self.corruption, seed + 7919, 0xBA1))
+
+    def step(
+        self, model: nn.Module, batch: Pairs, device: torch.device
+    ) -> tuple[Tensor, dict[str, float]]:
+        template, source = batch.template.to(device), batch.source.to(device)
+        truth = batch.source_mask.to(device)
+        template_logits, source_logits = model(
+            template, source, logits=True, template_branch=not model.training
+        )
+        loss = nn.functional.binary_cross_entropy_with_logits(source_logits.float(), truth.float())
+        with torch.no_grad():
+            kept = source_logits >= 0
+            m = mask_metrics(kept, truth).mean()
+            corrupted = (~truth).sum().clamp_min(1)
+            metrics = {
+                "f1": m["f1"],
+                "outliers_removed": float((~kept & ~truth).sum() / corrupted),
+                "inliers_kept": float((kept & truth).sum() / truth.sum().clamp_min(1)),
+            }
+            if not model.training:
+                k = kept.sum(-1).clamp_min(3)
+                selected = select_mask(template_logits.float(), k=k)
+                metrics["template_precision"] = float(
+                    mask_metrics(selected, batch.mask.to(device)).mean()["precision"]
+                )
+        kind = KIND_OF[type(batch)]
+        return loss, metrics | {f"{kind}_{k}": v for k, v in metrics.items()}
+
+    def describe_extra(self) -> dict:
+        return super().describe_extra() | {
+            "corruption": self.corruption.to_dict(),
+            "init": self.init,
+        }
