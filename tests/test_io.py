@@ -319,3 +319,45 @@ def test_write_text_atomic(tmp_path):
 def test_supported_tuples():
     assert set(SUPPORTED_WRITE) <= set(SUPPORTED_READ)
     assert all(e.startswith(".") and e == e.lower() for e in SUPPORTED_READ)
+
+
+def test_ply_header_that_disagrees_with_its_body_is_an_error(tmp_path):
+    points = np.random.default_rng(0).random((50, 3))
+    write_points(tmp_path / "a.ply", points)
+    binary = (tmp_path / "a.ply").read_bytes()
+    (tmp_path / "short.ply").write_bytes(binary.replace(b"element vertex 50", b"element vertex 10"))
+    with pytest.raises(MaskNetError, match=r"short\.ply: the PLY header declares 10 vertices"):
+        read_points(tmp_path / "short.ply")
+    header = "ply\nformat ascii 1.0\nelement vertex 100\nproperty float x\nproperty float y\n"
+    body = "\n".join(" ".join(f"{v:.4f}" for v in p) for p in points)
+    text = header + "property float z\nend_header\n" + body + "\n"
+    (tmp_path / "lying.ply").write_text(text)
+    with pytest.raises(MaskNetError, match="declares 100 vertices but the body has 50 rows"):
+        read_points(tmp_path / "lying.ply")
+    (tmp_path / "true.ply").write_text(text.replace("vertex 100", "vertex 50"))
+    assert read_points(tmp_path / "true.ply").shape == (50, 3)
+
+
+def test_degenerate_and_absurd_clouds_are_named(tmp_path, capsys):
+    cases = {
+        "same.npy": (np.ones((20, 3)), "all 20 points are identical"),
+        "line.npy": (np.outer(np.arange(20.0), [1, 2, 3]), "lie on one line"),
+        "huge.npy": (
+            np.full((20, 3), 1e39) * np.random.default_rng(0).random((20, 3)),
+            "beyond float32",
+        ),
+    }
+    for name, (points, message) in cases.items():
+        np.save(tmp_path / name, points)
+        with pytest.raises(MaskNetError, match=message) as info:
+            read_points(tmp_path / name)
+        assert name in str(info.value)
+    few = np.random.default_rng(1).random((5, 3))
+    np.save(tmp_path / "few.npy", few)
+    assert read_points(tmp_path / "few.npy").shape == (5, 3)
+    far = np.concatenate([np.random.default_rng(2).random((200, 3)), [[1e6, 0, 0]]])
+    np.save(tmp_path / "far.npy", far)
+    read_points(tmp_path / "far.npy")
+    err = capsys.readouterr().err
+    assert "few.npy: only 5 points; the result is unreliable" in err
+    assert "far.npy: one point lies" in err

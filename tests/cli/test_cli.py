@@ -188,9 +188,10 @@ def test_bad_numbers_are_rejected_by_the_parser(args, capsys):
 
 
 def _read_transform(path) -> np.ndarray:
-    lines = path.read_text().splitlines()
-    assert lines[0].startswith("source -> template")
-    return np.array([[float(v) for v in line.split()] for line in lines[1:]])
+    assert path.read_text().startswith("# source -> template")
+    transform = np.loadtxt(path)  # the header is a comment
+    assert transform.shape == (4, 4)
+    return transform
 
 
 @pytest.mark.parametrize("extension", [".ply", ".xyz", ".npy"])
@@ -310,3 +311,14 @@ def test_register_two_sided_drops_source_outliers(tmp_path, capsys):
     assert "source kept:" in capsys.readouterr().out
     assert "rejected" in (tmp_path / "v.html").read_text()
     assert main([*args, "--two-sided", "--no-mask"]) == 2
+
+
+def test_register_robust_from_the_command_line(tmp_path, pair_files, capsys):
+    template, source, pair = pair_files
+    out = tmp_path / "r.npy"
+    assert main(["register", str(template), str(source), "-o", str(out), "--method", "robust"]) == 0
+    text = capsys.readouterr().out
+    assert "Mask-ICP (robust)" in text and "source kept:" in text
+    transform = np.loadtxt(tmp_path / "r_transform.txt")
+    rot = transform[:3, :3] @ pair.transform[0, :3, :3].numpy().T
+    assert np.degrees(np.arccos(np.clip((np.trace(rot) - 1) / 2, -1, 1))) < 5

@@ -29,9 +29,10 @@ def _expected(query: torch.Tensor, reference: torch.Tensor, k: int):
 
 @pytest.mark.parametrize("k", [1, 4])
 @pytest.mark.parametrize("chunk_size", [4096, 7, 1])
-def test_knn_matches_kdtree(k, chunk_size):
+@pytest.mark.parametrize("method", ["tree", "brute"])
+def test_knn_matches_kdtree(k, chunk_size, method):
     query, reference = _clouds(2, 37, 50, seed=k)
-    result = knn_points(query, reference, k=k, chunk_size=chunk_size)
+    result = knn_points(query, reference, k=k, chunk_size=chunk_size, method=method)
     assert isinstance(result, KNN)
     assert result.dists.shape == (2, 37, k) and result.idx.shape == (2, 37, k)
     assert result.idx.dtype == torch.int64
@@ -42,7 +43,7 @@ def test_knn_matches_kdtree(k, chunk_size):
 
 def test_knn_float32_matches_kdtree():
     query, reference = _clouds(3, 64, 40, dtype=torch.float32, seed=5)
-    result = knn_points(query, reference, k=3, chunk_size=10)
+    result = knn_points(query, reference, k=3, chunk_size=10, method="brute")
     assert result.dists.dtype == torch.float32
     exp_d, exp_i = _expected(query, reference, 3)
     np.testing.assert_array_equal(result.idx.numpy(), exp_i)
@@ -68,7 +69,7 @@ def test_knn_self_query_finds_itself():
 def test_knn_chunked_equals_unchunked():
     query, reference = _clouds(2, 101, 33, dtype=torch.float32, seed=4)
     a = knn_points(query, reference, k=5)
-    b = knn_points(query, reference, k=5, chunk_size=16)
+    b = knn_points(query, reference, k=5, chunk_size=16, method="brute")
     assert torch.equal(a.idx, b.idx)
     torch.testing.assert_close(a.dists, b.dists)
 
@@ -77,7 +78,7 @@ def test_knn_chunked_equals_unchunked():
 def test_knn_block_bound_splits_queries_not_results(block_elements):
     # a bound below one query row per batch still searches one row at a time
     query, reference = _clouds(2, 101, 33, seed=6)
-    result = knn_points(query, reference, k=3, block_elements=block_elements)
+    result = knn_points(query, reference, k=3, block_elements=block_elements, method="brute")
     exp_d, exp_i = _expected(query, reference, 3)
     np.testing.assert_array_equal(result.idx.numpy(), exp_i)
     np.testing.assert_allclose(result.dists.numpy(), exp_d, rtol=1e-9, atol=1e-12)
@@ -101,7 +102,7 @@ def test_knn_reference_valid_matches_kdtree_on_valid_subset():
     query, reference = _clouds(2, 31, 40, seed=6)
     g = torch.Generator().manual_seed(6)
     valid = torch.rand(2, 40, generator=g) < 0.5
-    result = knn_points(query, reference, k=3, chunk_size=8, reference_valid=valid)
+    result = knn_points(query, reference, k=3, chunk_size=8, reference_valid=valid, method="brute")
     for b in range(2):
         kept = torch.nonzero(valid[b])[:, 0]
         exp_d, exp_i = _expected(query[b : b + 1], reference[b : b + 1, kept], 3)
@@ -135,3 +136,28 @@ def test_knn_reference_valid_bad_shape_or_dtype_raises():
         knn_points(query, reference, reference_valid=torch.ones(2, 5, dtype=torch.bool))
     with pytest.raises(ValueError, match="reference_valid"):
         knn_points(query, reference, reference_valid=torch.ones(2, 6))
+
+
+@pytest.mark.parametrize("k", [1, 4])
+def test_tree_and_brute_agree_with_masks_and_padding(k):
+    gen = torch.Generator().manual_seed(5)
+    q, r = torch.rand(3, 50, 3, generator=gen), torch.rand(3, 70, 3, generator=gen)
+    valid = torch.rand(3, 70, generator=gen) > 0.5
+    valid[2] = False
+    valid[2, :2] = True  # fewer than k valid points in the last cloud when k = 4
+    tree = knn_points(q, r, k, reference_valid=valid, method="tree")
+    brute = knn_points(q, r, k, reference_valid=valid, method="brute")
+    assert torch.equal(tree.idx, brute.idx)
+    assert torch.allclose(tree.dists, brute.dists, atol=1e-5)
+
+
+def test_tree_distances_carry_gradients():
+    q = torch.rand(1, 20, 3, dtype=torch.float64, requires_grad=True)
+    r = torch.rand(1, 30, 3, dtype=torch.float64)
+    knn_points(q, r, 2, method="tree").dists.sum().backward()
+    assert q.grad is not None and q.grad.abs().sum() > 0
+
+
+def test_unknown_method_raises():
+    with pytest.raises(ValueError, match="auto, tree or brute"):
+        knn_points(torch.rand(1, 4, 3), torch.rand(1, 4, 3), method="ball")

@@ -4,8 +4,11 @@ writing outputs all-or-nothing."""
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
+import os
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -196,14 +199,47 @@ def write_views(path: str, layers: dict[str, np.ndarray | tuple], title: str) ->
     return [html, png]
 
 
+def check_outputs(paths: list[Path], text: tuple[str, ...] = (".txt", ".html")) -> None:
+    """Refuse, before any computing, outputs that cannot be written: an unsupported
+    extension (point files; ``text`` suffixes are always fine), a path that is a
+    directory, or a parent that is not a writable directory (missing ones are made)."""
+    from masknet.io import SUPPORTED_WRITE
+
+    for path in paths:
+        ext = path.suffix.lower()
+        if ext not in SUPPORTED_WRITE and ext not in text:
+            raise MaskNetError(
+                f"{path}: cannot write extension {ext or '(none)'!r} "
+                f"(supported: {', '.join(SUPPORTED_WRITE)})"
+            )
+        if path.is_dir():
+            raise MaskNetError(f"{path}: is a directory, not a file")
+        parent = next((p for p in [path.parent, *path.parent.parents] if p.exists()), Path("."))
+        if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+            raise MaskNetError(f"{path}: cannot write into {parent} (not a writable directory)")
+
+
 def write_all(writers: list[tuple[Path, Callable[[Path], None]]]) -> None:
-    """Write every output or none: on a failure, remove those already written."""
-    done: list[Path] = []
+    """Write every output or none, and never lose a file that was there before: each
+    output goes to a temporary file beside its target, and all are moved into place
+    only once every one has been written."""
+    staged: list[tuple[str, Path]] = []
     try:
         for path, write in writers:
-            write(path)
-            done.append(path)
-    except Exception:
-        for path in done:
-            path.unlink(missing_ok=True)
-        raise
+            path.parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(
+                prefix=f".{path.name}.part", suffix=path.suffix, dir=path.parent
+            )
+            os.close(fd)
+            staged.append((tmp, path))
+            write(Path(tmp))
+        for tmp, path in staged:
+            os.replace(tmp, path)
+    except OSError as exc:
+        raise MaskNetError(
+            f"{exc.filename or 'output'}: cannot write ({exc.strerror or exc})"
+        ) from exc
+    finally:
+        for tmp, _ in staged:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)

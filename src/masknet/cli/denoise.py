@@ -8,6 +8,7 @@ from pathlib import Path
 from masknet.cli._common import (
     add_file_options,
     add_model_options,
+    check_outputs,
     finite_float,
     load_model,
     write_all,
@@ -63,6 +64,8 @@ def run(args: argparse.Namespace) -> None:
 
     if not 0 <= args.threshold <= 1:
         raise MaskNetError(f"--threshold must be in [0, 1], got {args.threshold}")
+    out = Path(args.output)
+    check_outputs([out] + ([Path(args.html)] if args.html else []))
     noisy = read_points(args.noisy, drop_nonfinite=args.drop_nonfinite)
     template = read_points(args.template, drop_nonfinite=args.drop_nonfinite)
     if args.method == "distance":
@@ -79,7 +82,6 @@ def run(args: argparse.Namespace) -> None:
             precision=args.inference_precision,
         )
         rule = f"MaskNet score >= {args.threshold}"
-    out = Path(args.output)
     mask_path = out.with_name(out.stem + "_mask.txt")
     write_all(
         [

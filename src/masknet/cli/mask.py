@@ -9,6 +9,7 @@ from masknet.cli._common import (
     add_cloud_arguments,
     add_file_options,
     add_model_options,
+    check_outputs,
     finite_float,
     load_model,
     positive_int,
@@ -47,6 +48,8 @@ def run(args: argparse.Namespace) -> None:
 
     from masknet.io import read_points, write_mask, write_points
 
+    out = Path(args.output)
+    check_outputs([out] + ([Path(args.html)] if args.html else []))
     template = read_points(args.template, drop_nonfinite=args.drop_nonfinite)
     source = read_points(args.source, drop_nonfinite=args.drop_nonfinite)
     model = load_model(args)
@@ -58,7 +61,6 @@ def run(args: argparse.Namespace) -> None:
         precision=args.inference_precision,
         return_scores=True,
     )
-    out = Path(args.output)
     mask_path = out.with_name(out.stem + "_mask.txt")
     write_all(
         [

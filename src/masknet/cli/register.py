@@ -10,6 +10,7 @@ from masknet.cli._common import (
     add_cloud_arguments,
     add_file_options,
     add_model_options,
+    check_outputs,
     load_model,
     positive_int,
     write_all,
@@ -39,8 +40,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "--method",
         choices=list(METHODS),
         default="icp",
-        help="icp (default), a learned network (pointnetlk, dcp, prnet, pcrnet, rpmnet; "
-        "shipped weights unless --network-weights), or Open3D's icp / RANSAC / FGR on FPFH",
+        help="icp (default); robust: two-sided Mask-ICP from 24 rotation hypotheses, "
+        "scored and refined (any rotation, outliers; about 20x slower); a learned network "
+        "(pointnetlk, dcp, prnet, pcrnet, rpmnet; shipped weights unless --network-weights); "
+        "or Open3D's icp / RANSAC / FGR on FPFH",
     )
     p.add_argument(
         "--network-weights",
@@ -71,7 +74,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         metavar="N",
         help="end with N iterations of plain ICP on the whole template (default 0)",
     )
-    p.add_argument("--init", choices=["centroid", "identity"], default="centroid")
+    p.add_argument(
+        "--init",
+        choices=["centroid", "identity"],
+        default="centroid",
+        help="start of each round: centroid (default; the source centroid onto the centroid "
+        "of the template points in use) or identity (no motion)",
+    )
     p.add_argument(
         "--max-points",
         type=positive_int,
@@ -93,10 +102,14 @@ def run(args: argparse.Namespace) -> None:
 
     if args.refine < 0:
         raise MaskNetError(f"--refine must be >= 0, got {args.refine}")
+    out = Path(args.output)
+    check_outputs([out] + ([Path(args.html)] if args.html else []))
     template = read_points(args.template, drop_nonfinite=args.drop_nonfinite)
     source = read_points(args.source, drop_nonfinite=args.drop_nonfinite)
     if args.two_sided and args.no_mask:
         raise MaskNetError("--two-sided and --no-mask exclude each other")
+    if args.method == "robust" and not args.no_mask:
+        args.two_sided = True  # the robust pipeline's default mask
     if args.two_sided and args.pretrained == "modelnet40":
         args.pretrained = "scans"  # the shipped two-sided weights
     model = None if args.no_mask else load_model(args, two_sided=args.two_sided)
@@ -123,9 +136,9 @@ def run(args: argparse.Namespace) -> None:
         **options,
     )
     moved = source @ result.R.T + result.t
-    out = Path(args.output)
     transform_path = out.with_name(out.stem + "_transform.txt")
-    header = "source -> template: template ~= R @ source + t, [[R, t], [0, 0, 0, 1]]"
+    # '#' comments, so that np.loadtxt reads the 4x4 matrix as it is.
+    header = "# source -> template: template ~= R @ source + t, [[R, t], [0, 0, 0, 1]]"
     text = header + "\n" + "\n".join(" ".join(f"{v:.10g}" for v in row) for row in result.transform)
     writers = [
         (out, lambda p: write_points(p, moved)),

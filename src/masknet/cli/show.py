@@ -16,7 +16,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("clouds", nargs="+", help="point cloud files, one layer each")
     p.add_argument("-o", "--output", required=True, help="the .html file; the PNG goes beside it")
-    p.add_argument("--title", default=None)
+    p.add_argument("--title", default=None, help="the viewer's title (default: the file names)")
     add_file_options(p, html=False)
 
 

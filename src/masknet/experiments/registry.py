@@ -21,6 +21,7 @@ from masknet.experiments import (
     outliers,
     precision_vs_missing,
     registration,
+    robust,
     rotation_sweep,
     scans,
     timing,
@@ -44,6 +45,7 @@ EXPERIMENTS: dict[str, Callable[[BenchmarkContext], ExperimentResult]] = {
     "denoising": denoising.run,
     "outliers": outliers.run,
     "scans": scans.run,
+    "robust": robust.run,
 }
 
 

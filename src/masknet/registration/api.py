@@ -27,12 +27,10 @@ from typing import Any
 import numpy as np
 import torch
 
-from masknet.geometry.align import centroid_alignment
-from masknet.geometry.se3 import transform_points
 from masknet.models import REGISTRATION_NETWORKS
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
-from masknet.registration.backends import BACKENDS, BackendRun, run_icp
+from masknet.registration.backends import run_icp
 from masknet.registration.methods import (
     DEFAULT_ITERATIONS,
     GLOBAL_METHODS,
@@ -41,6 +39,8 @@ from masknet.registration.methods import (
     METHODS,
     NETWORK_METHODS,
 )
+from masknet.registration.robust import RobustOptions, robust_register
+from masknet.registration.rounds import apply_transform, mask_and_register
 from masknet.registration.sampling import fit_to_network, spread_mask
 from masknet.registration.validation import as_numpy_batch, check_arguments
 
@@ -139,6 +139,12 @@ def _default_model() -> MaskNet:
     return MaskNet.pretrained()
 
 
+@functools.lru_cache(maxsize=1)
+def _default_two_sided() -> TwoSidedMaskNet:
+    """The shipped two-sided MaskNet, the robust method's default, loaded once."""
+    return TwoSidedMaskNet.pretrained()
+
+
 @functools.cache
 def _default_network(method: str) -> torch.nn.Module:
     """The shipped weights of a learned registration network, loaded once per process."""
@@ -169,10 +175,14 @@ def register(
             point-to-point ICP, pair by pair), a learned network: ``"pointnetlk"``,
             ``"dcp"``, ``"prnet"``, ``"pcrnet"`` or ``"rpmnet"`` (the shipped weights
             unless ``network=`` is given), ``"open3d-ransac"`` or ``"open3d-fgr"``
-            (Open3D's global registration on FPFH features).
+            (Open3D's global registration on FPFH features), or ``"robust"``: Mask-ICP
+            from 24 rotation hypotheses, batched, scored by a trimmed fit and refined
+            (:mod:`masknet.registration.robust`; any rotation, outliers in the source;
+            about 20x the time of one Mask-ICP).
         use_mask: Mask-X (True) or plain X (False).
         iterations: rounds of {mask -> initialise -> register -> move the source}.
-        model: the MaskNet to use; None loads the shipped weights once. A
+        model: the MaskNet to use; None loads the shipped weights once (for
+            ``"robust"`` the two-sided ``masknet2_scans``, else ``masknet_modelnet40``). A
             :class:`~masknet.models.two_sided.TwoSidedMaskNet` masks both clouds: the
             method then sees only the source points it keeps.
         k, threshold: inlier selection, as :meth:`MaskNet.predict_mask` (default
@@ -186,7 +196,9 @@ def register(
             against the whole template (0: none).
         max_points: single pairs larger than this are subsampled for the method
             (farthest point sampling); batches must already fit.
-        **options: for the method. ``"icp"``: ``max_iterations`` (default 10),
+        **options: for the method. ``"robust"``: the fields of
+            :class:`~masknet.registration.robust.RobustOptions` (it ignores
+            ``iterations``, ``init``, ``k`` and ``threshold``). ``"icp"``: ``max_iterations`` (default 10),
             ``tolerance``, ``max_correspondence_distance``. ``"open3d-icp"``:
             ``max_iterations`` (default 10), ``max_correspondence_distance``,
             ``relative_fitness``, ``relative_rmse``. Learned networks: ``max_iterations``
@@ -212,7 +224,7 @@ def register(
     if method not in GLOBAL_METHODS:
         options.setdefault("max_iterations", DEFAULT_ITERATIONS[method])
     if use_mask and model is None:
-        model = _default_model()
+        model = _default_two_sided() if method == "robust" else _default_model()
     if method in NETWORK_METHODS and options.get("network") is None:
         options["network"] = _default_network(method)
 
@@ -221,38 +233,39 @@ def register(
     tpl, src, template_index, source_index = fit_to_network(tpl_full, src_full, single, max_points)
     times["sample"] = time.perf_counter() - tic
 
-    b = tpl.shape[0]
-    total = np.broadcast_to(np.eye(4), (b, 4, 4)).copy()
-    rounds: list[np.ndarray] = []
-    mask: np.ndarray | None = None
-    source_mask: np.ndarray | None = None
-    run: BackendRun | None = None
-    for _ in range(iterations):
-        moved = _apply(total, src)
-        if use_mask and isinstance(model, TwoSidedMaskNet):
-            tic = time.perf_counter()
-            mask, source_mask = model.predict_masks(
-                tpl, moved, k=k, threshold=threshold, precision=precision
-            )
-            moved = keep_source_points(moved, source_mask)
-            times["mask"] += time.perf_counter() - tic
-        elif use_mask:
-            tic = time.perf_counter()
-            mask = model.predict_mask(tpl, moved, k=k, threshold=threshold, precision=precision)
-            times["mask"] += time.perf_counter() - tic
-        tic = time.perf_counter()
-        start_tf = _initial_transform(init, moved, tpl, mask)
-        run = BACKENDS[method](tpl, _apply(start_tf, moved), mask, options)
-        times["register"] += time.perf_counter() - tic
-        total = run.transform @ start_tf @ total
-        rounds.append(total[0].copy() if single else total.copy())
+    if method == "robust":
+        robust = robust_register(
+            tpl, src, model if use_mask else None, RobustOptions(**options), times, precision
+        )
+        total, mask, source_mask = robust.transform, robust.mask, robust.source_mask
+        info, inliers, rounds = (
+            robust.info,
+            None,
+            [robust.transform[0] if single else robust.transform],
+        )
+    else:
+        state = mask_and_register(
+            tpl,
+            src,
+            method,
+            model if use_mask else None,
+            iterations,
+            options,
+            times,
+            k=k,
+            threshold=threshold,
+            precision=precision,
+            init=init,
+        )
+        total, mask, source_mask = state.transform, state.mask, state.source_mask
+        info, inliers = state.run.info, state.run.correspondence_inliers
+        rounds = [r[0] if single else r for r in state.rounds]
     if refine_iterations:
         tic = time.perf_counter()
         refine_options = {"max_iterations": refine_iterations}
-        total = run_icp(tpl, _apply(total, src), None, refine_options).transform @ total
+        total = run_icp(tpl, apply_transform(total, src), None, refine_options).transform @ total
         times["refine"] = time.perf_counter() - tic
 
-    inliers = run.correspondence_inliers
     if source_index is not None and source_mask is not None:
         source_mask = spread_mask(src_full[0], source_index, source_mask[0])[None]
     if template_index is not None:
@@ -273,37 +286,9 @@ def register(
         transform=out(total),
         mask=None if mask is None else out(mask),
         times=times,
-        info={key: out(value) for key, value in run.info.items()},
+        info={key: out(value) for key, value in info.items()},
         rounds=rounds,
         sampled=(tpl.shape[1], src.shape[1]) if single else None,
         correspondence_inliers=None if inliers is None else out(inliers),
         source_mask=None if source_mask is None else out(source_mask),
     )
-
-
-def keep_source_points(source: np.ndarray, keep: np.ndarray) -> np.ndarray:
-    """Sources (B, M, 3) whose rejected points (``keep`` (B, M) False) are replaced by
-    kept ones, cycled in order, so a batch keeps one shape and every back-end sees only
-    kept points. A pair with fewer than 3 kept points stays as it was."""
-    out = source.copy()
-    for b in range(source.shape[0]):
-        kept = np.flatnonzero(keep[b])
-        if len(kept) >= 3 and len(kept) < source.shape[1]:
-            out[b] = source[b, np.resize(kept, source.shape[1])]
-    return out
-
-
-def _apply(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """(B, 4, 4) transforms applied to (B, P, 3) points (numpy wrapper of the SE(3) module)."""
-    return transform_points(torch.from_numpy(transform), torch.from_numpy(points)).numpy()
-
-
-def _initial_transform(
-    init: str, source: np.ndarray, template: np.ndarray, mask: np.ndarray | None
-) -> np.ndarray:
-    if init == "identity":
-        return np.broadcast_to(np.eye(4), (source.shape[0], 4, 4)).copy()
-    valid = None if mask is None else torch.from_numpy(mask)
-    return centroid_alignment(
-        template=torch.from_numpy(template), source=torch.from_numpy(source), template_valid=valid
-    ).numpy()

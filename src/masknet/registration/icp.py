@@ -29,8 +29,8 @@ class ICPSolution(NamedTuple):
     """Result of :func:`icp` (and of :func:`masknet.registration.open3d_icp`).
 
     transform: (B, 4, 4) source -> template, ``template ~= source @ R.T + t``.
-    converged: (B,) bool, True where the change in mean squared error fell below
-        the tolerance before ``max_iterations``.
+    converged: (B,) bool, True where the relative change in mean squared error fell
+        to the tolerance before ``max_iterations``.
     iterations: (B,) int64, updates applied (-1 where the backend does not report it).
     fitness: (B,) fraction of source points with a template point within
         ``max_correspondence_distance`` at the final transform (Open3D's definition).
@@ -93,7 +93,8 @@ def icp(
             identity.
         max_iterations: most updates per pair (0 just evaluates ``init``).
         tolerance: a pair stops, converged, once its mean squared inlier distance
-            changes by less than this in one iteration.
+            changes by at most this fraction of itself in one iteration (relative, as
+            Open3D's ``relative_rmse``, so the result does not depend on the unit).
         max_correspondence_distance: pairs farther apart are not used (and do not
             count towards fitness); None keeps every pair.
         template_valid: (B, N) bool; template points marked False are never matched
@@ -146,6 +147,10 @@ def icp(
             template = template[template_valid].view(b, int(counts[0]), 3)
             template_valid = None
 
+    # Exact fits shrink the error geometrically, never slowing in relative terms: below
+    # (1e-7 of the template's size)^2 a pair has converged too (also unit-free).
+    size2 = (template.double() - template.double().mean(1, keepdim=True)).square().sum(-1).mean(1)
+    floor = 1e-14 * size2
     m = _match(transform, template, source, max_correspondence_distance, template_valid)
     converged = torch.zeros(b, dtype=torch.bool, device=device)
     iterations = torch.zeros(b, dtype=torch.int64, device=device)
@@ -160,7 +165,9 @@ def icp(
         prev_mse = m.mse
         m = _match(transform, template, source, max_correspondence_distance, template_valid)
         has_inliers = m.fitness > 0
-        newly = ~done & has_inliers & ((prev_mse - m.mse).abs() < tolerance)
+        # Relative, so that a cloud in millimetres stops where the same cloud in metres does.
+        settled = ((prev_mse - m.mse).abs() <= tolerance * prev_mse) | (m.mse <= floor)
+        newly = ~done & has_inliers & settled
         converged |= newly
         done |= newly | ~has_inliers
     return ICPSolution(

@@ -17,10 +17,11 @@ __all__ = [
 NETWORK_METHODS = tuple(REGISTRATION_NETWORKS)  # pointnetlk, dcp, prnet, pcrnet, rpmnet
 # Open3D's global registration on FPFH features: no iteration budget, no init.
 GLOBAL_METHODS = ("open3d-ransac", "open3d-fgr")
-METHODS = ("icp", "open3d-icp", *NETWORK_METHODS, *GLOBAL_METHODS)
+METHODS = ("icp", "robust", "open3d-icp", *NETWORK_METHODS, *GLOBAL_METHODS)
 # Each method's display name (X of "Mask-X").
 METHOD_TITLES = {
     "icp": "ICP",
+    "robust": "ICP (robust)",
     "open3d-icp": "Open3D-ICP",
     "pointnetlk": "PointNetLK",
     "dcp": "DCP",
@@ -33,6 +34,19 @@ METHOD_TITLES = {
 # The options (``**options`` of register) each method accepts.
 OPTIONS = {
     "icp": ("max_iterations", "tolerance", "max_correspondence_distance"),
+    # masknet.registration.robust.RobustOptions' fields
+    "robust": (
+        "hypotheses",
+        "hypothesis_points",
+        "candidates",
+        "hypothesis_mask",
+        "identity_margin",
+        "rounds",
+        "max_iterations",
+        "trim",
+        "refine_iterations",
+        "refine_distance",
+    ),
     "open3d-icp": (
         "max_iterations",
         "max_correspondence_distance",
