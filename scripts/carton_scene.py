@@ -111,11 +111,13 @@ def main() -> None:
     from masknet.cli._common import write_views
 
     moved = model @ model_to_scene[:3, :3].T + model_to_scene[:3, 3]
-    write_views(
-        str(out / "ground_truth.html"),
-        {"scene": scene, "carton (ground truth)": moved},
-        "Carton: ground truth",
-    )
+    # The scene within 25 cm of the carton, so that the fit can be checked by eye.
+    near = scene[np.linalg.norm(scene - moved.mean(0), axis=1) < 0.25]
+    layers = {
+        "scene (25 cm around)": (near, "#9a9a9a"),
+        "carton (ground truth)": (moved, "#d62728"),
+    }
+    write_views(str(out / "ground_truth.html"), layers, "Carton: ground truth")
 
     two_sided = TwoSidedMaskNet.pretrained()
     pipelines = {
@@ -146,12 +148,12 @@ def main() -> None:
         print(row, flush=True)
         if name == "robust (two-sided)":
             moved_scene = scene @ result.R.T + result.t
-            layers = {"carton": model, "scene, registered": moved_scene}
+            layers = {"carton": (model, "#9a9a9a"), "scene, registered": (moved_scene, "#1f77b4")}
             if result.source_mask is not None:
                 layers = {
-                    "carton": model,
-                    "kept": moved_scene[result.source_mask],
-                    "rejected": moved_scene[~result.source_mask],
+                    "carton": (model, "#9a9a9a"),
+                    "kept": (moved_scene[result.source_mask], "#2ca02c"),
+                    "rejected": (moved_scene[~result.source_mask], "#ff7f0e"),
                 }
             write_views(str(out / "robust.html"), layers, "Carton in the scene: robust")
     (out / "carton.json").write_text(
