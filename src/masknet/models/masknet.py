@@ -99,6 +99,25 @@ def select_mask(
     return ranks < ks[:, None]
 
 
+def prepare_inputs(
+    template: np.ndarray,
+    source: np.ndarray,
+    normalize: bool,
+    precision: str,
+    device: torch.device,
+) -> tuple[Tensor, Tensor, bool, str]:
+    """Numpy clouds as a network's ``predict`` takes them: validated float32 batches
+    (B, N, 3) and (B, M, 3), scaled by each template's radius when ``normalize``, whether
+    the input was one pair, and ``precision`` with ``"auto"`` resolved for ``device``."""
+    t, s, single = as_cloud_batch(template, source)
+    if normalize:
+        radius = unit_radius(t)[:, None, None]
+        t, s = t / radius, s / radius
+    if precision == "auto":
+        precision = default_precision(device)
+    return t, s, single, precision
+
+
 class MaskNet(SafetensorsWeights, nn.Module):
     """The MaskNet network.
 
@@ -203,13 +222,8 @@ class MaskNet(SafetensorsWeights, nn.Module):
         Returns:
             scores (N,) or (B, N), float32 in [0, 1].
         """
-        t, s, single = as_cloud_batch(template, source)
-        if normalize:
-            radius = unit_radius(t)[:, None, None]
-            t, s = t / radius, s / radius
         device = next(self.parameters()).device
-        if precision == "auto":
-            precision = default_precision(device)
+        t, s, single, precision = prepare_inputs(template, source, normalize, precision, device)
         fused = self.fused(precision)
         step = max(1, pairs_per_call)
         out = torch.cat(

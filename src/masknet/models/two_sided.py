@@ -39,12 +39,16 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from masknet.geometry.clouds import as_cloud_batch, unit_radius
 from masknet.geometry.knn import knn_points
 from masknet.models.layers import gather_points
-from masknet.models.masknet import PAIRS_PER_CALL, MaskNet, centre_pair, select_mask
+from masknet.models.masknet import (
+    PAIRS_PER_CALL,
+    MaskNet,
+    centre_pair,
+    prepare_inputs,
+    select_mask,
+)
 from masknet.models.weights import SafetensorsWeights
-from masknet.runtime import default_precision
 
 __all__ = ["TwoSidedMaskNet", "local_offsets"]
 
@@ -191,13 +195,8 @@ class TwoSidedMaskNet(SafetensorsWeights, nn.Module):
         """Scores for numpy clouds: template (N, 3) or (B, N, 3), source (M, 3) or
         (B, M, 3) -> (template scores (N,) or (B, N), source scores (M,) or (B, M)),
         float32 in [0, 1]. ``normalize`` and ``precision`` as :meth:`MaskNet.predict`."""
-        t, s, single = as_cloud_batch(template, source)
-        if normalize:
-            radius = unit_radius(t)[:, None, None]
-            t, s = t / radius, s / radius
         device = next(self.parameters()).device
-        if precision == "auto":
-            precision = default_precision(device)
+        t, s, single, precision = prepare_inputs(template, source, normalize, precision, device)
         was_training = self.training
         self.eval()
         step = max(1, pairs_per_call)
