@@ -87,10 +87,13 @@ def main() -> None:
             # register()'s own time, as the command prints it ("...; 123.4 ms").
             line = next(x for x in row["stdout"] if x.startswith("rotation"))
             row["register_ms"] = float(line.rsplit(";", 1)[1].split()[0])
+            mask = _run(["mask", str(d / template), str(d / source), "-o", str(d / "in.npy")])
+            row["mask_seconds"], row["mask_peak_rss_gib"] = mask["seconds"], mask["peak_rss_gib"]
             rows.append(row)
             print(
                 f"{name}: {row['seconds']:.1f} s for the command, {row['register_ms']:.0f} ms in "
-                f"register, peak {row['peak_rss_gib']:.2f} GiB",
+                f"register, peak {row['peak_rss_gib']:.2f} GiB; masknet mask "
+                f"{row['mask_seconds']:.1f} s, peak {row['mask_peak_rss_gib']:.2f} GiB",
                 flush=True,
             )
     if args.out:

@@ -72,3 +72,12 @@ def test_points_are_drawn_in_a_real_browser(tmp_path, shape):
     # The toggle's starting state is honoured: no red points, the green ones remain
     # (the legend swatch is the only red left).
     assert _count(hidden, red) < 150 and _count(hidden, green) > 300
+
+
+def test_legends_say_when_a_layer_is_subsampled(tmp_path):
+    from masknet.viewer import MAX_POINTS_PER_LAYER, write_viewer
+
+    big = np.random.default_rng(0).random((MAX_POINTS_PER_LAYER + 500, 3))
+    page = write_viewer(tmp_path / "v.html", {"big": big, "small": big[:10]}).read_text()
+    assert f"{MAX_POINTS_PER_LAYER:,} of {len(big):,} shown" in page
+    assert '"count":"10"' in page

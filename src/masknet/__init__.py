@@ -12,10 +12,9 @@ The transform convention for every registration result is documented in
 :mod:`masknet.geometry.se3`: ``template ~= R @ source + t``.
 """
 
-from masknet.denoising import DenoiseResult, denoise
+from typing import TYPE_CHECKING
+
 from masknet.errors import MaskNetError
-from masknet.models import MaskNet, select_mask
-from masknet.registration import RegistrationResult, register
 
 __version__ = "0.1.0"
 __all__ = [
@@ -28,3 +27,33 @@ __all__ = [
     "select_mask",
     "__version__",
 ]
+
+# Names loaded on first use (PEP 562), so that ``import masknet.cli`` and ``masknet
+# --help`` do not import torch.
+_LAZY = {
+    "DenoiseResult": "masknet.denoising",
+    "denoise": "masknet.denoising",
+    "MaskNet": "masknet.models",
+    "select_mask": "masknet.models",
+    "RegistrationResult": "masknet.registration",
+    "register": "masknet.registration",
+}
+
+if TYPE_CHECKING:
+    from masknet.denoising import DenoiseResult, denoise
+    from masknet.models import MaskNet, select_mask
+    from masknet.registration import RegistrationResult, register
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'masknet' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

@@ -155,13 +155,17 @@ def _open3d_failure(captured: str) -> str | None:
 # --------------------------------------------------------------------------- reading
 
 
-def read_points(path: PathLike, drop_nonfinite: bool = False) -> np.ndarray:
+def read_points(
+    path: PathLike, drop_nonfinite: bool = False, return_rows: bool = False
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Read a point cloud file into a float64 array (N, 3), N >= 3, all finite.
 
     Args:
         path: a ``.ply``, ``.pcd``, ``.xyz``, ``.txt``, ``.csv``, ``.npy`` or ``.bin``
             file (see the module docstring for the formats).
         drop_nonfinite: drop rows containing NaN or inf instead of raising.
+        return_rows: also return ``rows`` (P,) bool over the file's rows, True for
+            those kept, so that per-point outputs can be laid out row for row.
 
     Raises:
         MaskNetError: the file is missing, a directory, of an unsupported type,
@@ -190,11 +194,13 @@ def read_points(path: PathLike, drop_nonfinite: bool = False) -> np.ndarray:
         raise
     except OSError as exc:
         raise MaskNetError(f"{name}: cannot read file ({exc.strerror or exc})") from exc
-    return _validate(points, name, drop_nonfinite)
+    points, rows = _validate(points, name, drop_nonfinite)
+    return (points, rows) if return_rows else points
 
 
-def _validate(points: np.ndarray, name: str, drop_nonfinite: bool) -> np.ndarray:
-    """Check shape, finiteness and size; return the first 3 columns as float64 (N, 3)."""
+def _validate(points: np.ndarray, name: str, drop_nonfinite: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Check shape, finiteness and size; return the first 3 columns as float64 (N, 3),
+    and which of the file's rows they are ((P,) bool)."""
     if points.dtype.kind not in "iuf":
         raise MaskNetError(f"{name}: expected numbers, got an array of dtype {points.dtype}")
     if points.ndim != 2 or points.shape[1] < 3:
@@ -228,7 +234,7 @@ def _validate(points: np.ndarray, name: str, drop_nonfinite: bool) -> np.ndarray
             f"({FLOAT32_MAX:.3g}); rescale the cloud"
         )
     check_geometry(points, name)
-    return points
+    return points, finite
 
 
 FLOAT32_MAX = float(np.finfo(np.float32).max)

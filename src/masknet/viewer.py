@@ -18,7 +18,7 @@ import numpy as np
 
 from masknet.errors import MaskNetError
 from masknet.io import write_text_atomic
-from masknet.viz import display_points
+from masknet.viz import display_points, point_count_label
 
 __all__ = ["Layer", "write_viewer", "LAYER_COLOURS"]
 
@@ -68,7 +68,16 @@ def write_viewer(
         points, colour = layer if isinstance(layer, tuple) else (layer, None)
         colour = colour or LAYER_COLOURS.get(name, _PALETTE[i % len(_PALETTE)])
         coords = _layer_json(points)
-        data.append({"name": name, "colour": colour, "xyz": coords, "visible": name not in hidden})
+        count = point_count_label(len(coords) // 3, len(np.asarray(points).reshape(-1, 3)))
+        data.append(
+            {
+                "name": name,
+                "colour": colour,
+                "xyz": coords,
+                "count": count,
+                "visible": name not in hidden,
+            }
+        )
     page = _TEMPLATE.replace("__TITLE__", html.escape(title)).replace(
         "__DATA__", json.dumps(data, separators=(",", ":"))
     )
@@ -107,7 +116,7 @@ const toggles = document.getElementById("toggles");
 layers.forEach((l, k) => {
   const label = document.createElement("label");
   label.innerHTML = `<input type="checkbox" ${l.visible ? "checked" : ""} data-k="${k}">` +
-    `<span class="sw" style="background:${l.colour}"></span>${l.name} (${l.xyz.length / 3})`;
+    `<span class="sw" style="background:${l.colour}"></span>${l.name} (${l.count})`;
   label.querySelector("input").onchange = e => { layers[k].visible = e.target.checked; draw(); };
   toggles.appendChild(label);
 });

@@ -81,6 +81,11 @@ def plot_mask(
     return _save(fig, path)
 
 
+def point_count_label(shown: int, total: int) -> str:
+    """``"1,234"``, or ``"20,000 of 241,407 shown"`` for a subsampled layer."""
+    return f"{total:,}" if shown == total else f"{shown:,} of {total:,} shown"
+
+
 def display_points(points: np.ndarray, max_points: int) -> np.ndarray:
     """Finite rows of (P, 3) points, evenly subsampled to at most ``max_points`` for drawing."""
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
@@ -106,9 +111,12 @@ def plot_clouds(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    clouds = {}
+    clouds, counts = {}, {}
     for name, (points, colour) in layers.items():
         clouds[name] = (display_points(points, max_points), colour)
+        counts[name] = point_count_label(
+            len(clouds[name][0]), len(np.asarray(points).reshape(-1, 3))
+        )
     every = np.concatenate([p for p, _ in clouds.values()])
     mid = (every.max(0) + every.min(0)) / 2
     half = max((every.max(0) - every.min(0)).max() / 2, 1e-12)
@@ -116,7 +124,7 @@ def plot_clouds(
     for i, (elev, azim) in enumerate(((20, -60), (70, 30))):
         ax = fig.add_subplot(1, 2, i + 1, projection="3d")
         for name, (points, colour) in clouds.items():
-            ax.scatter(*points.T, s=2, c=colour, label=f"{name} ({len(points)})")
+            ax.scatter(*points.T, s=2, c=colour, label=f"{name} ({counts[name]})")
         for axis, centre in zip("xyz", mid, strict=True):
             getattr(ax, f"set_{axis}lim")(centre - half, centre + half)
             getattr(ax, f"set_{axis}label")(axis)

@@ -322,3 +322,78 @@ def test_register_robust_from_the_command_line(tmp_path, pair_files, capsys):
     transform = np.loadtxt(tmp_path / "r_transform.txt")
     rot = transform[:3, :3] @ pair.transform[0, :3, :3].numpy().T
     assert np.degrees(np.arccos(np.clip((np.trace(rot) - 1) / 2, -1, 1))) < 5
+
+
+def test_help_does_not_import_torch_and_names_agree():
+    code = "import sys, masknet.cli; masknet.cli.build_parser(); print('torch' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+    from masknet.models import REGISTRATION_NETWORKS
+    from masknet.names import METHOD_TITLES, METHODS, NETWORK_METHODS
+
+    assert NETWORK_METHODS == tuple(REGISTRATION_NETWORKS)
+    assert set(METHODS) == set(METHOD_TITLES)
+
+
+def test_mask_files_have_a_line_per_input_row_after_drop_nonfinite(tmp_path, pair_files):
+    template, source, _ = pair_files
+    points = np.loadtxt(template)
+    points[[3, 10]] = np.nan
+    np.savetxt(tmp_path / "t.xyz", points)
+    out = tmp_path / "m.xyz"
+    args = ["mask", str(tmp_path / "t.xyz"), str(source), "-o", str(out), "--drop-nonfinite"]
+    assert main(args) == 0
+    mask = np.loadtxt(tmp_path / "m_mask.txt")
+    assert mask.shape == (len(points),) and mask[3] == 0 and mask[10] == 0
+    np.testing.assert_allclose(np.loadtxt(out).reshape(-1, 3), points[mask.astype(bool)], atol=1e-6)
+
+
+def test_a_failed_write_keeps_the_files_that_were_there(tmp_path, pair_files):
+    template, source, _ = pair_files
+    folder = tmp_path / "d"
+    (folder / "o_inliers.ply").mkdir(parents=True)  # this output cannot be written
+    (folder / "o.ply").write_text("OLD")
+    (folder / "o_transform.txt").write_text("OLD")
+    assert main(["register", str(template), str(source), "-o", str(folder / "o.ply")]) == 2
+    assert (folder / "o.ply").read_text() == "OLD"
+    assert (folder / "o_transform.txt").read_text() == "OLD"
+    assert sorted(p.name for p in folder.iterdir()) == ["o.ply", "o_inliers.ply", "o_transform.txt"]
+
+
+def test_output_paths_are_checked_before_computing(tmp_path, pair_files, capsys):
+    template, source, _ = pair_files
+    assert main(["register", str(template), str(source), "-o", str(tmp_path / "noext")]) == 2
+    assert "cannot write extension '(none)'" in capsys.readouterr().err
+
+
+def test_write_all_is_all_or_nothing_and_keeps_earlier_files(tmp_path):
+    from masknet.cli._common import write_all
+    from masknet.errors import MaskNetError
+
+    a, b = tmp_path / "a.txt", tmp_path / "b.txt"
+    a.write_text("OLD")
+
+    def fail(path):
+        raise MaskNetError(f"{path}: cannot write (disk full)")
+
+    with pytest.raises(MaskNetError, match="disk full"):
+        write_all([(a, lambda p: p.write_text("NEW")), (b, fail)])
+    assert a.read_text() == "OLD" and not b.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt"]  # no temporary files left
+    write_all([(a, lambda p: p.write_text("NEW")), (b, lambda p: p.write_text("B"))])
+    assert a.read_text() == "NEW" and b.read_text() == "B"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt", "b.txt"]
+
+
+def test_progress_speaks_only_for_slow_steps(capsys):
+    import time
+
+    from masknet.cli._common import progress
+
+    with progress("quick step", after=0.5):
+        pass
+    with progress("slow step", after=0.05):
+        time.sleep(0.3)
+    err = capsys.readouterr().err
+    assert "quick step" not in err
+    assert "masknet: slow step ..." in err and "masknet: slow step: done in" in err

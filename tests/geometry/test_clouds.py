@@ -37,3 +37,11 @@ def test_as_cloud_batch_single_and_batched():
 def test_as_cloud_batch_rejects_bad_clouds(template, source, match):
     with pytest.raises(MaskNetError, match=match):
         as_cloud_batch(template, source)
+
+
+@pytest.mark.parametrize(
+    "bad", [np.full((10, 3), "1.0"), np.ones((10, 3), dtype=bool), np.empty((10, 3), dtype=object)]
+)
+def test_non_numeric_clouds_are_one_clear_error(bad):
+    with pytest.raises(MaskNetError, match="template must hold numbers; got an array of dtype"):
+        as_cloud_batch(bad, np.ones((10, 3)))

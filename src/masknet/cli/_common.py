@@ -9,7 +9,7 @@ import json
 import math
 import os
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -128,7 +128,9 @@ def add_cloud_arguments(p: argparse.ArgumentParser, source_help: str) -> None:
 def add_file_options(p: argparse.ArgumentParser, html: bool = True) -> None:
     """Options of every command that reads clouds from files (and optionally shows them)."""
     p.add_argument(
-        "--drop-nonfinite", action="store_true", help="drop NaN/inf rows instead of failing"
+        "--drop-nonfinite",
+        action="store_true",
+        help="drop NaN/inf rows instead of failing (they are 0 in mask files)",
     )
     if html:
         p.add_argument(
@@ -199,6 +201,47 @@ def write_views(path: str, layers: dict[str, np.ndarray | tuple], title: str) ->
     return [html, png]
 
 
+PROGRESS_AFTER_S = 2.0  # steps that take longer say so on stderr
+
+
+@contextlib.contextmanager
+def progress(label: str, after: float | None = None) -> Iterator[None]:
+    """Print ``masknet: <label> ...`` to stderr once a step has run ``after`` seconds
+    (default :data:`PROGRESS_AFTER_S`), and its time when it ends; quick steps print
+    nothing."""
+    import sys
+    import threading
+    import time
+
+    start = time.perf_counter()
+    shown = threading.Event()
+
+    def announce() -> None:
+        shown.set()
+        print(f"masknet: {label} ...", file=sys.stderr, flush=True)
+
+    timer = threading.Timer(PROGRESS_AFTER_S if after is None else after, announce)
+    timer.daemon = True
+    timer.start()
+    try:
+        yield
+    finally:
+        timer.cancel()
+        if shown.is_set():
+            elapsed = time.perf_counter() - start
+            print(f"masknet: {label}: done in {elapsed:.1f} s", file=sys.stderr, flush=True)
+
+
+def file_rows(mask: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """A per-point mask (K,) laid out over the input file's rows (P,): rows dropped as
+    non-finite (``rows`` False) get False, so line i of a mask file is row i of the input."""
+    import numpy as np
+
+    full = np.zeros(len(rows), dtype=bool)
+    full[rows] = mask
+    return full
+
+
 def check_outputs(paths: list[Path], text: tuple[str, ...] = (".txt", ".html")) -> None:
     """Refuse, before any computing, outputs that cannot be written: an unsupported
     extension (point files; ``text`` suffixes are always fine), a path that is a
@@ -220,12 +263,19 @@ def check_outputs(paths: list[Path], text: tuple[str, ...] = (".txt", ".html")) 
 
 
 def write_all(writers: list[tuple[Path, Callable[[Path], None]]]) -> None:
-    """Write every output or none, and never lose a file that was there before: each
-    output goes to a temporary file beside its target, and all are moved into place
-    only once every one has been written."""
+    """Write every output or none, and never lose a file that was there before.
+
+    Each output is written to a temporary file beside its target; only when all have
+    been written are they moved into place, each earlier file kept aside until every
+    move has succeeded, and put back if one fails.
+    """
     staged: list[tuple[str, Path]] = []
+    kept: list[tuple[str, Path]] = []  # (earlier file moved aside, its path)
+    placed: list[Path] = []
     try:
         for path, write in writers:
+            if path.is_dir():
+                raise MaskNetError(f"{path}: is a directory, not a file")
             path.parent.mkdir(parents=True, exist_ok=True)
             fd, tmp = tempfile.mkstemp(
                 prefix=f".{path.name}.part", suffix=path.suffix, dir=path.parent
@@ -234,12 +284,27 @@ def write_all(writers: list[tuple[Path, Callable[[Path], None]]]) -> None:
             staged.append((tmp, path))
             write(Path(tmp))
         for tmp, path in staged:
+            if path.exists():
+                aside = f"{tmp}.earlier"
+                os.replace(path, aside)
+                kept.append((aside, path))
             os.replace(tmp, path)
-    except OSError as exc:
-        raise MaskNetError(
-            f"{exc.filename or 'output'}: cannot write ({exc.strerror or exc})"
-        ) from exc
+            placed.append(path)
+    except BaseException as exc:
+        for path in placed:
+            with contextlib.suppress(OSError):
+                path.unlink()
+        for aside, path in kept:
+            with contextlib.suppress(OSError):
+                os.replace(aside, path)
+        if isinstance(exc, OSError):
+            name = exc.filename or "output"
+            raise MaskNetError(f"{name}: cannot write ({exc.strerror or exc})") from exc
+        raise
     finally:
         for tmp, _ in staged:
             with contextlib.suppress(OSError):
                 os.unlink(tmp)
+    for aside, _ in kept:
+        with contextlib.suppress(OSError):
+            os.unlink(aside)

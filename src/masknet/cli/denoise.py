@@ -9,6 +9,7 @@ from masknet.cli._common import (
     add_file_options,
     add_model_options,
     check_outputs,
+    file_rows,
     finite_float,
     load_model,
     write_all,
@@ -66,7 +67,9 @@ def run(args: argparse.Namespace) -> None:
         raise MaskNetError(f"--threshold must be in [0, 1], got {args.threshold}")
     out = Path(args.output)
     check_outputs([out] + ([Path(args.html)] if args.html else []))
-    noisy = read_points(args.noisy, drop_nonfinite=args.drop_nonfinite)
+    noisy, noisy_rows = read_points(
+        args.noisy, drop_nonfinite=args.drop_nonfinite, return_rows=True
+    )
     template = read_points(args.template, drop_nonfinite=args.drop_nonfinite)
     if args.method == "distance":
         result = denoise(noisy, template, method="distance", max_distance=args.max_distance)
@@ -86,7 +89,7 @@ def run(args: argparse.Namespace) -> None:
     write_all(
         [
             (out, lambda p: write_points(p, result.points)),
-            (mask_path, lambda p: write_mask(p, result.mask)),
+            (mask_path, lambda p: write_mask(p, file_rows(result.mask, noisy_rows))),
         ]
     )
     removed = int((~result.mask).sum())

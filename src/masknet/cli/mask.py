@@ -10,6 +10,7 @@ from masknet.cli._common import (
     add_file_options,
     add_model_options,
     check_outputs,
+    file_rows,
     finite_float,
     load_model,
     positive_int,
@@ -50,7 +51,9 @@ def run(args: argparse.Namespace) -> None:
 
     out = Path(args.output)
     check_outputs([out] + ([Path(args.html)] if args.html else []))
-    template = read_points(args.template, drop_nonfinite=args.drop_nonfinite)
+    template, template_rows = read_points(
+        args.template, drop_nonfinite=args.drop_nonfinite, return_rows=True
+    )
     source = read_points(args.source, drop_nonfinite=args.drop_nonfinite)
     model = load_model(args)
     mask, scores = model.predict_mask(
@@ -65,7 +68,7 @@ def run(args: argparse.Namespace) -> None:
     write_all(
         [
             (out, lambda p: write_points(p, template[mask])),
-            (mask_path, lambda p: write_mask(p, mask)),
+            (mask_path, lambda p: write_mask(p, file_rows(mask, template_rows))),
         ]
     )
     if args.threshold is not None:

@@ -11,13 +11,15 @@ from masknet.cli._common import (
     add_file_options,
     add_model_options,
     check_outputs,
+    file_rows,
     load_model,
     positive_int,
+    progress,
     write_all,
     write_views,
 )
 from masknet.errors import MaskNetError
-from masknet.registration import METHOD_TITLES, METHODS
+from masknet.names import METHOD_TITLES, METHODS
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -103,9 +105,18 @@ def run(args: argparse.Namespace) -> None:
     if args.refine < 0:
         raise MaskNetError(f"--refine must be >= 0, got {args.refine}")
     out = Path(args.output)
-    check_outputs([out] + ([Path(args.html)] if args.html else []))
-    template = read_points(args.template, drop_nonfinite=args.drop_nonfinite)
-    source = read_points(args.source, drop_nonfinite=args.drop_nonfinite)
+    derived = [out.with_name(out.stem + "_transform.txt")]
+    if not args.no_mask:
+        derived.append(out.with_name(out.stem + "_inliers" + out.suffix))
+    if args.two_sided or args.method == "robust":
+        derived.append(out.with_name(out.stem + "_source_mask.txt"))
+    check_outputs([out, *derived] + ([Path(args.html)] if args.html else []))
+    with progress(f"reading {args.template}"):
+        template = read_points(args.template, drop_nonfinite=args.drop_nonfinite)
+    with progress(f"reading {args.source}"):
+        source, source_rows = read_points(
+            args.source, drop_nonfinite=args.drop_nonfinite, return_rows=True
+        )
     if args.two_sided and args.no_mask:
         raise MaskNetError("--two-sided and --no-mask exclude each other")
     if args.method == "robust" and not args.no_mask:
@@ -122,19 +133,20 @@ def run(args: argparse.Namespace) -> None:
         if args.method not in REGISTRATION_NETWORKS:
             raise MaskNetError(f"--network-weights needs a learned --method, not {args.method}")
         options["network"] = REGISTRATION_NETWORKS[args.method].from_file(args.network_weights)
-    result = register(
-        template,
-        source,
-        method=args.method,
-        use_mask=not args.no_mask,
-        iterations=args.iterations,
-        model=model,
-        precision=getattr(args, "inference_precision", "auto"),
-        init=args.init,
-        refine_iterations=args.refine,
-        max_points=args.max_points,
-        **options,
-    )
+    with progress(f"registering {len(source):,} onto {len(template):,} points ({args.method})"):
+        result = register(
+            template,
+            source,
+            method=args.method,
+            use_mask=not args.no_mask,
+            iterations=args.iterations,
+            model=model,
+            precision=getattr(args, "inference_precision", "auto"),
+            init=args.init,
+            refine_iterations=args.refine,
+            max_points=args.max_points,
+            **options,
+        )
     moved = source @ result.R.T + result.t
     transform_path = out.with_name(out.stem + "_transform.txt")
     # '#' comments, so that np.loadtxt reads the 4x4 matrix as it is.
@@ -151,8 +163,11 @@ def run(args: argparse.Namespace) -> None:
         from masknet.io import write_mask
 
         source_mask_path = out.with_name(out.stem + "_source_mask.txt")
-        writers.append((source_mask_path, lambda p: write_mask(p, result.source_mask)))
-    write_all(writers)
+        writers.append(
+            (source_mask_path, lambda p: write_mask(p, file_rows(result.source_mask, source_rows)))
+        )
+    with progress("writing the outputs"):
+        write_all(writers)
 
     name = ("" if args.no_mask else "Mask-") + METHOD_TITLES[args.method]
     n, m = result.sampled

@@ -15,12 +15,12 @@ from masknet.cli._common import (
     seed,
 )
 from masknet.errors import MaskNetError
-from masknet.models import REGISTRATION_NETWORKS
+from masknet.names import NETWORK_METHODS
 
 if TYPE_CHECKING:
     from masknet.training import Task
 
-MODELS = ("masknet", "masknet2", "denoise", *REGISTRATION_NETWORKS)
+MODELS = ("masknet", "masknet2", "denoise", *NETWORK_METHODS)
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -179,6 +179,8 @@ def build_task(args: argparse.Namespace) -> TrainSetup:
             f"--precision bf16 does not suit {args.model}: registration networks train "
             "in fp32 (PointNetLK's finite-difference Jacobian and the SVDs need it)"
         )
+    from masknet.models import REGISTRATION_NETWORKS
+
     return TrainSetup(task, REGISTRATION_NETWORKS[args.model], "fp32")
 
 

@@ -25,8 +25,9 @@ def as_cloud_batch(template: np.ndarray, source: np.ndarray) -> tuple[Tensor, Te
     return batched float32 tensors (B, N, 3), (B, M, 3) and whether the input was one pair.
 
     Raises:
-        MaskNetError: mismatched or wrong shapes, fewer than :data:`MIN_POINTS` points,
-            NaN or inf coordinates, or different batch sizes.
+        MaskNetError: a dtype that is not numeric (bool, strings, objects), mismatched
+            or wrong shapes, fewer than :data:`MIN_POINTS` points, NaN or inf
+            coordinates, or different batch sizes.
     """
     t, s = np.asarray(template), np.asarray(source)
     if t.ndim != s.ndim or t.ndim not in (2, 3):
@@ -37,6 +38,8 @@ def as_cloud_batch(template: np.ndarray, source: np.ndarray) -> tuple[Tensor, Te
     if single:
         t, s = t[None], s[None]
     for name, a in (("template", t), ("source", s)):
+        if a.dtype.kind not in "iuf":  # not bool, strings or objects
+            raise MaskNetError(f"{name} must hold numbers; got an array of dtype {a.dtype}")
         if a.shape[-1] != 3:
             raise MaskNetError(f"{name} must have 3 columns (x, y, z); got shape {a.shape}")
         if a.shape[1] < MIN_POINTS:

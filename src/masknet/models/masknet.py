@@ -314,9 +314,19 @@ class FusedMaskNet(nn.Module):
         b, n, _ = template.shape
         tpl, src = centre_pair(template.float(), source.float(), self.centring)
         tpl, src = tpl.to(dtype), src.to(dtype)
-        g = self._encode(src.reshape(-1, 3)).reshape(b, source.shape[1], -1).amax(1)
-        g = g @ self.head_global.t() + self.head_template[1]  # (B, H): once per cloud
         step = n if chunk_size is None else chunk_size
+        # The source's global feature, max-pooled chunk by chunk: the same maximum in
+        # memory that does not grow with M.
+        m_step = source.shape[1] if chunk_size is None else chunk_size
+        g = torch.stack(
+            [
+                self._encode(src[:, i : i + m_step].reshape(-1, 3))
+                .reshape(b, -1, self.head_global.shape[1])
+                .amax(1)
+                for i in range(0, source.shape[1], m_step)
+            ]
+        ).amax(0)
+        g = g @ self.head_global.t() + self.head_template[1]  # (B, H): once per cloud
         out = []
         for start in range(0, n, step):
             part = tpl[:, start : start + step]

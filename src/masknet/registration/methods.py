@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from masknet.models import REGISTRATION_NETWORKS
+from masknet.names import GLOBAL_METHODS, METHOD_TITLES, METHODS, NETWORK_METHODS
 
 __all__ = [
     "DEFAULT_ITERATIONS",
@@ -14,23 +15,6 @@ __all__ = [
     "OPTIONS",
 ]
 
-NETWORK_METHODS = tuple(REGISTRATION_NETWORKS)  # pointnetlk, dcp, prnet, pcrnet, rpmnet
-# Open3D's global registration on FPFH features: no iteration budget, no init.
-GLOBAL_METHODS = ("open3d-ransac", "open3d-fgr")
-METHODS = ("icp", "robust", "open3d-icp", *NETWORK_METHODS, *GLOBAL_METHODS)
-# Each method's display name (X of "Mask-X").
-METHOD_TITLES = {
-    "icp": "ICP",
-    "robust": "ICP (robust)",
-    "open3d-icp": "Open3D-ICP",
-    "pointnetlk": "PointNetLK",
-    "dcp": "DCP",
-    "prnet": "PRNet",
-    "pcrnet": "PCRNet",
-    "rpmnet": "RPM-Net",
-    "open3d-ransac": "Open3D-RANSAC",
-    "open3d-fgr": "Open3D-FGR",
-}
 # The options (``**options`` of register) each method accepts.
 OPTIONS = {
     "icp": ("max_iterations", "tolerance", "max_correspondence_distance"),

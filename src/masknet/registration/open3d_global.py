@@ -39,7 +39,9 @@ def open3d_fpfh_ransac(
     """RANSAC on FPFH matches (Open3D); returns (transform (4, 4), fitness, inlier_rmse).
 
     Arguments in masknet's order: template (N, 3), then source (M, 3), the points to move.
-    ``seed`` fixes Open3D's random generator, so a run is repeatable.
+    ``seed`` fixes Open3D's random generator, but Open3D runs RANSAC's trials in
+    parallel threads with an early stop, so two runs can still differ (Open3D issue
+    7475). Set ``OMP_NUM_THREADS=1`` before the process starts for repeatable results.
     """
     o3d = require_open3d("Open3D RANSAC registration")
     reg = o3d.pipelines.registration
