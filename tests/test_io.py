@@ -361,3 +361,25 @@ def test_degenerate_and_absurd_clouds_are_named(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "few.npy: only 5 points; the result is unreliable" in err
     assert "far.npy: one point lies" in err
+
+
+def test_pcd_header_that_disagrees_with_its_body_is_an_error(tmp_path):
+    pytest.importorskip("open3d")
+    write_points(tmp_path / "a.pcd", np.random.default_rng(0).random((50, 3)))
+    raw = (tmp_path / "a.pcd").read_bytes()
+    assert read_points(tmp_path / "a.pcd").shape == (50, 3)
+    lying = raw.replace(b"WIDTH 50", b"WIDTH 500").replace(b"POINTS 50", b"POINTS 500")
+    (tmp_path / "more.pcd").write_bytes(lying)
+    with pytest.raises(
+        MaskNetError,
+        match=r"more\.pcd: truncated or corrupt .pcd file \(the header declares 500 points",
+    ):
+        read_points(tmp_path / "more.pcd")
+    (tmp_path / "wh.pcd").write_bytes(raw.replace(b"POINTS 50", b"POINTS 40"))
+    with pytest.raises(MaskNetError, match="declares 40 points but WIDTH x HEIGHT is 50 x 1"):
+        read_points(tmp_path / "wh.pcd")
+    header = "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
+    text = header + "WIDTH 5\nHEIGHT 1\nPOINTS 5\nDATA ascii\n" + "0 0 0\n1 0 0\n0 1 0\n"
+    (tmp_path / "rows.pcd").write_text(text)
+    with pytest.raises(MaskNetError, match="declares 5 points but the body has 3 rows"):
+        read_points(tmp_path / "rows.pcd")

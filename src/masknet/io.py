@@ -384,7 +384,74 @@ def _read_ply(name: str) -> np.ndarray:
     return _read_open3d(name, "ply")
 
 
+def _check_pcd_body(name: str) -> None:
+    """Raise if a PCD's header is inconsistent, or its body holds more or fewer points
+    than ``POINTS`` declares (ascii rows, binary bytes, or the size recorded in a
+    ``binary_compressed`` body). Open3D takes the header on trust and returns
+    uninitialised memory, or fails to allocate, when it lies."""
+    fields: dict[str, list[str]] = {}
+    with open(name, "rb") as fh:
+        for _ in range(64):
+            line = fh.readline()
+            if not line:
+                return  # no DATA line: the reader reports the file as corrupt
+            words = line.decode("latin-1").split()
+            if not words or words[0].startswith("#"):
+                continue
+            fields[words[0].upper()] = words[1:]
+            if words[0].upper() == "DATA":
+                break
+        else:
+            return
+        start = fh.tell()
+        head = fh.read(8)
+    try:
+        points = int(fields["POINTS"][0])
+        width, height = int(fields["WIDTH"][0]), int(fields["HEIGHT"][0])
+        sizes = [int(v) for v in fields["SIZE"]]
+        counts = [int(v) for v in fields.get("COUNT", ["1"] * len(sizes))]
+        data = fields["DATA"][0].lower()
+    except (KeyError, IndexError, ValueError):
+        raise MaskNetError(
+            f"{name}: corrupt .pcd header (POINTS, WIDTH, HEIGHT, SIZE or DATA)"
+        ) from None
+    if width * height != points or points < 0:
+        raise MaskNetError(
+            f"{name}: the PCD header declares {points} points but WIDTH x HEIGHT is "
+            f"{width} x {height}"
+        )
+    record = sum(sz * c for sz, c in zip(sizes, counts, strict=False))
+    body = os.path.getsize(name) - start
+    if data == "ascii":
+        with open(name, "rb") as fh:
+            fh.seek(start)
+            rows = sum(1 for row in fh if row.strip())
+        if rows != points:
+            raise MaskNetError(
+                f"{name}: the PCD header declares {points} points but the body has {rows} rows"
+            )
+    elif data == "binary" and body < points * record:
+        raise MaskNetError(
+            f"{name}: truncated or corrupt .pcd file (the header declares {points} points, "
+            f"{points * record} bytes; the body has {body})"
+        )
+    elif data == "binary" and body > points * record:
+        raise MaskNetError(
+            f"{name}: the PCD header declares {points} points ({points * record} bytes) but "
+            f"the body has data beyond them ({body} bytes)"
+        )
+    elif data == "binary_compressed" and len(head) == 8:
+        _, raw = np.frombuffer(head, dtype="<u4")
+        if int(raw) != points * record:
+            raise MaskNetError(
+                f"{name}: the PCD header declares {points} points ({points * record} bytes) but "
+                f"the compressed body holds {int(raw)} bytes"
+            )
+
+
 def _read_pcd(name: str) -> np.ndarray:
+    if os.path.isfile(name):
+        _check_pcd_body(name)
     return _read_open3d(name, "pcd")
 
 
