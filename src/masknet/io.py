@@ -280,10 +280,16 @@ def _read_open3d(name: str, fmt: str) -> np.ndarray:
     else:
         o3d = require_open3d(feature)
     verbosity = o3d.utility.VerbosityLevel.Warning  # so that failures are reported
-    with _captured_output() as out, o3d.utility.VerbosityContextManager(verbosity):
-        cloud = o3d.io.read_point_cloud(
-            name, format=fmt, remove_nan_points=False, remove_infinite_points=False
-        )
+    try:
+        with _captured_output() as out, o3d.utility.VerbosityContextManager(verbosity):
+            cloud = o3d.io.read_point_cloud(
+                name, format=fmt, remove_nan_points=False, remove_infinite_points=False
+            )
+    except MemoryError as exc:  # Open3D allocating what a corrupt header declares
+        raise MaskNetError(
+            f"{name}: truncated or corrupt .{fmt} file (its header asks for "
+            "more memory than there is)"
+        ) from exc
     failure = _open3d_failure(out.getvalue())
     if failure is not None:
         raise MaskNetError(f"{name}: unreadable, truncated or corrupt .{fmt} file ({failure})")
@@ -394,7 +400,7 @@ def _check_pcd_body(name: str) -> None:
         for _ in range(64):
             line = fh.readline()
             if not line:
-                return  # no DATA line: the reader reports the file as corrupt
+                raise MaskNetError(f"{name}: truncated or corrupt .pcd file (no DATA line)")
             words = line.decode("latin-1").split()
             if not words or words[0].startswith("#"):
                 continue
@@ -402,7 +408,7 @@ def _check_pcd_body(name: str) -> None:
             if words[0].upper() == "DATA":
                 break
         else:
-            return
+            raise MaskNetError(f"{name}: corrupt .pcd header (no DATA line)")
         start = fh.tell()
         head = fh.read(8)
     try:
@@ -482,7 +488,9 @@ def _read_text(name: str) -> np.ndarray:
 def _read_npy(name: str) -> np.ndarray:
     try:
         arr = np.load(name, allow_pickle=False)
-    except (ValueError, EOFError) as exc:
+    except (OSError, MemoryError):
+        raise
+    except Exception as exc:  # a corrupt header fails in numpy's parser in many ways
         reason = _first_line(str(exc)) or type(exc).__name__
         raise MaskNetError(f"{name}: not a valid, readable .npy file ({reason})") from exc
     if not isinstance(arr, np.ndarray):  # an .npz archive under a .npy name

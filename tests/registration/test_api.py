@@ -378,6 +378,15 @@ def test_open3d_global_methods_recover_a_clean_pair(full_pairs, method):
     assert result.info["fitness"] > 0.5
 
 
+def test_open3d_ransac_is_repeatable_and_leaves_the_thread_limit(pairs):
+    o3d = _open3d_or_skip()
+    before = o3d.utility.get_max_threads()
+    template, source = pairs.template[0].numpy(), pairs.source[0].numpy()
+    runs = [register(template, source, method="open3d-ransac", use_mask=False) for _ in range(3)]
+    assert all(np.array_equal(r.transform, runs[0].transform) for r in runs)
+    assert o3d.utility.get_max_threads() == before
+
+
 def _open3d_available() -> bool:
     try:
         require_open3d("test")

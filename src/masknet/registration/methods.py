@@ -39,7 +39,7 @@ OPTIONS = {
     ),
     "pointnetlk": ("max_iterations", "tolerance", "network"),
     **{name: ("max_iterations", "network") for name in NETWORK_METHODS if name != "pointnetlk"},
-    "open3d-ransac": ("max_iterations", "voxel_size", "confidence", "seed"),
+    "open3d-ransac": ("max_iterations", "voxel_size", "confidence", "seed", "repeatable"),
     "open3d-fgr": ("max_iterations", "voxel_size"),
 }
 DEFAULT_MAX_ITERATIONS = 10  # the paper's budget for ICP and PointNetLK

@@ -35,17 +35,37 @@ def open3d_fpfh_ransac(
     max_iterations: int = 100_000,
     confidence: float = 0.999,
     seed: int = 0,
+    repeatable: bool = True,
 ) -> tuple[np.ndarray, float, float]:
     """RANSAC on FPFH matches (Open3D); returns (transform (4, 4), fitness, inlier_rmse).
 
     Arguments in masknet's order: template (N, 3), then source (M, 3), the points to move.
-    ``seed`` fixes Open3D's random generator, but Open3D runs RANSAC's trials in
-    parallel threads with an early stop, so two runs can still differ (Open3D issue
-    7475). Set ``OMP_NUM_THREADS=1`` before the process starts for repeatable results.
+    ``seed`` fixes Open3D's random generator. Open3D runs RANSAC's trials in parallel
+    threads with an early stop, so even seeded runs can differ (Open3D issue 7475);
+    ``repeatable=True`` (the default) runs it on one thread, which makes the same input
+    and seed give the same transform (docs/RESULTS.md gives the cost).
     """
     o3d = require_open3d("Open3D RANSAC registration")
-    reg = o3d.pipelines.registration
     o3d.utility.random.seed(seed)
+    if repeatable:
+        before = o3d.utility.get_max_threads()
+        o3d.utility.set_max_threads(1)
+        try:
+            return _ransac(o3d, template, source, voxel_size, max_iterations, confidence)
+        finally:
+            o3d.utility.set_max_threads(before)
+    return _ransac(o3d, template, source, voxel_size, max_iterations, confidence)
+
+
+def _ransac(
+    o3d,
+    template: np.ndarray,
+    source: np.ndarray,
+    voxel_size: float,
+    max_iterations: int,
+    confidence: float,
+) -> tuple[np.ndarray, float, float]:
+    reg = o3d.pipelines.registration
     src, src_f = _cloud_and_features(o3d, source, voxel_size)
     tpl, tpl_f = _cloud_and_features(o3d, template, voxel_size)
     distance = 1.5 * voxel_size
