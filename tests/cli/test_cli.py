@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -397,3 +398,32 @@ def test_progress_speaks_only_for_slow_steps(capsys):
     err = capsys.readouterr().err
     assert "quick step" not in err
     assert "masknet: slow step ..." in err and "masknet: slow step: done in" in err
+
+
+def test_an_unwritable_viewer_path_fails_before_anything_is_written(tmp_path, pair_files, capsys):
+    template, source, _ = pair_files
+    blocker = tmp_path / "plain_file"
+    blocker.write_text("x")
+    args = ["register", str(template), str(source), "-o", str(tmp_path / "ok.npy")]
+    assert main([*args, "--html", str(blocker / "v.html")]) == 2
+    assert "not a writable directory" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["plain_file"]
+    if Path("/proc").is_dir():
+        assert main([*args, "--html", "/proc/v.html"]) == 2
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["plain_file"]
+
+
+def test_every_option_of_every_command_has_help_text():
+    import argparse
+
+    from masknet.cli import build_parser
+
+    parser = build_parser()
+    commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    missing = [
+        f"{name} {action.option_strings or action.dest}"
+        for name, sub in commands.choices.items()
+        for action in sub._actions
+        if not isinstance(action, argparse._HelpAction) and not action.help
+    ]
+    assert missing == []

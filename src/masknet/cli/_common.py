@@ -88,7 +88,12 @@ def add_pair_options(p: argparse.ArgumentParser) -> None:
         default=None,
         help="fraction of uniform outliers added (default 0; 0.1 when training denoise)",
     )
-    g.add_argument("--outlier-target", choices=["source", "template"], default="source")
+    g.add_argument(
+        "--outlier-target",
+        choices=["source", "template"],
+        default="source",
+        help="which cloud gets the --outliers (default source)",
+    )
     g.add_argument(
         "--categories",
         choices=["all", "seen", "unseen"],
@@ -258,8 +263,21 @@ def check_outputs(paths: list[Path], text: tuple[str, ...] = (".txt", ".html")) 
         if path.is_dir():
             raise MaskNetError(f"{path}: is a directory, not a file")
         parent = next((p for p in [path.parent, *path.parent.parents] if p.exists()), Path("."))
-        if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+        if not parent.is_dir() or not _can_create_in(parent):
             raise MaskNetError(f"{path}: cannot write into {parent} (not a writable directory)")
+
+
+def _can_create_in(folder: Path) -> bool:
+    """Whether a file can be created in ``folder``: tried, since permission bits do not
+    tell (root, read-only mounts, /proc)."""
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".masknet-probe", dir=folder)
+    except OSError:
+        return False
+    os.close(fd)
+    with contextlib.suppress(OSError):
+        os.unlink(probe)
+    return True
 
 
 def write_all(writers: list[tuple[Path, Callable[[Path], None]]]) -> None:

@@ -66,7 +66,12 @@ def add_evaluate_options(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--scan-names", type=names, metavar="NAMES", help="only these scans (file stems)"
     )
-    g.add_argument("--pairs-per-scan", type=positive_int, default=50)
+    g.add_argument(
+        "--pairs-per-scan",
+        type=positive_int,
+        default=50,
+        help="pairs cut from each scan (default 50)",
+    )
     g.add_argument(
         "--scan-points", type=positive_int, default=512, help="template points per scan pair"
     )

@@ -15,8 +15,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "demo", help="run the shipped model on the bundled sample: metrics and a picture"
     )
     p.add_argument("--out", default="masknet_demo", help="folder for the picture and metrics")
-    p.add_argument("--pairs", type=positive_int, default=240)
-    p.add_argument("--seed", type=seed, default=0)
+    p.add_argument(
+        "--pairs", type=positive_int, default=240, help="pairs to evaluate (default 240)"
+    )
+    p.add_argument("--seed", type=seed, default=0, help="seed of the pairs (default 0)")
     add_model_options(p)
 
 

@@ -25,8 +25,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "pairs cut from real scans, with ICP against Mask-ICP",
     )
     p.add_argument("--data", help="ModelNet40 folder or .npz (default: $MASKNET_DATA)")
-    p.add_argument("--pairs", type=positive_int, default=1000)
-    p.add_argument("--seed", type=seed, default=0)
+    p.add_argument("--pairs", type=positive_int, default=1000, help="test pairs (default 1000)")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the test pairs (default 0)")
     p.add_argument("--json", help="also write the results to this JSON file")
     p.add_argument(
         "--realign-rounds",

@@ -13,8 +13,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "make-sample", help="rebuild the bundled sample from the ModelNet40 test split"
     )
     p.add_argument("--data", help="ModelNet40 folder or .npz (default: $MASKNET_DATA)")
-    p.add_argument("-o", "--output", required=True)
-    p.add_argument("--per-class", type=positive_int, default=3)
+    p.add_argument("-o", "--output", required=True, help="the .npz file to write")
+    p.add_argument(
+        "--per-class", type=positive_int, default=3, help="test shapes per category (default 3)"
+    )
 
 
 def run(args: argparse.Namespace) -> None:

@@ -43,10 +43,17 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--out", required=True, help="run folder: checkpoint.safetensors, log.csv, best.safetensors"
     )
-    p.add_argument("--epochs", type=positive_int, default=100)
-    p.add_argument("--batch-size", type=positive_int, default=32)
-    p.add_argument("--lr", type=float, default=1e-4)
-    p.add_argument("--lr-schedule", choices=["constant", "cosine"], default="constant")
+    p.add_argument("--epochs", type=positive_int, default=100, help="epochs (default 100)")
+    p.add_argument(
+        "--batch-size", type=positive_int, default=32, help="pairs per step (default 32)"
+    )
+    p.add_argument("--lr", type=float, default=1e-4, help="Adam learning rate (default 1e-4)")
+    p.add_argument(
+        "--lr-schedule",
+        choices=["constant", "cosine"],
+        default="constant",
+        help="constant (default) or cosine decay over the epochs",
+    )
     p.add_argument("--loss", choices=["mse", "bce"], default="mse", help="masknet only")
     p.add_argument(
         "--feature-size",
@@ -88,8 +95,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         default=512,
         help="validation pairs made from those shapes",
     )
-    p.add_argument("--seed", type=seed, default=0)
-    p.add_argument("--device", default="auto")
+    p.add_argument("--seed", type=seed, default=0, help="seed of pairs and weights (default 0)")
+    p.add_argument(
+        "--device", default="auto", help="auto (default: a GPU if there is one), cpu, cuda, ..."
+    )
     p.add_argument("--threads", type=positive_int, help="torch CPU threads")
     p.add_argument(
         "--max-minutes",
