@@ -191,19 +191,29 @@ def load_model(args: argparse.Namespace, two_sided: bool = False) -> MaskNet:
         return MaskNet.from_file(args.weights)
 
 
-def write_views(path: str, layers: dict[str, np.ndarray | tuple], title: str) -> list[Path]:
-    """The HTML viewer and its static PNG twin, for --html and show. Layers: (P, 3) each,
-    or (points, colour)."""
+def view_writers(
+    path: str, layers: dict[str, np.ndarray | tuple], title: str
+) -> list[tuple[Path, Callable[[Path], None]]]:
+    """Writers (for :func:`write_all`) of the HTML viewer and its static PNG twin.
+    Layers: (P, 3) each, or (points, colour)."""
     from masknet.viewer import LAYER_COLOURS, write_viewer
     from masknet.viz import plot_clouds
 
-    html = write_viewer(path, layers, title=title)
     coloured = {
         name: layer if isinstance(layer, tuple) else (layer, LAYER_COLOURS.get(name, "#1f77b4"))
         for name, layer in layers.items()
     }
-    png = plot_clouds(coloured, Path(path).with_suffix(".png"), title=title)
-    return [html, png]
+    return [
+        (Path(path), lambda p: write_viewer(p, layers, title=title)),
+        (Path(path).with_suffix(".png"), lambda p: plot_clouds(coloured, p, title=title)),
+    ]
+
+
+def write_views(path: str, layers: dict[str, np.ndarray | tuple], title: str) -> list[Path]:
+    """Write the HTML viewer and its PNG twin (both or neither); returns their paths."""
+    writers = view_writers(path, layers, title)
+    write_all(writers)
+    return [p for p, _ in writers]
 
 
 PROGRESS_AFTER_S = 2.0  # steps that take longer say so on stderr

@@ -15,8 +15,8 @@ from masknet.cli._common import (
     load_model,
     positive_int,
     progress,
+    view_writers,
     write_all,
-    write_views,
 )
 from masknet.errors import MaskNetError
 from masknet.names import METHOD_TITLES, METHODS
@@ -166,10 +166,19 @@ def run(args: argparse.Namespace) -> None:
         writers.append(
             (source_mask_path, lambda p: write_mask(p, file_rows(result.source_mask, source_rows)))
         )
+    name = ("" if args.no_mask else "Mask-") + METHOD_TITLES[args.method]
+    if args.html:  # written with the others, all or nothing
+        layers = {"template": template, "source": source, "registered": moved}
+        if result.mask is not None:
+            layers["inliers"] = template[result.mask]
+        if result.source_mask is not None:
+            layers["registered"] = moved[result.source_mask]
+            layers["rejected"] = moved[~result.source_mask]
+        title = f"{name}: {Path(args.source).name} -> {Path(args.template).name}"
+        writers += view_writers(args.html, layers, title)
     with progress("writing the outputs"):
         write_all(writers)
 
-    name = ("" if args.no_mask else "Mask-") + METHOD_TITLES[args.method]
     n, m = result.sampled
     sampled = "" if (n, m) == (len(template), len(source)) else f" (sampled to {n} and {m})"
     print(f"{name}: template {len(template)} points, source {len(source)}{sampled}")
@@ -186,16 +195,3 @@ def run(args: argparse.Namespace) -> None:
         "reported: " + ", ".join(f"{k} {np.asarray(v).item():.4g}" for k, v in result.info.items())
     )
     print(f"wrote {', '.join(str(p) for p, _ in writers)}")
-    if args.html:
-        layers = {"template": template, "source": source, "registered": moved}
-        if result.mask is not None:
-            layers["inliers"] = template[result.mask]
-        if result.source_mask is not None:
-            layers["registered"] = moved[result.source_mask]
-            layers["rejected"] = moved[~result.source_mask]
-        views = write_views(
-            args.html,
-            layers,
-            title=f"{name}: {Path(args.source).name} -> {Path(args.template).name}",
-        )
-        print(f"wrote {views[0]} and {views[1]}")
