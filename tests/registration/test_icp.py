@@ -261,3 +261,24 @@ def test_keyword_names_follow_the_template_source_order(shapes):
     positional = icp(tpl, src, max_iterations=3)
     keywords = icp(source=src, template=tpl, max_iterations=3)
     torch.testing.assert_close(positional.transform, keywords.transform, atol=0, rtol=0)
+
+
+@pytest.mark.parametrize("distance", [None, 0.1])
+def test_single_pair_kdtree_loop_matches_the_batched_icp(distance):
+    from masknet.registration.icp_tree import icp_single
+
+    rng = np.random.default_rng(4)
+    template = rng.normal(size=(400, 3))
+    angle = np.radians(12)
+    rot = np.array(
+        [[np.cos(angle), -np.sin(angle), 0], [np.sin(angle), np.cos(angle), 0], [0, 0, 1]]
+    )
+    source = template[:300] @ rot.T + [0.05, -0.02, 0.03]
+    options = {"max_iterations": 30, "max_correspondence_distance": distance}
+    single = icp_single(template, source, **options)
+    batched = icp(torch.from_numpy(template)[None], torch.from_numpy(source)[None], **options)
+    np.testing.assert_allclose(single.transform.numpy(), batched.transform.numpy(), atol=1e-9)
+    assert int(single.iterations[0]) == int(batched.iterations[0])
+    assert bool(single.converged[0]) == bool(batched.converged[0])
+    np.testing.assert_allclose(single.fitness.numpy(), batched.fitness.numpy())
+    np.testing.assert_allclose(single.inlier_rmse.numpy(), batched.inlier_rmse.numpy(), atol=1e-9)

@@ -20,7 +20,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-__all__ = ["KNN", "knn_points"]
+__all__ = ["KDTreeIndex", "KNN", "knn_points"]
 
 
 class KNN(NamedTuple):
@@ -69,12 +69,7 @@ def knn_points(
         )
     if reference.shape[1] < k:
         raise ValueError(f"k={k} exceeds the {reference.shape[1]} reference points")
-    if reference_valid is not None:
-        if reference_valid.shape != reference.shape[:2] or reference_valid.dtype != torch.bool:
-            raise ValueError(
-                f"reference_valid must be a bool tensor of shape {tuple(reference.shape[:2])}, "
-                f"got {reference_valid.dtype} {tuple(reference_valid.shape)}"
-            )
+    _check_valid(reference, reference_valid)
     if method not in ("auto", "tree", "brute"):
         raise ValueError(f"method must be auto, tree or brute, got {method!r}")
     use_tree = method == "tree" or (
@@ -106,31 +101,64 @@ def knn_points(
     return KNN(torch.cat(dists, 1), torch.cat(idx, 1))
 
 
+def _check_valid(reference: Tensor, reference_valid: Tensor | None) -> None:
+    if reference_valid is not None and (
+        reference_valid.shape != reference.shape[:2] or reference_valid.dtype != torch.bool
+    ):
+        raise ValueError(
+            f"reference_valid must be a bool tensor of shape {tuple(reference.shape[:2])}, "
+            f"got {reference_valid.dtype} {tuple(reference_valid.shape)}"
+        )
+
+
+class KDTreeIndex:
+    """KD-trees over a batch of reference clouds, built once and searched many times
+    (CPU, 3-D points): what :func:`knn_points` builds on each call, kept for loops that
+    search one reference repeatedly, such as ICP.
+
+    reference: (B, R, 3); reference_valid: optional (B, R) bool, as :func:`knn_points`.
+    """
+
+    def __init__(self, reference: Tensor, reference_valid: Tensor | None = None) -> None:
+        from pykdtree.kdtree import KDTree
+
+        _check_valid(reference, reference_valid)
+        self.reference = reference
+        self.dtype = np.float64 if reference.dtype == torch.float64 else np.float32
+        r_np = reference.detach().cpu().numpy().astype(self.dtype, copy=False)
+        self.keep: list[np.ndarray | None] = []
+        self.trees = []
+        for i in range(reference.shape[0]):
+            keep = None if reference_valid is None else np.flatnonzero(reference_valid[i].numpy())
+            points = r_np[i] if keep is None else r_np[i][keep]
+            self.keep.append(keep)
+            self.trees.append(KDTree(np.ascontiguousarray(points)) if len(points) else None)
+
+    def query(self, query: Tensor, k: int = 1) -> KNN:
+        """The k nearest reference points of every query point (B, P, 3): as
+        :func:`knn_points`, distances computed in torch (they carry gradients)."""
+        b, p = query.shape[:2]
+        idx = torch.full((b, p, k), -1, dtype=torch.int64)
+        q_np = query.detach().cpu().numpy().astype(self.dtype, copy=False)
+        for i, (tree, keep) in enumerate(zip(self.trees, self.keep, strict=True)):
+            if tree is None or p == 0:
+                continue
+            found = min(k, tree.n)
+            _, near = tree.query(np.ascontiguousarray(q_np[i]), k=found)
+            near = near.astype(np.int64).reshape(p, found)
+            if keep is not None:
+                near = keep[near]
+            idx[i, :, :found] = torch.from_numpy(near)
+        idx = idx.to(query.device)
+        found = idx >= 0
+        reference = self.reference
+        neighbours = torch.gather(
+            reference, 1, idx.clamp_min(0).reshape(b, p * k, 1).expand(-1, -1, reference.shape[-1])
+        ).reshape(b, p, k, -1)
+        dists = (neighbours - query[:, :, None, :]).square().sum(-1)
+        return KNN(dists.masked_fill(~found, float("inf")), idx)
+
+
 def _knn_tree(query: Tensor, reference: Tensor, k: int, reference_valid: Tensor | None) -> KNN:
     """:func:`knn_points` by one KD-tree per batch element (pykdtree)."""
-    from pykdtree.kdtree import KDTree
-
-    b, p = query.shape[:2]
-    dtype = np.float64 if query.dtype == torch.float64 else np.float32
-    idx = torch.full((b, p, k), -1, dtype=torch.int64)
-    q_np = query.detach().cpu().numpy().astype(dtype, copy=False)
-    r_np = reference.detach().cpu().numpy().astype(dtype, copy=False)
-    for i in range(b):
-        keep = None if reference_valid is None else np.flatnonzero(reference_valid[i].numpy())
-        points = r_np[i] if keep is None else r_np[i][keep]
-        found = min(k, len(points))
-        if found == 0 or p == 0:
-            continue
-        _, near = KDTree(np.ascontiguousarray(points)).query(np.ascontiguousarray(q_np[i]), k=found)
-        near = near.astype(np.int64).reshape(p, found)
-        if keep is not None:
-            near = keep[near]
-        idx[i, :, :found] = torch.from_numpy(near)
-    idx = idx.to(query.device)
-    found = idx >= 0
-    neighbours = torch.gather(
-        reference, 1, idx.clamp_min(0).reshape(b, p * k, 1).expand(-1, -1, reference.shape[-1])
-    ).reshape(b, p, k, -1)
-    dists = (neighbours - query[:, :, None, :]).square().sum(-1)
-    dists = dists.masked_fill(~found, float("inf"))
-    return KNN(dists, idx)
+    return KDTreeIndex(reference, reference_valid).query(query, k)

@@ -19,7 +19,7 @@ import torch
 from torch import Tensor
 
 from masknet.geometry.align import rigid_align
-from masknet.geometry.knn import knn_points
+from masknet.geometry.knn import KDTreeIndex, knn_points
 from masknet.geometry.se3 import make_transform, transform_points
 
 __all__ = ["ICPSolution", "icp"]
@@ -59,10 +59,15 @@ def _match(
     source: Tensor,
     max_distance: float | None,
     template_valid: Tensor | None,
+    index: KDTreeIndex | None = None,
 ) -> _Matches:
-    """Nearest-neighbour pairs for ``source`` moved by ``transform`` (B, 4, 4) float64."""
+    """Nearest-neighbour pairs for ``source`` moved by ``transform`` (B, 4, 4) float64;
+    ``index``: the template's KD-trees, built once per call on the CPU."""
     moved = transform_points(transform.to(source.dtype), source)
-    idx = knn_points(moved, template, 1, reference_valid=template_valid).idx[..., 0]  # (B, M)
+    if index is not None:
+        idx = index.query(moved, 1).idx[..., 0]
+    else:
+        idx = knn_points(moved, template, 1, reference_valid=template_valid).idx[..., 0]  # (B, M)
     found = idx >= 0
     matched = torch.gather(template, 1, idx.clamp_min(0)[..., None].expand(-1, -1, 3)).double()
     moved = moved.double()
@@ -151,7 +156,12 @@ def icp(
     # (1e-7 of the template's size)^2 a pair has converged too (also unit-free).
     size2 = (template.double() - template.double().mean(1, keepdim=True)).square().sum(-1).mean(1)
     floor = 1e-14 * size2
-    m = _match(transform, template, source, max_correspondence_distance, template_valid)
+    index = (
+        KDTreeIndex(template, template_valid)
+        if device.type == "cpu" and template.shape[-1] == 3
+        else None
+    )
+    m = _match(transform, template, source, max_correspondence_distance, template_valid, index)
     converged = torch.zeros(b, dtype=torch.bool, device=device)
     iterations = torch.zeros(b, dtype=torch.int64, device=device)
     done = m.fitness == 0
@@ -163,7 +173,7 @@ def icp(
         transform = torch.where(done[:, None, None], transform, update)
         iterations += (~done).long()
         prev_mse = m.mse
-        m = _match(transform, template, source, max_correspondence_distance, template_valid)
+        m = _match(transform, template, source, max_correspondence_distance, template_valid, index)
         has_inliers = m.fitness > 0
         # Relative, so that a cloud in millimetres stops where the same cloud in metres does.
         settled = ((prev_mse - m.mse).abs() <= tolerance * prev_mse) | (m.mse <= floor)
