@@ -61,6 +61,7 @@ def main() -> None:
     p.add_argument("--ratios", default="0,0.05,0.1,0.2")
     p.add_argument("--methods", default="icp,pointnetlk")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--iterations", default="1,3", help="rounds of mask -> register to run")
     p.add_argument("--out")
     args = p.parse_args()
     torch.set_num_threads(2)
@@ -76,15 +77,25 @@ def main() -> None:
         tpl, src, truth = pair_arrays(pairs)
         if ratio > 0:
             denoising += denoise_rows(masks["two-sided Mask-X"], points, ratio, args)
-        for method in args.methods.split(","):
+        for method, rounds in [
+            (m, int(r)) for m in args.methods.split(",") for r in args.iterations.split(",")
+        ]:
             for name, model in masks.items():
                 tic = time.perf_counter()
-                result = register(tpl, src, method=method, use_mask=model is not None, model=model)
+                result = register(
+                    tpl,
+                    src,
+                    method=method,
+                    use_mask=model is not None,
+                    model=model,
+                    iterations=rounds,
+                )
                 rot, trans = pose_errors(result.transform, truth)
                 rows.append(
                     {
                         "outliers": ratio,
                         "method": method,
+                        "iterations": rounds,
                         "variant": name,
                         "mean_rot": float(rot.mean()),
                         "median_rot": float(np.median(rot)),

@@ -63,3 +63,10 @@ def test_robust_options_are_checked(far_pair):
         register(template, source, method="robust", trim=1.5)
     with pytest.raises(MaskNetError, match="unknown option|not an option|option"):
         register(template, source, method="robust", voxel_size=0.05)
+
+
+def test_robust_option_names_match_the_options_table():
+    from masknet.registration.methods import OPTIONS
+    from masknet.registration.robust import RobustOptions
+
+    assert set(OPTIONS["robust"]) == set(RobustOptions._fields)

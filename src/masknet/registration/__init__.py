@@ -1,7 +1,8 @@
 """Registration: ``register`` (Mask-X for every method) and the algorithms behind it.
 
 * :mod:`.api`: the facade, :func:`register` and :class:`RegistrationResult`;
-* :mod:`.methods`: method names, titles, options and defaults;
+* :mod:`.methods`: method names, titles, options and defaults; :mod:`.options`: the
+  typed options (``ICPCriteria``, ``Selection``, ``Rounds``, ``RobustOptions``);
 * :mod:`.validation` and :mod:`.sampling`: argument checks, large clouds to network size;
 * :mod:`.backends`: one adapter per method, ``(template, source, mask, options) -> run``;
 * :mod:`.icp`, :mod:`.open3d_icp`, :mod:`.open3d_global`: the algorithms (batched torch
@@ -12,12 +13,17 @@ from masknet.registration.api import RegistrationResult, register
 from masknet.registration.icp import ICPSolution, icp
 from masknet.registration.methods import METHOD_TITLES, METHODS
 from masknet.registration.open3d_icp import open3d_icp
+from masknet.registration.options import ICPCriteria, RobustOptions, Rounds, Selection
 
 __all__ = [
+    "ICPCriteria",
     "METHODS",
     "METHOD_TITLES",
     "ICPSolution",
     "RegistrationResult",
+    "RobustOptions",
+    "Rounds",
+    "Selection",
     "icp",
     "open3d_icp",
     "register",

@@ -39,6 +39,7 @@ from masknet.registration.methods import (
     METHODS,
     NETWORK_METHODS,
 )
+from masknet.registration.options import ICPCriteria, Rounds, Selection, resolve_options
 from masknet.registration.robust import RobustOptions, robust_register
 from masknet.registration.rounds import apply_transform, mask_and_register
 from masknet.registration.sampling import fit_to_network, spread_mask
@@ -164,6 +165,11 @@ def register(
     init: str = "centroid",
     refine_iterations: int = 0,
     max_points: int = 1024,
+    *,
+    criteria: ICPCriteria | None = None,
+    selection: Selection | None = None,
+    rounds: Rounds | None = None,
+    robust: RobustOptions | None = None,
     **options: Any,
 ) -> RegistrationResult:
     """Register a partial source to a full template, optionally through MaskNet's mask.
@@ -196,6 +202,10 @@ def register(
             against the whole template (0: none).
         max_points: single pairs larger than this are subsampled for the method
             (farthest point sampling); batches must already fit.
+        criteria, selection, rounds, robust: typed alternatives to the keyword arguments
+            (:mod:`masknet.registration.options`): ``ICPCriteria`` for the ICP options,
+            ``Selection(k | threshold)``, ``Rounds(n, refine)`` for ``iterations`` and
+            ``refine_iterations``, ``RobustOptions`` for ``method="robust"``.
         **options: for the method. ``"robust"``: the fields of
             :class:`~masknet.registration.robust.RobustOptions` (it ignores
             ``iterations``, ``init``, ``k`` and ``threshold``). ``"icp"``: ``max_iterations`` (default 10),
@@ -219,6 +229,13 @@ def register(
             ``"open3d-icp"``) no Open3D.
     """
     start = time.perf_counter()
+    if any(x is not None for x in (criteria, selection, rounds, robust)):
+        given = {"iterations": iterations, "refine_iterations": refine_iterations}
+        given |= {"k": k, "threshold": threshold, **options}
+        merged = resolve_options(method, given, criteria, selection, rounds, robust)
+        iterations, refine_iterations = merged.pop("iterations"), merged.pop("refine_iterations")
+        k, threshold = merged.pop("k"), merged.pop("threshold")
+        options = {key: v for key, v in merged.items() if v is not None or key in options}
     check_arguments(method, options, iterations, k, threshold, use_mask, init, refine_iterations)
     tpl_full, src_full, single = as_numpy_batch(template, source)
     if method not in GLOBAL_METHODS:

@@ -9,7 +9,7 @@ robust pipeline, for each pair:
    depend on the unit.
 2. Hypotheses: the source is turned by each of ``hypotheses`` rotations (the 24
    rotations of the cube by default, which leave no orientation more than 62.8
-   degrees from one of them), and every hypothesis runs ``rounds`` rounds of ICP
+   degrees from one of them), and every hypothesis runs ``mask_rounds`` rounds of ICP
    (of Mask-ICP with ``hypothesis_mask=True``), all in one batched call, on
    ``hypothesis_points`` points per cloud.
 3. Scoring: each result is scored by a trimmed fit: the mean squared distance of
@@ -17,9 +17,9 @@ robust pipeline, for each pair:
    MaskNet) to the template, plus the same for the masked template points to the
    source, so that neither a source sunk inside a large template nor one covering a
    small part of it scores well.
-4. Refinement: the ``candidates`` best hypotheses run ``rounds`` more rounds of
+4. Refinement: the ``candidates`` best hypotheses run ``mask_rounds`` more rounds of
    Mask-ICP at full resolution and end with ICP on the whole template whose pairs are
-   cut at ``refine_distance`` (in template radii): a geometric inlier mask, once the
+   cut at ``inlier_distance`` (in template radii): a geometric inlier mask, once the
    clouds are close. They are scored again, and the best is the result. (At the coarse
    stage a symmetric shape's flipped pose can score as well as the right one; after
    refinement the right one fits better.)
@@ -70,11 +70,11 @@ class RobustOptions(NamedTuple):
         is below this fraction of the start's (1: plain best score; 0: never turn).
     hypothesis_mask: use the mask in the hypothesis stage too (False: plain ICP there,
         faster; the mask then enters at full resolution).
-    rounds: Mask-ICP rounds per hypothesis, and again at full resolution.
+    mask_rounds: Mask-ICP rounds per hypothesis, and again at full resolution.
     max_iterations: ICP iterations per round.
     trim: fraction of points whose distances make the score.
-    refine_iterations: iterations of the final geometric-inlier ICP (0 skips it).
-    refine_distance: its pair cut-off, in template radii.
+    inlier_iterations: iterations of the final geometric-inlier ICP (0 skips it).
+    inlier_distance: its pair cut-off, in template radii.
     """
 
     hypotheses: int = 24
@@ -82,24 +82,24 @@ class RobustOptions(NamedTuple):
     candidates: int = 6
     hypothesis_mask: bool = False
     identity_margin: float = 0.5
-    rounds: int = 2
+    mask_rounds: int = 2
     max_iterations: int = 10
     trim: float = 0.8
-    refine_iterations: int = 30
-    refine_distance: float = 0.05
+    inlier_iterations: int = 30
+    inlier_distance: float = 0.05
 
     def check(self) -> None:
         """Raise MaskNetError for an option out of range."""
-        if self.hypotheses < 1 or self.hypothesis_points < 16 or self.rounds < 1:
-            raise MaskNetError("robust: hypotheses >= 1, hypothesis_points >= 16, rounds >= 1")
+        if self.hypotheses < 1 or self.hypothesis_points < 16 or self.mask_rounds < 1:
+            raise MaskNetError("robust: hypotheses >= 1, hypothesis_points >= 16, mask_rounds >= 1")
         if self.candidates < 1:
             raise MaskNetError("robust: candidates >= 1")
-        if self.max_iterations < 1 or self.refine_iterations < 0:
-            raise MaskNetError("robust: max_iterations >= 1 and refine_iterations >= 0")
+        if self.max_iterations < 1 or self.inlier_iterations < 0:
+            raise MaskNetError("robust: max_iterations >= 1 and inlier_iterations >= 0")
         if not 0 <= self.identity_margin <= 1:
             raise MaskNetError("robust: identity_margin must be in [0, 1]")
-        if not 0 < self.trim <= 1 or not self.refine_distance > 0:
-            raise MaskNetError("robust: trim must be in (0, 1] and refine_distance positive")
+        if not 0 < self.trim <= 1 or not self.inlier_distance > 0:
+            raise MaskNetError("robust: trim must be in (0, 1] and inlier_distance positive")
 
 
 class RobustRun(NamedTuple):
@@ -199,7 +199,7 @@ def robust_register(
         src_small,
         "icp",
         model if options.hypothesis_mask else None,
-        options.rounds,
+        options.mask_rounds,
         icp_options,
         times,
         precision=precision,
@@ -222,7 +222,7 @@ def robust_register(
         src_c,
         "icp",
         model,
-        options.rounds,
+        options.mask_rounds,
         icp_options,
         times,
         precision=precision,
@@ -230,10 +230,10 @@ def robust_register(
     )
     total, run_info = final.transform, final.run.info
     kept = None if final.source_mask is None else final.source_mask
-    if options.refine_iterations:
+    if options.inlier_iterations:
         refine = {
-            "max_iterations": options.refine_iterations,
-            "max_correspondence_distance": options.refine_distance,
+            "max_iterations": options.inlier_iterations,
+            "max_correspondence_distance": options.inlier_distance,
         }
         moved = apply_transform(total, src_c)
         if kept is not None:
