@@ -1,0 +1,177 @@
+"""Consistency checks of point files and clouds: a header that disagrees with its body
+(PLY, PCD), coordinates no float32 holds, clouds with no 3-D extent, and the warnings
+for clouds too small or too spread to trust. :mod:`masknet.io` runs them on every read.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import numpy as np
+
+from masknet.errors import MaskNetError
+
+__all__ = ["FEW_POINTS", "FLOAT32_MAX", "check_geometry", "check_pcd_body", "check_ply_body"]
+
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+FEW_POINTS = 10  # at most this many points: registration is unreliable, say so
+
+
+def check_geometry(points: np.ndarray, name: str) -> None:
+    """Refuse clouds (N, 3) with no 3-D extent to register, and warn on stderr where a
+    result will be unreliable: 3-10 points, or one point so far out that it sets the
+    cloud's spread (more than 1,000 times the median distance from the median)."""
+    centred = points - np.median(points, axis=0)
+    deviation = centred - centred.mean(0)
+    # Singular values of the centred cloud, from its 3x3 scatter (no (N, 3) copy).
+    spread = np.sqrt(np.clip(np.linalg.eigvalsh(deviation.T @ deviation), 0, None))[::-1]
+    if spread[0] <= 1e-12 * max(1.0, float(np.abs(points).max())):
+        raise MaskNetError(f"{name}: all {len(points)} points are identical")
+    if spread[1] <= 1e-6 * spread[0]:  # (square roots of eigenvalues: 1e-6, not 1e-12)
+        raise MaskNetError(f"{name}: all {len(points)} points lie on one line; nothing to register")
+    if len(points) <= FEW_POINTS:
+        print(
+            f"warning: {name}: only {len(points)} points; the result is unreliable", file=sys.stderr
+        )
+    distance = np.linalg.norm(centred, axis=1)
+    typical = float(np.median(distance))
+    if typical > 0 and distance.max() > 1000 * typical:
+        print(
+            f"warning: {name}: one point lies {distance.max() / typical:.3g} times farther out "
+            "than the median point; an outlier sets the cloud's scale",
+            file=sys.stderr,
+        )
+
+
+_PLY_SIZES = {
+    **dict.fromkeys(("char", "uchar", "int8", "uint8"), 1),
+    **dict.fromkeys(("short", "ushort", "int16", "uint16"), 2),
+    **dict.fromkeys(("int", "uint", "int32", "uint32", "float", "float32"), 4),
+    **dict.fromkeys(("double", "float64"), 8),
+}
+
+
+def check_ply_body(name: str) -> None:
+    """Raise if a PLY body holds more or fewer records than its header declares.
+
+    ASCII bodies are counted by lines; binary ones by bytes (where every element has
+    fixed-size properties; list properties, as in faces, make sizes vary, and then
+    only the reader's own checks apply). Readers take the header's count on trust.
+    """
+    with open(name, "rb") as fh:
+        header, elements, fmt = [], [], ""
+        for _ in range(10_000):
+            line = fh.readline()
+            if not line:
+                return  # no end_header: the reader reports the file as corrupt
+            words = line.decode("latin-1").split()
+            header.append(words)
+            if words[:1] == ["format"] and len(words) > 1:
+                fmt = words[1]
+            elif words[:1] == ["element"] and len(words) == 3 and words[2].isdigit():
+                elements.append([words[1], int(words[2]), 0])  # name, count, record bytes
+            elif words[:1] == ["property"] and elements:
+                size = (
+                    None
+                    if words[1:2] == ["list"]
+                    else _PLY_SIZES.get(words[1] if len(words) > 1 else "")
+                )
+                elements[-1][2] = (
+                    None if size is None or elements[-1][2] is None else elements[-1][2] + size
+                )
+            elif words[:1] == ["end_header"]:
+                break
+        else:
+            return
+        body = fh.read() if fmt == "ascii" else None
+        start = fh.tell()
+    declared = {e[0]: e[1] for e in elements}
+    vertices = declared.get("vertex", 0)
+    if fmt == "ascii" and body is not None:
+        rows = sum(1 for row in body.splitlines() if row.strip())
+        expected = sum(e[1] for e in elements)
+        if rows != expected:
+            raise MaskNetError(
+                f"{name}: the PLY header declares {vertices} vertices"
+                + (f" ({expected} records in all)" if expected != vertices else "")
+                + f" but the body has {rows} rows"
+            )
+    elif fmt.startswith("binary") and all(e[2] is not None for e in elements):
+        expected = sum(e[1] * e[2] for e in elements)
+        actual = os.path.getsize(name) - start
+        if actual < expected:
+            raise MaskNetError(
+                f"{name}: truncated or corrupt .ply file (the header declares {vertices} "
+                f"vertices, {expected} bytes; the body has {actual})"
+            )
+        if actual > expected:
+            raise MaskNetError(
+                f"{name}: the PLY header declares {vertices} vertices ({expected} bytes) "
+                f"but the body has data beyond them ({actual} bytes)"
+            )
+
+
+def check_pcd_body(name: str) -> None:
+    """Raise if a PCD's header is inconsistent, or its body holds more or fewer points
+    than ``POINTS`` declares (ascii rows, binary bytes, or the size recorded in a
+    ``binary_compressed`` body). Open3D takes the header on trust and returns
+    uninitialised memory, or fails to allocate, when it lies."""
+    fields: dict[str, list[str]] = {}
+    with open(name, "rb") as fh:
+        for _ in range(64):
+            line = fh.readline()
+            if not line:
+                raise MaskNetError(f"{name}: truncated or corrupt .pcd file (no DATA line)")
+            words = line.decode("latin-1").split()
+            if not words or words[0].startswith("#"):
+                continue
+            fields[words[0].upper()] = words[1:]
+            if words[0].upper() == "DATA":
+                break
+        else:
+            raise MaskNetError(f"{name}: corrupt .pcd header (no DATA line)")
+        start = fh.tell()
+        head = fh.read(8)
+    try:
+        points = int(fields["POINTS"][0])
+        width, height = int(fields["WIDTH"][0]), int(fields["HEIGHT"][0])
+        sizes = [int(v) for v in fields["SIZE"]]
+        counts = [int(v) for v in fields.get("COUNT", ["1"] * len(sizes))]
+        data = fields["DATA"][0].lower()
+    except (KeyError, IndexError, ValueError):
+        raise MaskNetError(
+            f"{name}: corrupt .pcd header (POINTS, WIDTH, HEIGHT, SIZE or DATA)"
+        ) from None
+    if width * height != points or points < 0:
+        raise MaskNetError(
+            f"{name}: the PCD header declares {points} points but WIDTH x HEIGHT is "
+            f"{width} x {height}"
+        )
+    record = sum(sz * c for sz, c in zip(sizes, counts, strict=False))
+    body = os.path.getsize(name) - start
+    if data == "ascii":
+        with open(name, "rb") as fh:
+            fh.seek(start)
+            rows = sum(1 for row in fh if row.strip())
+        if rows != points:
+            raise MaskNetError(
+                f"{name}: the PCD header declares {points} points but the body has {rows} rows"
+            )
+    elif data == "binary" and body < points * record:
+        raise MaskNetError(
+            f"{name}: truncated or corrupt .pcd file (the header declares {points} points, "
+            f"{points * record} bytes; the body has {body})"
+        )
+    elif data == "binary" and body > points * record:
+        raise MaskNetError(
+            f"{name}: the PCD header declares {points} points ({points * record} bytes) but "
+            f"the body has data beyond them ({body} bytes)"
+        )
+    elif data == "binary_compressed" and len(head) == 8:
+        _, raw = np.frombuffer(head, dtype="<u4")
+        if int(raw) != points * record:
+            raise MaskNetError(
+                f"{name}: the PCD header declares {points} points ({points * record} bytes) but "
+                f"the compressed body holds {int(raw)} bytes"
+            )
