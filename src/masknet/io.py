@@ -220,7 +220,8 @@ def _validate(points: np.ndarray, name: str, drop_nonfinite: bool) -> tuple[np.n
             rows = "1 row contains" if n_bad == 1 else f"{n_bad} rows contain"
             every = " (all of them)" if n_bad == len(points) else ""
             raise MaskNetError(
-                f"{name}: {rows} NaN or inf{every}; pass --drop-nonfinite to drop them"
+                f"{name}: {rows} NaN or inf{every}; pass --drop-nonfinite "
+                "(drop_nonfinite=True in Python) to drop them"
             )
         points = points[finite]
         if len(points) == 0:

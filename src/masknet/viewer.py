@@ -20,7 +20,7 @@ from masknet.errors import MaskNetError
 from masknet.io import write_text_atomic
 from masknet.viz import display_points, point_count_label
 
-__all__ = ["Layer", "write_viewer", "LAYER_COLOURS"]
+__all__ = ["Layer", "write_viewer", "LAYER_COLOURS", "layer_colour"]
 
 # Colour per usual layer name; others cycle through the palette.
 LAYER_COLOURS = {
@@ -36,6 +36,11 @@ _PALETTE = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#
 MAX_POINTS_PER_LAYER = 30_000  # keeps files small and drawing fast; subsampled evenly
 
 Layer = tuple[np.ndarray, str]  # (P, 3) points, "#rrggbb"
+
+
+def layer_colour(name: str, index: int) -> str:
+    """The colour of layer ``index`` named ``name``: its usual colour, else the palette's."""
+    return LAYER_COLOURS.get(name, _PALETTE[index % len(_PALETTE)])
 
 
 def _layer_json(points: np.ndarray) -> list[float]:
@@ -66,7 +71,7 @@ def write_viewer(
     data = []
     for i, (name, layer) in enumerate(layers.items()):
         points, colour = layer if isinstance(layer, tuple) else (layer, None)
-        colour = colour or LAYER_COLOURS.get(name, _PALETTE[i % len(_PALETTE)])
+        colour = colour or layer_colour(name, i)
         coords = _layer_json(points)
         count = point_count_label(len(coords) // 3, len(np.asarray(points).reshape(-1, 3)))
         data.append(

@@ -61,10 +61,10 @@ def test_mask_threshold_rule(tmp_path, small_masknet_weights, pair_files):
         "--weights",
         str(small_masknet_weights),
         "--threshold",
-        "2",
+        "1",
     ]
     assert main(args) == 0
-    assert np.load(out).shape == (0, 3)  # no sigmoid score reaches 2
+    assert np.load(out).shape == (0, 3)  # no score of this small network reaches 1
 
 
 @pytest.mark.parametrize(
@@ -427,3 +427,25 @@ def test_every_option_of_every_command_has_help_text():
         if not isinstance(action, argparse._HelpAction) and not action.help
     ]
     assert missing == []
+
+
+def test_viewer_names_and_thresholds_are_checked_first(tmp_path, pair_files, capsys):
+    template, source, _ = pair_files
+    out = tmp_path / "o.ply"
+    base = [str(template), str(source), "-o", str(out)]
+    assert main(["register", *base, "--html", str(tmp_path / "o_inliers.ply")]) == 2
+    assert "the viewer is an .html file" in capsys.readouterr().err
+    assert main(["mask", *base, "--threshold", "2"]) == 2
+    assert "--threshold must be in [0, 1]" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_writer_error_names_the_users_file_not_the_temporary_one(tmp_path, pair_files, capsys):
+    template, source, _ = pair_files
+    out = tmp_path / "inliers.ply"
+    # A threshold no score reaches keeps no point: an empty .ply cannot be written.
+    assert main(["mask", str(template), str(source), "-o", str(out), "--threshold", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert (
+        err.startswith(f"masknet: error: {out}: cannot write an empty cloud") and ".part" not in err
+    )

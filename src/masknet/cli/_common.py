@@ -126,7 +126,7 @@ def pair_config(
 
 def add_cloud_arguments(p: argparse.ArgumentParser, source_help: str) -> None:
     """The positional ``template`` and ``source`` files of ``mask`` and ``register``."""
-    p.add_argument("template", help="full cloud: .ply .pcd .xyz .txt .npy .bin")
+    p.add_argument("template", help="full cloud: .ply .pcd .xyz .txt .csv .npy .bin")
     p.add_argument("source", help=source_help)
 
 
@@ -135,7 +135,7 @@ def add_file_options(p: argparse.ArgumentParser, html: bool = True) -> None:
     p.add_argument(
         "--drop-nonfinite",
         action="store_true",
-        help="drop NaN/inf rows instead of failing (they are 0 in mask files)",
+        help="drop NaN/inf rows instead of failing (mask files still have a line per row, 0 there)",
     )
     if html:
         p.add_argument(
@@ -145,7 +145,9 @@ def add_file_options(p: argparse.ArgumentParser, html: bool = True) -> None:
         )
 
 
-def add_model_options(p: argparse.ArgumentParser, default_pretrained: str = "modelnet40") -> None:
+def add_model_options(
+    p: argparse.ArgumentParser, default_pretrained: str = "modelnet40", kind: str = "MaskNet"
+) -> None:
     """The ``model`` group: which MaskNet weights, and the inference precision."""
     g = p.add_argument_group("model")
     g.add_argument(
@@ -154,7 +156,7 @@ def add_model_options(p: argparse.ArgumentParser, default_pretrained: str = "mod
     g.add_argument(
         "--pretrained",
         default=default_pretrained,
-        help=f"name of shipped MaskNet weights (default {default_pretrained})",
+        help=f"name of shipped {kind} weights (default {default_pretrained})",
     )
     g.add_argument(
         "--inference-precision",
@@ -196,12 +198,13 @@ def view_writers(
 ) -> list[tuple[Path, Callable[[Path], None]]]:
     """Writers (for :func:`write_all`) of the HTML viewer and its static PNG twin.
     Layers: (P, 3) each, or (points, colour)."""
-    from masknet.viewer import LAYER_COLOURS, write_viewer
+    from masknet.viewer import layer_colour, write_viewer
     from masknet.viz import plot_clouds
 
+    # The PNG takes each layer's colour as the viewer does, so the two agree.
     coloured = {
-        name: layer if isinstance(layer, tuple) else (layer, LAYER_COLOURS.get(name, "#1f77b4"))
-        for name, layer in layers.items()
+        name: layer if isinstance(layer, tuple) else (layer, layer_colour(name, i))
+        for i, (name, layer) in enumerate(layers.items())
     }
     return [
         (Path(path), lambda p: write_viewer(p, layers, title=title)),
@@ -257,13 +260,18 @@ def file_rows(mask: np.ndarray, rows: np.ndarray) -> np.ndarray:
     return full
 
 
-def check_outputs(paths: list[Path], text: tuple[str, ...] = (".txt", ".html")) -> None:
+def check_outputs(paths: list[Path], text: tuple[str, ...] = (".txt", ".html", ".png")) -> None:
     """Refuse, before any computing, outputs that cannot be written: an unsupported
     extension (point files; ``text`` suffixes are always fine), a path that is a
     directory, or a parent that is not a writable directory (missing ones are made)."""
     from masknet.io import SUPPORTED_WRITE
 
+    seen: dict[Path, Path] = {}
     for path in paths:
+        key = path.resolve()
+        if key in seen:
+            raise MaskNetError(f"{path}: named for two outputs; give each output its own name")
+        seen[key] = path
         ext = path.suffix.lower()
         if ext not in SUPPORTED_WRITE and ext not in text:
             raise MaskNetError(
@@ -290,6 +298,16 @@ def _can_create_in(folder: Path) -> bool:
     return True
 
 
+def check_html(path: str | None) -> list[Path]:
+    """The viewer's path (and its PNG twin) for :func:`check_outputs`; it must end in .html."""
+    if path is None:
+        return []
+    html = Path(path)
+    if html.suffix.lower() != ".html":
+        raise MaskNetError(f"{html}: the viewer is an .html file; give a name ending in .html")
+    return [html, html.with_suffix(".png")]
+
+
 def write_all(writers: list[tuple[Path, Callable[[Path], None]]]) -> None:
     """Write every output or none, and never lose a file that was there before.
 
@@ -310,7 +328,10 @@ def write_all(writers: list[tuple[Path, Callable[[Path], None]]]) -> None:
             )
             os.close(fd)
             staged.append((tmp, path))
-            write(Path(tmp))
+            try:
+                write(Path(tmp))
+            except MaskNetError as exc:  # name the user's file, not the temporary one
+                raise MaskNetError(str(exc).replace(tmp, str(path))) from exc
         for tmp, path in staged:
             if path.exists():
                 aside = f"{tmp}.earlier"

@@ -34,7 +34,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="a small run (20 pairs, fewer settings; the bundled sample when no data is "
         "given); leaves docs/RESULTS.md alone",
     )
-    p.add_argument("--out", default="masknet_benchmark", help="folder for JSON, CSV and PNG")
+    p.add_argument(
+        "--out",
+        default="masknet_benchmark",
+        help="folder for JSON, CSV and PNG (default masknet_benchmark)",
+    )
     p.add_argument(
         "--results",
         default="docs/RESULTS.md",

@@ -8,6 +8,7 @@ from pathlib import Path
 from masknet.cli._common import (
     add_file_options,
     add_model_options,
+    check_html,
     check_outputs,
     file_rows,
     finite_float,
@@ -25,10 +26,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="remove the points of NOISY that TEMPLATE (a clean cloud of the same object) "
         "does not explain",
     )
-    p.add_argument("noisy", help="the scan with outliers: .ply .pcd .xyz .txt .npy .bin")
+    p.add_argument("noisy", help="the scan with outliers: .ply .pcd .xyz .txt .csv .npy .bin")
     p.add_argument(
         "template",
-        help="a clean cloud of the same object, aligned with NOISY (e.g. after register)",
+        help="a clean cloud of the same object; for --method distance aligned with NOISY "
+        "(e.g. after register), for --method masknet in any pose within about 45 degrees",
     )
     p.add_argument(
         "-o",
@@ -55,7 +57,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "(default 3x the template's point spacing)",
     )
     add_file_options(p)
-    add_model_options(p, default_pretrained="scans")
+    add_model_options(p, default_pretrained="scans", kind="two-sided MaskNet (--method masknet)")
 
 
 def run(args: argparse.Namespace) -> None:
@@ -66,7 +68,7 @@ def run(args: argparse.Namespace) -> None:
     if not 0 <= args.threshold <= 1:
         raise MaskNetError(f"--threshold must be in [0, 1], got {args.threshold}")
     out = Path(args.output)
-    check_outputs([out] + ([Path(args.html)] if args.html else []))
+    check_outputs([out, out.with_name(out.stem + "_mask.txt")] + check_html(args.html))
     noisy, noisy_rows = read_points(
         args.noisy, drop_nonfinite=args.drop_nonfinite, return_rows=True
     )
@@ -93,9 +95,11 @@ def run(args: argparse.Namespace) -> None:
         ]
     )
     removed = int((~result.mask).sum())
+    dropped = int((~noisy_rows).sum())
     print(
         f"kept {int(result.mask.sum())} of {len(noisy)} points, removed {removed} "
         f"({100 * removed / len(noisy):.1f}%, {rule})"
+        + (f"; {dropped} non-finite rows dropped before" if dropped else "")
     )
     print(f"wrote {out} and {mask_path}")
     if args.html:

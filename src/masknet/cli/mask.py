@@ -9,6 +9,7 @@ from masknet.cli._common import (
     add_cloud_arguments,
     add_file_options,
     add_model_options,
+    check_html,
     check_outputs,
     file_rows,
     finite_float,
@@ -17,6 +18,7 @@ from masknet.cli._common import (
     write_all,
     write_views,
 )
+from masknet.errors import MaskNetError
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -49,8 +51,10 @@ def run(args: argparse.Namespace) -> None:
 
     from masknet.io import read_points, write_mask, write_points
 
+    if args.threshold is not None and not 0 <= args.threshold <= 1:
+        raise MaskNetError(f"--threshold must be in [0, 1] (scores are), got {args.threshold}")
     out = Path(args.output)
-    check_outputs([out] + ([Path(args.html)] if args.html else []))
+    check_outputs([out, out.with_name(out.stem + "_mask.txt")] + check_html(args.html))
     template, template_rows = read_points(
         args.template, drop_nonfinite=args.drop_nonfinite, return_rows=True
     )

@@ -10,6 +10,7 @@ from masknet.cli._common import (
     add_cloud_arguments,
     add_file_options,
     add_model_options,
+    check_html,
     check_outputs,
     file_rows,
     load_model,
@@ -61,7 +62,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "are dropped before registering; writes <stem>_source_mask.txt, one 0/1 per "
         "source point",
     )
-    p.add_argument("--iterations", type=positive_int, default=1, help="rounds of mask -> register")
+    p.add_argument(
+        "--iterations", type=positive_int, default=1, help="rounds of mask -> register (default 1)"
+    )
     p.add_argument(
         "--max-iterations",
         type=positive_int,
@@ -110,7 +113,7 @@ def run(args: argparse.Namespace) -> None:
         derived.append(out.with_name(out.stem + "_inliers" + out.suffix))
     if args.two_sided or args.method == "robust":
         derived.append(out.with_name(out.stem + "_source_mask.txt"))
-    check_outputs([out, *derived] + ([Path(args.html)] if args.html else []))
+    check_outputs([out, *derived] + check_html(args.html))
     with progress(f"reading {args.template}"):
         template = read_points(args.template, drop_nonfinite=args.drop_nonfinite)
     with progress(f"reading {args.source}"):

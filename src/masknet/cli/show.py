@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from masknet.cli._common import add_file_options, write_views
+from masknet.cli._common import add_file_options, check_html, check_outputs, write_views
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -24,6 +24,7 @@ def run(args: argparse.Namespace) -> None:
     """One layer per file, named by its stem (primed where two stems agree)."""
     from masknet.io import read_points
 
+    check_outputs(check_html(args.output))
     layers: dict = {}
     for file in args.clouds:
         name = Path(file).stem
