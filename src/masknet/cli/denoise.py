@@ -13,8 +13,8 @@ from masknet.cli._common import (
     file_rows,
     finite_float,
     load_model,
+    view_writers,
     write_all,
-    write_views,
 )
 from masknet.errors import MaskNetError
 
@@ -88,12 +88,14 @@ def run(args: argparse.Namespace) -> None:
         )
         rule = f"MaskNet score >= {args.threshold}"
     mask_path = out.with_name(out.stem + "_mask.txt")
-    write_all(
-        [
-            (out, lambda p: write_points(p, result.points)),
-            (mask_path, lambda p: write_mask(p, file_rows(result.mask, noisy_rows))),
-        ]
-    )
+    writers = [
+        (out, lambda p: write_points(p, result.points)),
+        (mask_path, lambda p: write_mask(p, file_rows(result.mask, noisy_rows))),
+    ]
+    if args.html:  # written with the others, all or nothing
+        layers = {"template": template, "kept": result.points, "removed": noisy[~result.mask]}
+        writers += view_writers(args.html, layers, f"MaskNet denoising: {Path(args.noisy).name}")
+    write_all(writers)
     removed = int((~result.mask).sum())
     dropped = int((~noisy_rows).sum())
     print(
@@ -101,12 +103,4 @@ def run(args: argparse.Namespace) -> None:
         f"({100 * removed / len(noisy):.1f}%, {rule})"
         + (f"; {dropped} non-finite rows dropped before" if dropped else "")
     )
-    print(f"wrote {out} and {mask_path}")
-    if args.html:
-        layers = {
-            "template": template,
-            "kept": result.points,
-            "removed": noisy[~result.mask],
-        }
-        views = write_views(args.html, layers, title=f"MaskNet denoising: {Path(args.noisy).name}")
-        print(f"wrote {views[0]} and {views[1]}")
+    print(f"wrote {', '.join(str(p) for p, _ in writers)}")

@@ -15,8 +15,8 @@ from masknet.cli._common import (
     finite_float,
     load_model,
     positive_int,
+    view_writers,
     write_all,
-    write_views,
 )
 from masknet.errors import MaskNetError
 
@@ -69,12 +69,15 @@ def run(args: argparse.Namespace) -> None:
         return_scores=True,
     )
     mask_path = out.with_name(out.stem + "_mask.txt")
-    write_all(
-        [
-            (out, lambda p: write_points(p, template[mask])),
-            (mask_path, lambda p: write_mask(p, file_rows(mask, template_rows))),
-        ]
-    )
+    writers = [
+        (out, lambda p: write_points(p, template[mask])),
+        (mask_path, lambda p: write_mask(p, file_rows(mask, template_rows))),
+    ]
+    if args.html:  # written with the others, all or nothing
+        layers = {"template": template, "source": source, "inliers": template[mask]}
+        title = f"MaskNet inliers: {Path(args.template).name} seen by {Path(args.source).name}"
+        writers += view_writers(args.html, layers, title)
+    write_all(writers)
     if args.threshold is not None:
         rule = f"threshold {args.threshold}"
     else:
@@ -84,11 +87,4 @@ def run(args: argparse.Namespace) -> None:
         f"kept {int(mask.sum())} of {len(template)} template points ({rule}); "
         f"mean score {float(np.mean(scores)):.3f}"
     )
-    print(f"wrote {out} and {mask_path}")
-    if args.html:
-        views = write_views(
-            args.html,
-            {"template": template, "source": source, "inliers": template[mask]},
-            title=f"MaskNet inliers: {Path(args.template).name} seen by {Path(args.source).name}",
-        )
-        print(f"wrote {views[0]} and {views[1]}")
+    print(f"wrote {', '.join(str(p) for p, _ in writers)}")
