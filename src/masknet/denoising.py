@@ -120,11 +120,11 @@ def denoise(
     if len(y_np) > NETWORK_POINTS:
         sampled = farthest_point_sample(y_np, NETWORK_POINTS).indices
         y = y[:, sampled]
-    radius = unit_radius(x)[:, None, None]
     if isinstance(model, TwoSidedMaskNet):
-        # The template's radius sets the scale (predict's normalize does the same).
+        # predict's normalize scales both clouds by the template's radius.
         scores = model.predict(x.numpy(), y.numpy(), precision=precision)[1][0]
     else:
+        radius = unit_radius(x)[:, None, None]
         scores = model.predict(
             (y / radius).numpy(), (x / radius).numpy(), precision=precision, normalize=False
         )[0]

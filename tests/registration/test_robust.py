@@ -66,7 +66,7 @@ def test_robust_options_are_checked(far_pair):
 
 
 def test_robust_option_names_match_the_options_table():
+    from masknet.registration import RobustOptions
     from masknet.registration.methods import OPTIONS
-    from masknet.registration.robust import RobustOptions
 
     assert set(OPTIONS["robust"]) == set(RobustOptions._fields)

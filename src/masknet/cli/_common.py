@@ -146,9 +146,14 @@ def add_file_options(p: argparse.ArgumentParser, html: bool = True) -> None:
 
 
 def add_model_options(
-    p: argparse.ArgumentParser, default_pretrained: str = "modelnet40", kind: str = "MaskNet"
+    p: argparse.ArgumentParser,
+    default_pretrained: str | None = "modelnet40",
+    kind: str = "MaskNet",
+    default_text: str | None = None,
 ) -> None:
-    """The ``model`` group: which MaskNet weights, and the inference precision."""
+    """The ``model`` group: which MaskNet weights, and the inference precision.
+    ``default_pretrained`` None: each network's own shipped default (``default_text``
+    says which)."""
     g = p.add_argument_group("model")
     g.add_argument(
         "--weights", help="a .safetensors file from masknet train (default: shipped weights)"
@@ -156,7 +161,7 @@ def add_model_options(
     g.add_argument(
         "--pretrained",
         default=default_pretrained,
-        help=f"name of shipped {kind} weights (default {default_pretrained})",
+        help=f"name of shipped {kind} weights (default {default_text or default_pretrained})",
     )
     g.add_argument(
         "--inference-precision",
@@ -171,26 +176,22 @@ def load_model(args: argparse.Namespace, two_sided: bool = False) -> MaskNet:
     """The MaskNet of the ``model`` options; resolves ``--inference-precision auto``.
 
     ``two_sided``: shipped names are two-sided MaskNets (``masknet2_<name>``), and a
-    ``--weights`` file may hold either kind.
+    ``--weights`` file may hold either kind (its metadata says which). ``--pretrained``
+    unset: the kind's own shipped default.
     """
     from masknet.models import MaskNet
     from masknet.models.two_sided import TwoSidedMaskNet
+    from masknet.models.weights import read_metadata
     from masknet.runtime import default_precision
 
     if args.inference_precision == "auto":
         args.inference_precision = default_precision("cpu")
-    if not two_sided:
-        return (
-            MaskNet.from_file(args.weights) if args.weights else MaskNet.pretrained(args.pretrained)
-        )
-    if not args.weights:
-        return TwoSidedMaskNet.pretrained(args.pretrained)
-    try:
-        return TwoSidedMaskNet.from_file(args.weights)
-    except MaskNetError as exc:
-        if "not TwoSidedMaskNet weights" not in str(exc):
-            raise
-        return MaskNet.from_file(args.weights)
+    kind = TwoSidedMaskNet if two_sided else MaskNet
+    if args.weights:
+        if two_sided and TwoSidedMaskNet._config_key() not in read_metadata(args.weights):
+            kind = MaskNet  # a paper MaskNet file: it masks the template only
+        return kind.from_file(args.weights)
+    return kind.pretrained(args.pretrained) if args.pretrained else kind.pretrained()
 
 
 def view_writers(

@@ -94,7 +94,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "ICP; the transform is applied to the full source",
     )
     add_file_options(p)
-    add_model_options(p)
+    add_model_options(
+        p,
+        default_pretrained=None,
+        default_text="modelnet40; with --two-sided or --method robust the two-sided scans",
+    )
 
 
 def run(args: argparse.Namespace) -> None:
@@ -124,8 +128,6 @@ def run(args: argparse.Namespace) -> None:
         raise MaskNetError("--two-sided and --no-mask exclude each other")
     if args.method == "robust" and not args.no_mask:
         args.two_sided = True  # the robust pipeline's default mask
-    if args.two_sided and args.pretrained == "modelnet40":
-        args.pretrained = "scans"  # the shipped two-sided weights
     model = None if args.no_mask else load_model(args, two_sided=args.two_sided)
     options = {}
     if args.max_iterations is not None and args.method not in GLOBAL_METHODS:

@@ -22,7 +22,7 @@ from dataclasses import asdict, dataclass
 import torch
 from torch import Tensor
 
-from masknet.data.pairs import Pairs
+from masknet.data.pairs import Pairs, uniform_outliers
 from masknet.geometry import random_rotation
 
 __all__ = ["CorruptionConfig", "corrupt_source"]
@@ -76,6 +76,7 @@ def corrupt_source(pairs: Pairs, config: CorruptionConfig, generator: torch.Gene
         sigma = torch.rand(b, 1, 1, generator=generator) * config.max_noise
         noise = torch.randn(source.shape, generator=generator) * sigma
         source = source + torch.maximum(torch.minimum(noise, 3 * sigma), -3 * sigma)
+    box = source  # outliers fill the source's own box, grown by 5%, whatever clutter adds
     lo, hi = source.amin(1, keepdim=True), source.amax(1, keepdim=True)
     centre, radius = (lo + hi) / 2, ((hi - lo) / 2).norm(dim=-1, keepdim=True)
     free = torch.ones(b, m, dtype=torch.bool)
@@ -108,9 +109,7 @@ def corrupt_source(pairs: Pairs, config: CorruptionConfig, generator: torch.Gene
         # Outliers take slots clutter left free.
         ranks = torch.where(free, torch.rand(b, m, generator=generator), 2.0).argsort(1).argsort(1)
         slots = ranks < counts[:, None]
-        grow = (hi - lo) * 0.05
-        u = torch.rand(b, m, 3, generator=generator)
-        outliers = lo - grow + u * (hi - lo + 2 * grow)
+        outliers = uniform_outliers(box, m, generator, grow=0.05)
         source = torch.where(slots[..., None], outliers, source)
         keep &= ~slots
 

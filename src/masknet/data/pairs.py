@@ -108,11 +108,15 @@ def _gather(points: Tensor, idx: Tensor) -> Tensor:
     return torch.gather(points, 1, idx[..., None].expand(-1, -1, points.shape[-1]))
 
 
-def _uniform_outliers(cloud: Tensor, count: int, generator: torch.Generator) -> Tensor:
-    """(B, count, 3) points uniform in each cloud's axis-aligned bounding box."""
+def uniform_outliers(
+    cloud: Tensor, count: int, generator: torch.Generator, grow: float = 0.0
+) -> Tensor:
+    """(B, count, 3) points uniform in each cloud's (B, P, 3) axis-aligned bounding box,
+    grown by ``grow`` of its size on every side."""
     lo, hi = cloud.amin(1, keepdim=True), cloud.amax(1, keepdim=True)
+    margin = (hi - lo) * grow
     u = torch.rand(cloud.shape[0], count, 3, generator=generator)
-    return lo + u * (hi - lo)
+    return lo - margin + u * (hi - lo + 2 * margin)
 
 
 def make_pairs(
@@ -167,7 +171,7 @@ def make_pairs(
     if config.outlier_ratio > 0:
         target = source if config.outlier_target == "source" else template
         count = max(1, round(config.outlier_ratio * target.shape[1]))
-        extra = _uniform_outliers(target, count, generator)
+        extra = uniform_outliers(target, count, generator)
         no = torch.zeros(b, count, dtype=torch.bool)
         if config.outlier_target == "source":
             source = torch.cat([source, extra], 1)

@@ -21,7 +21,7 @@ from safetensors.torch import load_file, save_file
 from masknet._atomic import atomic_target
 from masknet.errors import MaskNetError
 
-__all__ = ["SafetensorsWeights", "shipped_weights_path"]
+__all__ = ["SafetensorsWeights", "read_metadata", "shipped_weights_path"]
 
 M = TypeVar("M", bound="SafetensorsWeights")
 
@@ -29,6 +29,21 @@ M = TypeVar("M", bound="SafetensorsWeights")
 def shipped_weights_path(filename: str) -> Path:
     """Path of a file in the package's ``resources/weights/`` folder."""
     return Path(str(resources.files("masknet") / "resources" / "weights" / filename))
+
+
+def read_metadata(path: str | os.PathLike) -> dict[str, str]:
+    """The metadata of a safetensors weights file (its ``<prefix>config`` keys say which
+    network it holds); MaskNetError if it is missing or unreadable. Never unpickles."""
+    path = Path(path)
+    if not path.exists():
+        raise MaskNetError(f"{path}: weights file not found")
+    try:
+        from safetensors import safe_open
+
+        with safe_open(str(path), framework="pt") as f:
+            return f.metadata() or {}
+    except Exception as exc:  # safetensors raises its own error types
+        raise MaskNetError(f"{path}: not a readable safetensors file ({exc})") from None
 
 
 class SafetensorsWeights:
@@ -59,13 +74,8 @@ class SafetensorsWeights:
         """Load weights written by :meth:`save` (safetensors; never unpickles)."""
         path = Path(path)
         kind = cls.__name__
-        if not path.exists():
-            raise MaskNetError(f"{path}: weights file not found")
+        meta = read_metadata(path)
         try:
-            from safetensors import safe_open
-
-            with safe_open(str(path), framework="pt") as f:
-                meta = f.metadata() or {}
             state = load_file(str(path), device=str(map_location))
         except Exception as exc:  # safetensors raises its own error types
             raise MaskNetError(f"{path}: not a readable safetensors file ({exc})") from None

@@ -39,8 +39,14 @@ from masknet.registration.methods import (
     METHODS,
     NETWORK_METHODS,
 )
-from masknet.registration.options import ICPCriteria, Rounds, Selection, resolve_options
-from masknet.registration.robust import RobustOptions, robust_register
+from masknet.registration.options import (
+    ICPCriteria,
+    RobustOptions,
+    Rounds,
+    Selection,
+    resolve_options,
+)
+from masknet.registration.robust import robust_register
 from masknet.registration.rounds import apply_transform, mask_and_register
 from masknet.registration.sampling import fit_to_network, spread_mask
 from masknet.registration.validation import as_numpy_batch, check_arguments
@@ -207,7 +213,7 @@ def register(
             ``Selection(k | threshold)``, ``Rounds(n, refine)`` for ``iterations`` and
             ``refine_iterations``, ``RobustOptions`` for ``method="robust"``.
         **options: for the method. ``"robust"``: the fields of
-            :class:`~masknet.registration.robust.RobustOptions` (it ignores
+            :class:`~masknet.registration.options.RobustOptions` (it ignores
             ``iterations``, ``init``, ``k`` and ``threshold``). ``"icp"``: ``max_iterations`` (default 10),
             ``tolerance``, ``max_correspondence_distance``. ``"open3d-icp"``:
             ``max_iterations`` (default 10), ``max_correspondence_distance``,
@@ -254,12 +260,8 @@ def register(
         robust = robust_register(
             tpl, src, model if use_mask else None, RobustOptions(**options), times, precision
         )
-        total, mask, source_mask = robust.transform, robust.mask, robust.source_mask
-        info, inliers, rounds = (
-            robust.info,
-            None,
-            [robust.transform[0] if single else robust.transform],
-        )
+        total, mask, source_mask, info = robust
+        inliers, rounds = None, [total[0] if single else total]
     else:
         state = mask_and_register(
             tpl,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from masknet.models import REGISTRATION_NETWORKS
 from masknet.names import GLOBAL_METHODS, METHOD_TITLES, METHODS, NETWORK_METHODS
+from masknet.registration.options import RobustOptions
 
 __all__ = [
     "DEFAULT_ITERATIONS",
@@ -18,19 +19,7 @@ __all__ = [
 # The options (``**options`` of register) each method accepts.
 OPTIONS = {
     "icp": ("max_iterations", "tolerance", "max_correspondence_distance"),
-    # masknet.registration.robust.RobustOptions' fields
-    "robust": (
-        "hypotheses",
-        "hypothesis_points",
-        "candidates",
-        "hypothesis_mask",
-        "identity_margin",
-        "mask_rounds",
-        "max_iterations",
-        "trim",
-        "inlier_iterations",
-        "inlier_distance",
-    ),
+    "robust": RobustOptions._fields,
     "open3d-icp": (
         "max_iterations",
         "max_correspondence_distance",

@@ -14,7 +14,6 @@ from __future__ import annotations
 from typing import NamedTuple
 
 from masknet.errors import MaskNetError
-from masknet.registration.robust import RobustOptions
 
 __all__ = ["ICPCriteria", "Rounds", "RobustOptions", "Selection", "resolve_options"]
 
@@ -46,6 +45,49 @@ class Rounds(NamedTuple):
 
     n: int = 1
     refine: int = 0
+
+
+class RobustOptions(NamedTuple):
+    """The options of ``method="robust"`` (``register(..., method="robust", **options)``).
+
+    hypotheses: starting rotations per pair (1-24 take the 24 cube rotations nearest
+        the identity first; more add seeded random rotations).
+    hypothesis_points: points per cloud in the hypothesis stage.
+    candidates: best-scoring hypotheses per pair taken on to full resolution.
+    identity_margin: a turned hypothesis wins over the unturned start only if its score
+        is below this fraction of the start's (1: plain best score; 0: never turn).
+    hypothesis_mask: use the mask in the hypothesis stage too (False: plain ICP there,
+        faster; the mask then enters at full resolution).
+    mask_rounds: Mask-ICP rounds per hypothesis, and again at full resolution.
+    max_iterations: ICP iterations per round.
+    trim: fraction of points whose distances make the score.
+    inlier_iterations: iterations of the final geometric-inlier ICP (0 skips it).
+    inlier_distance: its pair cut-off, in template radii.
+    """
+
+    hypotheses: int = 24
+    hypothesis_points: int = 256
+    candidates: int = 6
+    hypothesis_mask: bool = False
+    identity_margin: float = 0.5
+    mask_rounds: int = 2
+    max_iterations: int = 10
+    trim: float = 0.8
+    inlier_iterations: int = 30
+    inlier_distance: float = 0.05
+
+    def check(self) -> None:
+        """Raise MaskNetError for an option out of range."""
+        if self.hypotheses < 1 or self.hypothesis_points < 16 or self.mask_rounds < 1:
+            raise MaskNetError("robust: hypotheses >= 1, hypothesis_points >= 16, mask_rounds >= 1")
+        if self.candidates < 1:
+            raise MaskNetError("robust: candidates >= 1")
+        if self.max_iterations < 1 or self.inlier_iterations < 0:
+            raise MaskNetError("robust: max_iterations >= 1 and inlier_iterations >= 0")
+        if not 0 <= self.identity_margin <= 1:
+            raise MaskNetError("robust: identity_margin must be in [0, 1]")
+        if not 0 < self.trim <= 1 or not self.inlier_distance > 0:
+            raise MaskNetError("robust: trim must be in (0, 1] and inlier_distance positive")
 
 
 def resolve_options(
