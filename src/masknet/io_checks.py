@@ -84,12 +84,12 @@ def check_ply_body(name: str) -> None:
                 break
         else:
             return
-        body = fh.read() if fmt == "ascii" else None
         start = fh.tell()
+        # ASCII rows counted line by line, so memory does not grow with the file.
+        rows = sum(1 for row in fh if row.strip()) if fmt == "ascii" else None
     declared = {e[0]: e[1] for e in elements}
     vertices = declared.get("vertex", 0)
-    if fmt == "ascii" and body is not None:
-        rows = sum(1 for row in body.splitlines() if row.strip())
+    if rows is not None:
         expected = sum(e[1] for e in elements)
         if rows != expected:
             raise MaskNetError(

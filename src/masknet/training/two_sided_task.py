@@ -9,7 +9,7 @@ The encoder and the template branch start from a shipped MaskNet and stay frozen
 
 Metrics: the source mask at score 0.5 (``f1``, ``outliers_removed``: the fraction of
 corrupted points rejected, ``inliers_kept``), and in validation the template mask's
-top-k precision with k = the kept source points (``template_precision``).
+top-k precision with k = M, as at inference (``template_precision``).
 """
 
 from __future__ import annotations
@@ -106,8 +106,8 @@ class TwoSidedTask(ScanMaskNetTask):
                 "inliers_kept": float((kept & truth).sum() / truth.sum().clamp_min(1)),
             }
             if not model.training:
-                k = kept.sum(-1).clamp_min(3)
-                selected = select_mask(template_logits.float(), k=k)
+                # k = M, as TwoSidedMaskNet.predict_masks selects at inference.
+                selected = select_mask(template_logits.float(), k=source.shape[1])
                 metrics["template_precision"] = float(
                     mask_metrics(selected, batch.mask.to(device)).mean()["precision"]
                 )
