@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 
@@ -12,7 +13,7 @@ from masknet.geometry import (
     rigid_align,
     transform_points,
 )
-from masknet.geometry.se3 import make_transform
+from masknet.geometry.se3 import make_transform, so3_exp
 
 
 def _problem(b: int, p: int, seed: int = 0, max_angle_deg: float = 180.0):
@@ -120,3 +121,18 @@ def test_centroid_alignment_moves_the_source_centroid_onto_the_valid_template_po
     moved = transform_points(transform, source)
     torch.testing.assert_close(moved.mean(1), centroid(template, valid))
     torch.testing.assert_close(transform, centroid_alignment(template, source, valid))
+
+
+def test_numpy_rigid_transform_matches_rigid_align_and_never_reflects():
+    from masknet.geometry.align import rigid_transform_numpy
+
+    rng = np.random.default_rng(7)
+    source = rng.normal(size=(50, 3))
+    target = source @ so3_exp(torch.tensor([0.4, -0.3, 1.1])).numpy().T + [1.0, -2.0, 0.5]
+    target += rng.normal(0, 0.01, target.shape)
+    rot, trans = rigid_align(torch.from_numpy(source)[None], torch.from_numpy(target)[None])
+    transform = rigid_transform_numpy(source, target)
+    np.testing.assert_allclose(transform[:3, :3], rot[0].numpy(), atol=1e-10)
+    np.testing.assert_allclose(transform[:3, 3], trans[0].numpy(), atol=1e-10)
+    mirrored = source * [1, 1, -1]  # the best orthogonal map is a reflection
+    assert np.linalg.det(rigid_transform_numpy(source, mirrored)[:3, :3]) > 0

@@ -6,12 +6,13 @@ The result follows the project's transform convention (:mod:`masknet.geometry.se
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import Tensor
 
 from masknet.geometry.se3 import make_transform
 
-__all__ = ["centroid", "centroid_alignment", "rigid_align"]
+__all__ = ["centroid", "centroid_alignment", "rigid_align", "rigid_transform_numpy"]
 
 
 def centroid(points: Tensor, valid: Tensor | None = None) -> Tensor:
@@ -88,3 +89,20 @@ def rigid_align(
     rot = torch.where(has_weight[:, None, None], rot, eye)
     trans = y_mean - (rot @ s_mean[..., None])[..., 0]
     return rot.to(source.dtype), trans.to(source.dtype)
+
+
+def rigid_transform_numpy(source: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """:func:`rigid_align` for one pair in numpy float64, as a (4, 4) transform:
+    source (P, 3) onto target (P, 3), P >= 1, unweighted. For loops over a single pair on
+    the CPU, where torch's per-call cost would dominate a 3x3 solve."""
+    n = len(source)
+    s_mean, y_mean = source.sum(0) / n, target.sum(0) / n
+    cov = source.T @ target - n * np.outer(s_mean, y_mean)  # sum (s - s_mean)(y - y_mean)^T
+    u, _, vh = np.linalg.svd(cov)
+    rot = vh.T @ u.T
+    if np.linalg.det(rot) < 0:  # a reflection: flip the smallest singular direction
+        vh[2] *= -1
+        rot = vh.T @ u.T
+    out = np.eye(4)
+    out[:3, :3], out[:3, 3] = rot, y_mean - rot @ s_mean
+    return out

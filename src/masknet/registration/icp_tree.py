@@ -13,25 +13,10 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from masknet.geometry.align import rigid_transform_numpy
 from masknet.registration.icp import ICPSolution
 
 __all__ = ["icp_single"]
-
-
-def _kabsch(source: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """(4, 4) rigid transform minimising sum ||R s + t - y||^2 (no reflection);
-    (P, 3) each, P >= 1."""
-    n = len(source)
-    s_mean, y_mean = source.sum(0) / n, target.sum(0) / n
-    cov = source.T @ target - n * np.outer(s_mean, y_mean)  # sum (s - s_mean)(y - y_mean)^T
-    u, _, vh = np.linalg.svd(cov)
-    rot = vh.T @ u.T
-    if np.linalg.det(rot) < 0:  # a reflection: flip the smallest singular direction
-        vh[2] *= -1
-        rot = vh.T @ u.T
-    out = np.eye(4)
-    out[:3, :3], out[:3, 3] = rot, y_mean - rot @ s_mean
-    return out
 
 
 def icp_single(
@@ -69,7 +54,7 @@ def icp_single(
     for _ in range(max_iterations):
         if done:
             break
-        transform = _kabsch(moved[inlier], matched[inlier]) @ transform
+        transform = rigid_transform_numpy(moved[inlier], matched[inlier]) @ transform
         iterations += 1
         previous = mse
         moved, matched, inlier, fitness, mse = match(transform)
