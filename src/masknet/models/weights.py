@@ -21,9 +21,12 @@ from safetensors.torch import load_file, save_file
 from masknet._atomic import atomic_target
 from masknet.errors import MaskNetError
 
-__all__ = ["SafetensorsWeights", "read_metadata", "shipped_weights_path"]
+__all__ = ["STORAGE_DTYPES", "SafetensorsWeights", "read_metadata", "shipped_weights_path"]
 
 M = TypeVar("M", bound="SafetensorsWeights")
+
+# How floating-point tensors may be stored on disk; loading always gives fp32.
+STORAGE_DTYPES = {"fp32": torch.float32, "fp16": torch.float16}
 
 
 def shipped_weights_path(filename: str) -> Path:
@@ -56,14 +59,32 @@ class SafetensorsWeights:
     def _config_key(cls) -> str:
         return f"{cls.weights_prefix}config"
 
-    def save(self, path: str | os.PathLike, metadata: dict | None = None) -> None:
-        """Write the weights as safetensors (atomically), with the architecture in the metadata."""
+    def save(
+        self, path: str | os.PathLike, metadata: dict | None = None, storage: str = "fp32"
+    ) -> None:
+        """Write the weights as safetensors (atomically), with the architecture in the metadata.
+
+        ``storage="fp16"`` stores floating-point tensors in half precision (half the file;
+        :meth:`from_file` loads them back into the fp32 network) and records it in the
+        metadata under ``storage``. A value beyond fp16's range is a MaskNetError.
+        """
+        if storage not in STORAGE_DTYPES:
+            raise MaskNetError(f"storage must be one of {sorted(STORAGE_DTYPES)}, got {storage!r}")
         meta = {self._config_key(): json.dumps(self.config)}
         meta.update(
             {k: v if isinstance(v, str) else json.dumps(v) for k, v in (metadata or {}).items()}
         )
+        meta["storage"] = storage
+        dtype = STORAGE_DTYPES[storage]
         state = self.state_dict()  # type: ignore[attr-defined]
-        tensors = {k: v.detach().cpu().contiguous() for k, v in state.items()}
+        tensors = {}
+        for key, value in state.items():
+            value = value.detach().cpu()
+            if value.is_floating_point():
+                value = value.to(dtype)
+                if not bool(torch.isfinite(value).all()):
+                    raise MaskNetError(f"{path}: {key} does not fit in {storage} storage")
+            tensors[key] = value.contiguous()
         with atomic_target(path) as tmp:
             save_file(tensors, tmp, meta)
 
@@ -71,7 +92,8 @@ class SafetensorsWeights:
     def from_file(
         cls: type[M], path: str | os.PathLike, map_location: str | torch.device = "cpu"
     ) -> M:
-        """Load weights written by :meth:`save` (safetensors; never unpickles)."""
+        """Load weights written by :meth:`save` (safetensors; never unpickles). Weights
+        stored in fp16 are loaded into the fp32 network."""
         path = Path(path)
         kind = cls.__name__
         meta = read_metadata(path)
