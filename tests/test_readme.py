@@ -37,7 +37,16 @@ def test_readme_python_example_runs(index, small_masknet, one_thread):
         "clean_template": noisy.template[0].double().numpy(),
         "my_denoiser": small_masknet,
     }
-    exec(compile(_python_blocks()[index], f"README.md python block {index}", "exec"), namespace)
+    block = _python_blocks()[index]
+    if "kinect_scene" in block:  # an object among four others, three radii apart
+        all_shapes = load_modelnet40(bundled_sample_path(), "test").points[:5].astype(float)
+        grid = np.array([[0, 0, 0], [3, 0, 0], [0, 3, 0], [3, 3, 0], [6, 0, 0]], float)
+        namespace["carton"] = all_shapes[2]
+        namespace["kinect_scene"] = np.concatenate(all_shapes + grid[:, None])
+    exec(compile(block, f"README.md python block {index}", "exec"), namespace)
+    if "object_points" in namespace:  # the object found where it was put
+        expected = namespace["carton"].mean(0) + [0, 3, 0]
+        np.testing.assert_allclose(namespace["object_points"].mean(0), expected, atol=0.02)
     # Whatever the block produced has the documented shapes.
     if "mask" in namespace:
         assert namespace["mask"].shape == (len(template),)

@@ -325,6 +325,27 @@ def test_register_robust_from_the_command_line(tmp_path, pair_files, capsys):
     assert np.degrees(np.arccos(np.clip((np.trace(rot) - 1) / 2, -1, 1))) < 5
 
 
+def test_register_finds_an_object_in_a_scene(tmp_path, capsys):
+    shapes = load_modelnet40(bundled_sample_path(), "test").points[:4].astype(np.float64)
+    grid = np.array([[0, 0, 0], [4, 0, 0], [0, 4, 0], [4, 4, 0]], float)
+    scene = np.concatenate(shapes + grid[:, None])  # the object is the second shape, at x = 4
+    np.save(tmp_path / "object.npy", shapes[1])
+    np.save(tmp_path / "scene.npy", scene)
+    out = tmp_path / "r.npy"
+    args = ["register", str(tmp_path / "object.npy"), str(tmp_path / "scene.npy"), "-o", str(out)]
+    assert main([*args, "--html", str(tmp_path / "v.html")]) == 0
+    text = capsys.readouterr().out
+    assert "scene search:" in text and "source kept:" in text
+    kept = np.loadtxt(tmp_path / "r_source_mask.txt").astype(bool)
+    on_object = np.repeat(np.arange(4) == 1, len(shapes[1]))
+    assert (kept & on_object).sum() > 0.95 * on_object.sum() and (kept & ~on_object).sum() < 50
+    transform = np.loadtxt(tmp_path / "r_transform.txt")
+    np.testing.assert_allclose(transform[:3, 3], [-4, 0, 0], atol=0.01)
+    assert "found on the object" in (tmp_path / "v.html").read_text()
+    assert main([*args, "--scene", "off"]) == 0
+    assert "scene search:" not in capsys.readouterr().out
+
+
 def test_help_does_not_import_torch_and_names_agree():
     code = "import sys, masknet.cli; masknet.cli.build_parser(); print('torch' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

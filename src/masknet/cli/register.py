@@ -93,6 +93,15 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="larger clouds are farthest-point sampled to this for the networks and "
         "ICP; the transform is applied to the full source",
     )
+    p.add_argument(
+        "--scene",
+        choices=["auto", "on", "off"],
+        default="auto",
+        help="find TEMPLATE, a small object, in SOURCE, a large scan, before registering: "
+        "auto (default) when SOURCE is at least 3 times as spread out as TEMPLATE (median "
+        "distance from the median point); the scene points "
+        "found on the object go to <stem>_source_mask.txt",
+    )
     add_file_options(p)
     add_model_options(
         p,
@@ -115,8 +124,8 @@ def run(args: argparse.Namespace) -> None:
     derived = [out.with_name(out.stem + "_transform.txt")]
     if not args.no_mask:
         derived.append(out.with_name(out.stem + "_inliers" + out.suffix))
-    if args.two_sided or args.method == "robust":
-        derived.append(out.with_name(out.stem + "_source_mask.txt"))
+    # Written when the result masks the source (two-sided MaskNet, robust, scene search).
+    derived.append(out.with_name(out.stem + "_source_mask.txt"))
     check_outputs([out, *derived] + check_html(args.html))
     with progress(f"reading {args.template}"):
         template = read_points(args.template, drop_nonfinite=args.drop_nonfinite)
@@ -150,6 +159,7 @@ def run(args: argparse.Namespace) -> None:
             init=args.init,
             refine_iterations=args.refine,
             max_points=args.max_points,
+            scene={"auto": None, "on": True, "off": False}[args.scene],
             **options,
         )
     moved = source @ result.R.T + result.t
@@ -179,6 +189,16 @@ def run(args: argparse.Namespace) -> None:
         if result.source_mask is not None:
             layers["registered"] = moved[result.source_mask]
             layers["rejected"] = moved[~result.source_mask]
+        if "search_fitness" in result.info:  # a scene: show the object and its surroundings
+            rejected = layers.pop("rejected")
+            centre = template.mean(0)
+            reach = 2 * np.linalg.norm(template - centre, axis=1).max()
+            near = rejected[np.linalg.norm(rejected - centre, axis=1) <= reach]
+            layers = {  # drawn in order: the object on top
+                "scene within 2 template radii": (near, "#b0b0b0"),
+                "template": (template, "#1f77b4"),
+                "found on the object": (layers["registered"], "#d62728"),
+            }
         title = f"{name}: {Path(args.source).name} -> {Path(args.template).name}"
         writers += view_writers(args.html, layers, title)
     with progress("writing the outputs"):
@@ -189,6 +209,12 @@ def run(args: argparse.Namespace) -> None:
     print(f"{name}: template {len(template)} points, source {len(source)}{sampled}")
     if result.mask is not None:
         print(f"inliers: {int(result.mask.sum())} of {len(template)} template points")
+    if "search_fitness" in result.info:
+        print(
+            f"scene search: {int(result.info['search_regions'])} regions of SOURCE searched "
+            f"in {result.times['search']:.1f} s; {100 * float(result.info['search_fitness']):.1f}% "
+            "of the template lies on the scene where it was found"
+        )
     if result.source_mask is not None:
         print(f"source kept: {int(result.source_mask.sum())} of {len(source)} points")
     angle = float(result.rotation_deg)

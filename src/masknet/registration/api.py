@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from masknet.errors import MaskNetError
 from masknet.models import REGISTRATION_NETWORKS
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
@@ -49,6 +50,7 @@ from masknet.registration.options import (
 from masknet.registration.robust import robust_register
 from masknet.registration.rounds import apply_transform, mask_and_register
 from masknet.registration.sampling import fit_to_network, spread_mask
+from masknet.registration.scene import SceneMatch, SceneSearch, is_scene, locate, polish
 from masknet.registration.validation import as_numpy_batch, check_arguments
 
 __all__ = [
@@ -77,8 +79,8 @@ class RegistrationResult:
         mask: (N,) or (B, N) bool over the input template, the inliers used in the
             last round; None without a mask.
         times: seconds per stage, summed over rounds: ``"sample"`` (subsampling large
-            clouds), ``"mask"`` (MaskNet), ``"register"`` (the method), ``"refine"``
-            and ``"total"`` (the whole call).
+            clouds), ``"mask"`` (MaskNet), ``"register"`` (the method), ``"refine"``,
+            ``"search"`` (with a scene search) and ``"total"`` (the whole call).
         info: what the method reported in its last run, as numpy arrays, () or (B,)
             each. ICP methods: ``converged``, ``iterations`` (-1 where not reported),
             ``fitness`` and ``inlier_rmse`` (Open3D's definitions). PointNetLK:
@@ -140,6 +142,20 @@ class RegistrationResult:
         return np.degrees(np.arccos(np.clip(cos, -1, 1)))
 
 
+def _search_scene(
+    template: np.ndarray, source: np.ndarray, single: bool, scene: bool | SceneSearch | None
+) -> SceneMatch | None:
+    """The scene search's result for one pair (B = 1) when ``scene`` asks for it (None:
+    when :func:`~masknet.registration.scene.is_scene`), else None."""
+    options = scene if isinstance(scene, SceneSearch) else SceneSearch()
+    if scene is None or scene is False:
+        if scene is False or not single or not is_scene(template[0], source[0], options):
+            return None
+    elif not single:
+        raise MaskNetError("scene search takes one pair, not a batch")
+    return locate(template[0], source[0], options)
+
+
 @functools.lru_cache(maxsize=1)
 def _default_model() -> MaskNet:
     """The shipped MaskNet weights, loaded once per process."""
@@ -176,6 +192,7 @@ def register(
     selection: Selection | None = None,
     rounds: Rounds | None = None,
     robust: RobustOptions | None = None,
+    scene: bool | SceneSearch | None = None,
     **options: Any,
 ) -> RegistrationResult:
     """Register a partial source to a full template, optionally through MaskNet's mask.
@@ -212,6 +229,18 @@ def register(
             (:mod:`masknet.registration.options`): ``ICPCriteria`` for the ICP options,
             ``Selection(k | threshold)``, ``Rounds(n, refine)`` for ``iterations`` and
             ``refine_iterations``, ``RobustOptions`` for ``method="robust"``.
+        scene: find the template, a small object, in a large source scan first
+            (:func:`masknet.registration.scene.locate`): True, False, or
+            :class:`~masknet.registration.scene.SceneSearch` options (implies True).
+            None (default) searches when the source is at least 3 times as spread out
+            as the template (median distance of its points from their median point),
+            for single pairs. The method then runs on the scene points found on the
+            object, from the pose found, and full-resolution ICP on those points from
+            the method's pose and the search's ends the call, the better fit winning
+            (:func:`~masknet.registration.scene.polish`); ``source_mask`` marks
+            them, and
+            ``info`` gains ``search_fitness`` (template points on the scene) and
+            ``search_regions``.
         **options: for the method. ``"robust"``: the fields of
             :class:`~masknet.registration.options.RobustOptions` (it ignores
             ``iterations``, ``init``, ``k`` and ``threshold``). ``"icp"``: ``max_iterations`` (default 10),
@@ -244,6 +273,10 @@ def register(
         options = {key: v for key, v in merged.items() if v is not None or key in options}
     check_arguments(method, options, iterations, k, threshold, use_mask, init, refine_iterations)
     tpl_full, src_full, single = as_numpy_batch(template, source)
+    found = _search_scene(tpl_full, src_full, single, scene)
+    if found is not None:  # the method registers the object's points, from the pose found
+        scene_source = src_full[0]
+        src_full = apply_transform(found.transform[None], scene_source[found.source_mask][None])
     if method not in GLOBAL_METHODS:
         options.setdefault("max_iterations", DEFAULT_ITERATIONS[method])
     if use_mask and model is None:
@@ -287,6 +320,21 @@ def register(
 
     if source_index is not None and source_mask is not None:
         source_mask = spread_mask(src_full[0], source_index, source_mask[0])[None]
+    if found is not None:  # back to the whole scene, then full-resolution ICP on the object
+        total = total @ found.transform
+        tic = time.perf_counter()
+        options = scene if isinstance(scene, SceneSearch) else None
+        on_object = scene_source[found.source_mask]
+        total = polish(tpl_full[0], on_object, [total[0], found.transform], options)[None]
+        times["refine"] += time.perf_counter() - tic
+        rounds = [r @ found.transform for r in rounds]
+        on_object = found.source_mask.copy()
+        if source_mask is not None:
+            on_object[on_object] = source_mask[0]
+        source_mask = on_object[None]
+        info = {**info, "search_fitness": np.array([found.fitness])}
+        info["search_regions"] = np.array([found.regions])
+        times["search"] = found.seconds
     if template_index is not None:
         if mask is not None:
             mask = spread_mask(tpl_full[0], template_index, mask[0])[None]

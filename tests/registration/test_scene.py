@@ -1,0 +1,94 @@
+"""masknet.registration.scene: finding a small object in a large scene, alone and in register."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from masknet import MaskNetError, register
+from masknet.data import bundled_sample_path, load_modelnet40
+from masknet.evaluation.registration import pose_errors
+from masknet.registration.scene import SceneSearch, is_scene, locate
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+
+@pytest.fixture(scope="module")
+def scene_pair():
+    """A sample shape (the object), and a scene of seven other shapes on a 3 x 3 grid (three
+    radii apart) with the object, turned by 120 degrees, in one of its cells, plus a floor.
+    Returns (object, scene, truth (4, 4) scene -> object, (P,) bool scene points on it)."""
+    shapes = load_modelnet40(bundled_sample_path(), "test").points.astype(np.float64)
+    obj = shapes[0]
+    rot = Rotation.from_rotvec(np.radians(120) * np.array([0.0, 0.6, 0.8])).as_matrix()
+    rng = np.random.default_rng(0)
+    parts, on_object = [], []
+    for i, (x, y) in enumerate((x, y) for x in range(3) for y in range(3)):
+        if i == 8:
+            continue
+        shift = np.array([3.0 * x, 3.0 * y, 0.0])
+        if i == 4:  # the object in the middle cell, sampled anew (no shared points)
+            points = obj[rng.choice(len(obj), 700, replace=False)] @ rot.T + shift
+            object_shift = shift
+        else:
+            points = shapes[i + 1] + shift
+        parts.append(points)
+        on_object.append(np.full(len(points), i == 4))
+    floor = np.c_[rng.uniform(-1.5, 7.5, (3000, 2)), np.full(3000, -1.2)]
+    parts.append(floor)
+    on_object.append(np.zeros(len(floor), bool))
+    scene = np.concatenate(parts)
+    truth = np.eye(4)  # scene -> object frame
+    truth[:3, :3], truth[:3, 3] = rot.T, -rot.T @ object_shift
+    return obj, scene, truth, np.concatenate(on_object)
+
+
+def test_locate_finds_the_object_and_its_points(scene_pair):
+    obj, scene, truth, on_object = scene_pair
+    found = locate(obj, scene)
+    rot, trans = pose_errors(found.transform[None], truth[None])
+    assert rot[0] < 1.0 and trans[0] < 0.02
+    assert found.fitness > 0.6  # a new sampling of 700 points against 1,024
+    kept = found.source_mask
+    assert kept.shape == (len(scene),)
+    assert (kept & on_object).sum() > 0.95 * on_object.sum()  # the object's points...
+    assert (kept & ~on_object).sum() < 0.05 * kept.sum()  # ...and little else
+    assert found.regions > 10 and found.hypotheses == 24 * found.regions
+
+
+def test_locate_does_not_depend_on_the_unit(scene_pair):
+    obj, scene, _, _ = scene_pair
+    metres = locate(obj, scene)
+    millimetres = locate(1000 * obj, 1000 * scene)
+    np.testing.assert_allclose(millimetres.transform[:3, :3], metres.transform[:3, :3], atol=1e-6)
+    np.testing.assert_allclose(
+        millimetres.transform[:3, 3], 1000 * metres.transform[:3, 3], atol=1e-3
+    )
+    np.testing.assert_array_equal(millimetres.source_mask, metres.source_mask)
+
+
+def test_register_searches_a_scene_by_default_and_not_a_view(scene_pair):
+    obj, scene, truth, on_object = scene_pair
+    assert is_scene(obj, scene) and not is_scene(obj, obj[:500])
+    result = register(obj, scene)  # Mask-ICP after the search
+    rot, trans = pose_errors(result.transform[None], truth[None])
+    assert rot[0] < 1.0 and trans[0] < 0.02
+    assert result.source_mask.shape == (len(scene),)
+    assert (result.source_mask & on_object).sum() > 0.9 * on_object.sum()
+    assert result.info["search_fitness"] > 0.6 and result.times["search"] > 0
+    view = register(obj, obj[:500] + 0.05)
+    assert "search_fitness" not in view.info and "search" not in view.times
+
+
+def test_scene_search_off_and_bad_uses(scene_pair):
+    obj, scene, truth, _ = scene_pair
+    plain = register(obj, scene, scene=False)
+    assert "search_fitness" not in plain.info
+    assert pose_errors(plain.transform[None], truth[None])[0][0] > 10  # ICP alone is lost
+    with pytest.raises(MaskNetError, match="one pair"):
+        register(np.stack([obj, obj]), np.stack([obj, obj]), scene=True)
+    with pytest.raises(MaskNetError, match="trim"):
+        locate(obj, scene, SceneSearch(trim=0))
+    with pytest.raises(MaskNetError, match="no region"):
+        locate(obj, scene[:10], SceneSearch(min_region_points=50))
