@@ -228,8 +228,13 @@ def locate(
             # Placements that fit worst are dropped as they go: the right one fits early.
             keep = np.argsort(_trimmed(d2, opts.trim), kind="stable")
             keep = keep[: max(len(keep) // 4, opts.candidates)]
-            poses, moved, matched = poses[keep], moved[keep], matched[keep]
-        rot, trans = rigid_align(torch.from_numpy(moved), torch.from_numpy(matched))
+            poses, moved, matched, d2 = poses[keep], moved[keep], matched[keep], d2[keep]
+        # Trimmed ICP: only the best ``trim`` of each placement's pairs move it, so the
+        # template's parts that the scan does not see do not pull it.
+        keep_count = max(3, int(round(opts.trim * d2.shape[1])))
+        cut = np.partition(d2, keep_count - 1, axis=1)[:, keep_count - 1 : keep_count]
+        weights = torch.from_numpy((d2 <= cut).astype(np.float64))
+        rot, trans = rigid_align(torch.from_numpy(moved), torch.from_numpy(matched), weights)
         update = np.tile(np.eye(4), (len(poses), 1, 1))
         update[:, :3, :3], update[:, :3, 3] = rot.numpy(), trans.numpy()
         poses = update @ poses
