@@ -1,6 +1,7 @@
 """Outliers in the source: X, Mask-X (the paper's MaskNet) and two-sided Mask-X, and the
 two-sided network as a learned denoiser beside the distance rule and Open3D's filter.
 
+    python scripts/two_sided_benchmark.py --data $MASKNET_DATA --pairs 1000 --ratios 0 --out docs/results/two_sided_clean.json
     python scripts/two_sided_benchmark.py --data $MASKNET_DATA --pairs 200 --ratios 0,0.1,0.2 --out docs/results/two_sided.json
 
 ModelNet40 test shapes, the paper's protocol (70% views, rotations up to 45 degrees),
@@ -80,6 +81,7 @@ def main() -> None:
         for method, rounds in [
             (m, int(r)) for m in args.methods.split(",") for r in args.iterations.split(",")
         ]:
+            errors = {}
             for name, model in masks.items():
                 tic = time.perf_counter()
                 result = register(
@@ -91,6 +93,7 @@ def main() -> None:
                     iterations=rounds,
                 )
                 rot, trans = pose_errors(result.transform, truth)
+                errors[name] = rot
                 rows.append(
                     {
                         "outliers": ratio,
@@ -105,6 +108,12 @@ def main() -> None:
                     }
                 )
                 print(rows[-1], flush=True)
+            # Paired over the same pairs: two-sided minus the paper's mask, and its standard
+            # error, so that a small difference can be told from the pairs' own spread.
+            diff = errors["two-sided Mask-X"] - errors["Mask-X"]
+            rows[-1]["paired_diff_vs_mask_x"] = float(diff.mean())
+            rows[-1]["paired_se"] = float(diff.std(ddof=1) / np.sqrt(len(diff)))
+            print(f"two-sided - Mask-X: {diff.mean():+.3f} +- {rows[-1]['paired_se']:.3f}")
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(
