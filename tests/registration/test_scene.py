@@ -81,6 +81,15 @@ def test_register_searches_a_scene_by_default_and_not_a_view(scene_pair):
     assert "search_fitness" not in view.info and "search" not in view.times
 
 
+def test_a_large_scene_gets_a_coarser_grid_within_the_budget(scene_pair):
+    obj, scene, truth, _ = scene_pair
+    found = locate(obj, scene, SceneSearch(max_placements=24 * 60))
+    assert found.hypotheses <= 24 * 60 and found.spacing > 0.5
+    assert locate(obj, scene).spacing == 0.5
+    with pytest.raises(MaskNetError, match="max_placements"):
+        SceneSearch(max_placements=10).check()
+
+
 def test_scene_search_off_and_bad_uses(scene_pair):
     obj, scene, truth, _ = scene_pair
     plain = register(obj, scene, scene=False)

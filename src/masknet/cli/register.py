@@ -4,6 +4,7 @@ transform and the inlier template."""
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from masknet.cli._common import (
@@ -211,10 +212,18 @@ def run(args: argparse.Namespace) -> None:
         print(f"inliers: {int(result.mask.sum())} of {len(template)} template points")
     if "search_fitness" in result.info:
         print(
-            f"scene search: {int(result.info['search_regions'])} regions of SOURCE searched "
+            f"scene search: {int(result.info['search_regions'])} regions of SOURCE searched, "
+            f"{float(result.info['search_spacing']):.2g} template radii apart, "
             f"in {result.times['search']:.1f} s; {100 * float(result.info['search_fitness']):.1f}% "
             "of the template lies on the scene where it was found"
         )
+        if float(result.info["search_fitness"]) < 0.5:
+            print(
+                "masknet: warning: under half of TEMPLATE lies on SOURCE where it fits best; "
+                "the object may not be in this scan (or TEMPLATE shows more of it than the "
+                "scan sees)",
+                file=sys.stderr,
+            )
     if result.source_mask is not None:
         print(f"source kept: {int(result.source_mask.sum())} of {len(source)} points")
     angle = float(result.rotation_deg)

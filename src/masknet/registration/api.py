@@ -239,8 +239,8 @@ def register(
             the method's pose and the search's ends the call, the better fit winning
             (:func:`~masknet.registration.scene.polish`); ``source_mask`` marks
             them, and
-            ``info`` gains ``search_fitness`` (template points on the scene) and
-            ``search_regions``.
+            ``info`` gains ``search_fitness`` (template points on the scene),
+            ``search_regions`` and ``search_spacing`` (the centre grid, template radii).
         **options: for the method. ``"robust"``: the fields of
             :class:`~masknet.registration.options.RobustOptions` (it ignores
             ``iterations``, ``init``, ``k`` and ``threshold``). ``"icp"``: ``max_iterations`` (default 10),
@@ -334,6 +334,7 @@ def register(
         source_mask = on_object[None]
         info = {**info, "search_fitness": np.array([found.fitness])}
         info["search_regions"] = np.array([found.regions])
+        info["search_spacing"] = np.array([found.spacing])
         times["search"] = found.seconds
     if template_index is not None:
         if mask is not None:

@@ -72,6 +72,8 @@ class SceneSearch(NamedTuple):
     refine_distance: correspondence cut-off of the refinement.
     inlier_distance: scene points this close to the moved template are the object's (at
         least 1.5 times the template's median nearest-neighbour spacing).
+    max_placements: the most placements (centres x hypotheses) of the batched stage; a
+        larger scene gets a coarser centre grid (reported as ``SceneMatch.spacing``).
     scene_ratio: :func:`is_scene` calls a source a scene when it is at least this many times
         as spread out as the template (median distance of the points from their median
         point: outliers, even a third of the points, barely move it).
@@ -90,6 +92,7 @@ class SceneSearch(NamedTuple):
     refine_distance: float = 0.1
     inlier_distance: float = 0.02
     scene_ratio: float = 3.0
+    max_placements: int = 50_000
 
     def check(self) -> None:
         """MaskNetError naming the first option out of range."""
@@ -101,6 +104,8 @@ class SceneSearch(NamedTuple):
         for name in ("hypotheses", "hypothesis_points", "iterations"):
             if getattr(self, name) < 1:
                 raise MaskNetError(f"scene search: {name} must be >= 1")
+        if self.max_placements < self.hypotheses:
+            raise MaskNetError("scene search: max_placements must be >= hypotheses")
         if self.candidates < 1 or self.refine_points < 3:
             raise MaskNetError("scene search: candidates >= 1 and refine_points >= 3")
 
@@ -112,7 +117,8 @@ class SceneMatch(NamedTuple):
     object. fitness: fraction of template points within the inlier distance of the scene at
     the found pose. inlier_rmse: RMS distance of those points, in the input's units.
     regions: candidate regions searched. hypotheses: placements run in the batched stage.
-    seconds: the search's time.
+    seconds: the search's time. spacing: the centre grid used, in template radii (the
+    option's, or coarser where the scene exceeded ``max_placements``).
     """
 
     transform: np.ndarray
@@ -122,6 +128,7 @@ class SceneMatch(NamedTuple):
     regions: int
     hypotheses: int
     seconds: float
+    spacing: float
 
 
 def _radius(points: np.ndarray) -> float:
@@ -205,7 +212,12 @@ def locate(
     # 1-2. Thinned scene and candidate centres (those with enough scene around them).
     thin = _voxel_thin(scn, opts.voxel)
     thin_tree = KDTree(thin.astype(np.float32))  # float32 search: the hot loop
-    centres = _voxel_thin(thin, opts.spacing)
+    # A scene too large for the budget is searched on a coarser grid (less reliably).
+    spacing = opts.spacing
+    centres = _voxel_thin(thin, spacing)
+    while len(centres) * opts.hypotheses > opts.max_placements:
+        spacing *= 1.25
+        centres = _voxel_thin(thin, spacing)
     counts = np.array([len(m) for m in cKDTree(thin).query_ball_point(centres, opts.crop)])
     centres = centres[counts >= opts.min_region_points]
     if not len(centres):
@@ -292,7 +304,7 @@ def locate(
     transform[:3, :3] = inverse[:3, :3]
     transform[:3, 3] = centre + radius * inverse[:3, 3] - inverse[:3, :3] @ centre
     seconds = time.perf_counter() - tic
-    return SceneMatch(transform, source_mask, fitness, rmse, len(centres), count, seconds)
+    return SceneMatch(transform, source_mask, fitness, rmse, len(centres), count, seconds, spacing)
 
 
 def polish(
