@@ -28,6 +28,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from masknet import register
+from masknet._atomic import atomic_target
 from masknet.evaluation.registration import pose_errors
 from masknet.io import read_points, require_open3d
 from masknet.models import TwoSidedMaskNet
@@ -126,7 +127,7 @@ def main() -> None:
             f"{r['rot_from_best_deg']:.2f} deg / {1e3 * r['trans_from_best_m']:.1f} mm from the best",
             flush=True,
         )
-    from masknet.cli._common import write_views
+    from masknet.cli._common import scene_layers, write_views
 
     moved = model @ model_to_scene[:3, :3].T + model_to_scene[:3, 3]
     # The scene points on the carton: within 3 mm of the ground-truth carton.
@@ -162,17 +163,7 @@ def main() -> None:
         print(rows[-1], flush=True)
         if name.startswith("Mask-ICP (the default"):
             moved_scene = scene @ result.R.T + result.t
-            centre = model.mean(0)
-            reach = 2 * np.linalg.norm(model - centre, axis=1).max()
-            rest = moved_scene[~result.source_mask]
-            layers = {
-                "scene within 2 carton radii": (
-                    rest[np.linalg.norm(rest - centre, axis=1) <= reach],
-                    "#b0b0b0",
-                ),
-                "carton model": (model, "#1f77b4"),
-                "found on the carton": (moved_scene[result.source_mask], "#d62728"),
-            }
+            layers = scene_layers(model, moved_scene, result.source_mask)
             write_views(str(out / "found.html"), layers, "The carton found in the scene")
 
     # Harder variants: the scene moved, and a resampled, noisy model (no point in common).
@@ -197,17 +188,18 @@ def main() -> None:
             )
             trials.append(row)
             print(row, flush=True)
-    (out / "carton.json").write_text(
-        json.dumps(
-            {
-                "ground_truth": truth.tolist(),
-                "seeds": [{k: v for k, v in r.items() if k != "pose"} for r in runs],
-                "pipelines": rows,
-                "trials": trials,
-            },
-            indent=1,
+    with atomic_target(out / "carton.json") as tmp:
+        Path(tmp).write_text(
+            json.dumps(
+                {
+                    "ground_truth": truth.tolist(),
+                    "seeds": [{k: v for k, v in r.items() if k != "pose"} for r in runs],
+                    "pipelines": rows,
+                    "trials": trials,
+                },
+                indent=1,
+            )
         )
-    )
 
 
 if __name__ == "__main__":

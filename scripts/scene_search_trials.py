@@ -8,8 +8,9 @@ removal keeps what that viewpoint sees, as a depth sensor does). The middle one 
 object. ``register(template, scene)`` runs with its defaults (the scene search, then
 Mask-ICP) for two templates:
 
-* the view: the object's points as the scene sees them, resampled (a random half, so no
-  point is a copy) -- a model captured by the same kind of sensor, as the carton is;
+* the view: the object's points as the scene sees them, a random half of them with
+  Gaussian noise of 0.005 radii (so no point is a copy of a scene point) -- a model
+  captured by the same kind of sensor, as the carton is;
 * the full model: all 1,024 points of the shape, of which the scene sees one side.
 
 A trial finds the object's location when the translation error is under 0.2 radii, and its
@@ -34,9 +35,11 @@ from masknet.data.views import hidden_point_removal
 from masknet.evaluation.registration import pose_errors
 
 
-def make_scene(shapes: np.ndarray, trial: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def make_scene(
+    shapes: np.ndarray, trial: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(scene (P, 3), the object's visible points in its own frame, truth (4, 4) scene ->
-    object frame) for one seeded trial."""
+    object frame, the object's full shape (N, 3)) for one seeded trial."""
     rng = np.random.default_rng(trial)
     picks = rng.choice(len(shapes), 9, replace=False)
     parts = []
@@ -66,6 +69,7 @@ def main() -> None:
         scene, seen, truth, full = make_scene(shapes, trial)
         rng = np.random.default_rng(1000 + trial)
         view = seen[rng.choice(len(seen), max(3, len(seen) // 2), replace=False)]
+        view = view + rng.normal(0, 0.005, view.shape)
         for template_kind, template in (("view", view), ("full model", full)):
             tic = time.perf_counter()
             result = register(template, scene)

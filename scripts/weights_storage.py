@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -46,11 +47,17 @@ MIN_AGREEMENT = 0.999
 
 
 def rounded_copy(model: torch.nn.Module, dtype: torch.dtype) -> torch.nn.Module:
-    """A copy of ``model`` whose floating-point parameters and buffers went through
-    ``dtype`` and back to fp32: what loading a file stored in ``dtype`` gives."""
+    """``model`` as loaded back from a file that stores its tensors in ``dtype``: fp16
+    through :meth:`save` and :meth:`from_file` themselves; other dtypes (bf16, which the
+    package does not store) by the same cast."""
+    if dtype == torch.float16:
+        with tempfile.TemporaryDirectory() as folder:
+            path = Path(folder) / "w.safetensors"
+            model.save(path, storage="fp16")
+            return type(model).from_file(path)
     copy = type(model)(**model.config).eval()
-    state = {k: v.to(dtype) if v.is_floating_point() else v for k, v in model.state_dict().items()}
-    copy.load_state_dict(state)
+    state = model.state_dict()
+    copy.load_state_dict({k: v.to(dtype) if v.is_floating_point() else v for k, v in state.items()})
     return copy
 
 
@@ -125,12 +132,14 @@ def write_fp16(report_path: Path) -> None:
         if card.exists():
             data = json.loads(card.read_text())
             data["storage"] = {"dtype": "fp16", **row, "pairs": report["pairs"]}
-            card.write_text(json.dumps(data, indent=2) + "\n")
+            with atomic_target(card) as tmp:
+                Path(tmp).write_text(json.dumps(data, indent=2) + "\n")
         markdown = path.with_suffix(".md")
         lines = markdown.read_text().splitlines()
         first = next(i for i, line in enumerate(lines) if line.startswith("## "))
         lines[first:first] = ["## Storage", "", text, ""]
-        markdown.write_text("\n".join(lines) + "\n")
+        with atomic_target(markdown) as tmp:
+            Path(tmp).write_text("\n".join(lines) + "\n")
         print(f"{name}: stored in fp16, card updated")
 
 

@@ -344,6 +344,12 @@ def test_register_finds_an_object_in_a_scene(tmp_path, capsys):
     assert "found on the object" in (tmp_path / "v.html").read_text()
     assert main([*args, "--scene", "off"]) == 0
     assert "scene search:" not in capsys.readouterr().out
+    # Forced on a scene without the object: it says it found little.
+    np.save(tmp_path / "other.npy", shapes[0] * [0.2, 3.0, 0.2])
+    other = ["register", str(tmp_path / "other.npy"), str(tmp_path / "scene.npy"), "-o", str(out)]
+    assert main([*other, "--scene", "on"]) == 0
+    captured = capsys.readouterr()
+    assert "scene search:" in captured.out and "may not be in this scan" in captured.err
 
 
 def test_help_does_not_import_torch_and_names_agree():

@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 from masknet import MaskNetError, register
 from masknet.data import bundled_sample_path, load_modelnet40
 from masknet.evaluation.registration import pose_errors
-from masknet.registration.scene import SceneSearch, is_scene, locate
+from masknet.registration.scene import SceneSearch, is_scene, locate, polish
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -28,8 +28,9 @@ def scene_pair():
         if i == 8:
             continue
         shift = np.array([3.0 * x, 3.0 * y, 0.0])
-        if i == 4:  # the object in the middle cell, sampled anew (no shared points)
+        if i == 4:  # the object in the middle cell: 700 of its points, with noise
             points = obj[rng.choice(len(obj), 700, replace=False)] @ rot.T + shift
+            points = points + rng.normal(0, 0.005, points.shape)
             object_shift = shift
         else:
             points = shapes[i + 1] + shift
@@ -101,3 +102,25 @@ def test_scene_search_off_and_bad_uses(scene_pair):
         locate(obj, scene, SceneSearch(trim=0))
     with pytest.raises(MaskNetError, match="no region"):
         locate(obj, scene[:10], SceneSearch(min_region_points=50))
+
+
+def test_polish_keeps_an_exact_pose_and_picks_the_better_start(scene_pair):
+    obj, scene, truth, on_object = scene_pair
+    points = scene[on_object]
+    off = truth.copy()
+    off[:3, 3] += [0.5, 0.0, 0.0]  # half a radius away: ICP with a tight cut cannot recover
+    best = polish(obj, points, [off, truth])
+    rot, trans = pose_errors(best[None], truth[None])
+    assert rot[0] < 1.0 and trans[0] < 0.02
+    assert pose_errors(polish(obj, points, [off])[None], truth[None])[1][0] > 0.1
+
+
+def test_auto_search_falls_back_where_it_finds_nothing():
+    shapes = load_modelnet40(bundled_sample_path(), "test").points.astype(np.float64)
+    sparse = np.random.default_rng(0).uniform(-10, 10, (500, 3))  # nothing dense enough
+    assert is_scene(shapes[0], sparse)
+    result = register(shapes[0], sparse)  # registered as it is, no error
+    assert "search_fitness" not in result.info
+    with pytest.raises(MaskNetError, match="no region"):
+        register(shapes[0], sparse, scene=True)
+    assert not is_scene(np.zeros((10, 3)), sparse)  # a template with no spread: never

@@ -213,6 +213,27 @@ def view_writers(
     ]
 
 
+def scene_layers(
+    template: np.ndarray, moved_scene: np.ndarray, on_object: np.ndarray, reach: float = 2.0
+) -> dict[str, tuple[np.ndarray, str]]:
+    """Viewer layers for an object found in a scene: the scene (P, 3, already in the
+    template frame) within ``reach`` template radii of the template (N, 3), the template,
+    and the scene points on the object (``on_object``, (P,) bool), drawn in that order."""
+    import numpy as np  # numpy stays out of ``masknet --help``
+
+    centre = template.mean(0)
+    limit = reach * np.linalg.norm(template - centre, axis=1).max()
+    rest = moved_scene[~on_object]
+    return {
+        f"scene within {reach:g} template radii": (
+            rest[np.linalg.norm(rest - centre, axis=1) <= limit],
+            "#b0b0b0",
+        ),
+        "template": (template, "#1f77b4"),
+        "found on the object": (moved_scene[on_object], "#d62728"),
+    }
+
+
 def write_views(path: str, layers: dict[str, np.ndarray | tuple], title: str) -> list[Path]:
     """Write the HTML viewer and its PNG twin (both or neither); returns their paths."""
     writers = view_writers(path, layers, title)

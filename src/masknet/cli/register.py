@@ -17,6 +17,7 @@ from masknet.cli._common import (
     load_model,
     positive_int,
     progress,
+    scene_layers,
     view_writers,
     write_all,
 )
@@ -190,16 +191,8 @@ def run(args: argparse.Namespace) -> None:
         if result.source_mask is not None:
             layers["registered"] = moved[result.source_mask]
             layers["rejected"] = moved[~result.source_mask]
-        if "search_fitness" in result.info:  # a scene: show the object and its surroundings
-            rejected = layers.pop("rejected")
-            centre = template.mean(0)
-            reach = 2 * np.linalg.norm(template - centre, axis=1).max()
-            near = rejected[np.linalg.norm(rejected - centre, axis=1) <= reach]
-            layers = {  # drawn in order: the object on top
-                "scene within 2 template radii": (near, "#b0b0b0"),
-                "template": (template, "#1f77b4"),
-                "found on the object": (layers["registered"], "#d62728"),
-            }
+        if "search_fitness" in result.info:  # a scene: the object and its surroundings
+            layers = scene_layers(template, moved, result.source_mask)
         title = f"{name}: {Path(args.source).name} -> {Path(args.template).name}"
         writers += view_writers(args.html, layers, title)
     with progress("writing the outputs"):

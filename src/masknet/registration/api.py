@@ -28,6 +28,7 @@ import numpy as np
 import torch
 
 from masknet.errors import MaskNetError
+from masknet.geometry.clouds import MIN_POINTS
 from masknet.models import REGISTRATION_NETWORKS
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
@@ -145,15 +146,32 @@ class RegistrationResult:
 def _search_scene(
     template: np.ndarray, source: np.ndarray, single: bool, scene: bool | SceneSearch | None
 ) -> SceneMatch | None:
-    """The scene search's result for one pair (B = 1) when ``scene`` asks for it (None:
-    when :func:`~masknet.registration.scene.is_scene`), else None."""
+    """The scene search's result for one pair (B = 1) where ``scene`` asks for it, else None.
+
+    ``scene=None`` searches when :func:`~masknet.registration.scene.is_scene`, and falls
+    back to registering the clouds as they are where the search finds nothing to register
+    (no region large enough, or under 3 scene points on the template); an explicit
+    search raises MaskNetError there.
+    """
     options = scene if isinstance(scene, SceneSearch) else SceneSearch()
-    if scene is None or scene is False:
-        if scene is False or not single or not is_scene(template[0], source[0], options):
-            return None
-    elif not single:
+    if scene is False or (scene is None and not single):
+        return None
+    if not single:
         raise MaskNetError("scene search takes one pair, not a batch")
-    return locate(template[0], source[0], options)
+    if scene is None and not is_scene(template[0], source[0], options):
+        return None
+    try:
+        found = locate(template[0], source[0], options)
+        if found.source_mask.sum() < MIN_POINTS:
+            raise MaskNetError(
+                f"scene search: {int(found.source_mask.sum())} scene points lie on the template "
+                f"where it fits best; at least {MIN_POINTS} are needed to register"
+            )
+    except MaskNetError:
+        if scene is None:
+            return None
+        raise
+    return found
 
 
 @functools.lru_cache(maxsize=1)
@@ -232,15 +250,17 @@ def register(
         scene: find the template, a small object, in a large source scan first
             (:func:`masknet.registration.scene.locate`): True, False, or
             :class:`~masknet.registration.scene.SceneSearch` options (implies True).
-            None (default) searches when the source is at least 3 times as spread out
-            as the template (median distance of its points from their median point),
-            for single pairs. The method then runs on the scene points found on the
-            object, from the pose found, and full-resolution ICP on those points from
-            the method's pose and the search's ends the call, the better fit winning
-            (:func:`~masknet.registration.scene.polish`); ``source_mask`` marks
-            them, and
-            ``info`` gains ``search_fitness`` (template points on the scene),
-            ``search_regions`` and ``search_spacing`` (the centre grid, template radii).
+            None (default) searches single pairs whose source is at least 3 times as
+            spread out as the template (median distance of the points from their median
+            point), and registers the clouds as they are where the search finds nothing.
+            The method then runs on the scene points found on the object, from the pose
+            found (``init`` is then ``"identity"``), and full-resolution ICP on those
+            points from the method's pose and from the search's ends the call, the
+            better fit winning (:func:`~masknet.registration.scene.polish`).
+            ``source_mask`` marks the points found; ``info`` gains ``search_fitness``
+            (the share of template points on the scan), ``search_regions`` and
+            ``search_spacing`` (the centre grid, in template radii), while its
+            ``fitness`` and ``inlier_rmse`` are still the method's, before the polish.
         **options: for the method. ``"robust"``: the fields of
             :class:`~masknet.registration.options.RobustOptions` (it ignores
             ``iterations``, ``init``, ``k`` and ``threshold``). ``"icp"``: ``max_iterations`` (default 10),
@@ -277,6 +297,7 @@ def register(
     if found is not None:  # the method registers the object's points, from the pose found
         scene_source = src_full[0]
         src_full = apply_transform(found.transform[None], scene_source[found.source_mask][None])
+        init = "identity"  # the search placed them: a centroid shift would undo that
     if method not in GLOBAL_METHODS:
         options.setdefault("max_iterations", DEFAULT_ITERATIONS[method])
     if use_mask and model is None:
@@ -323,9 +344,9 @@ def register(
     if found is not None:  # back to the whole scene, then full-resolution ICP on the object
         total = total @ found.transform
         tic = time.perf_counter()
-        options = scene if isinstance(scene, SceneSearch) else None
+        search_options = scene if isinstance(scene, SceneSearch) else None
         on_object = scene_source[found.source_mask]
-        total = polish(tpl_full[0], on_object, [total[0], found.transform], options)[None]
+        total = polish(tpl_full[0], on_object, [total[0], found.transform], search_options)[None]
         times["refine"] += time.perf_counter() - tic
         rounds = [r @ found.transform for r in rounds]
         on_object = found.source_mask.copy()

@@ -56,7 +56,7 @@ from masknet.registration.backends import run_icp
 from masknet.registration.options import RobustOptions
 from masknet.registration.rounds import apply_transform, keep_source_points, mask_and_register
 
-__all__ = ["hypothesis_rotations", "robust_register"]
+__all__ = ["hypothesis_rotations", "robust_register", "trimmed_fit", "trimmed_mean"]
 
 
 class RobustRun(NamedTuple):
@@ -92,12 +92,17 @@ def _subsample(points: np.ndarray, count: int) -> np.ndarray:
     return np.stack([p[farthest_point_sample(p, count).indices] for p in points])
 
 
-def _trimmed_fit(query: np.ndarray, reference: np.ndarray, trim: float) -> np.ndarray:
+def trimmed_mean(d2: np.ndarray, trim: float) -> np.ndarray:
+    """Mean of the smallest ``trim`` fraction of each row of (B, P) squared distances: (B,)."""
+    keep = max(1, int(round(trim * d2.shape[1])))
+    return np.sort(d2, axis=1)[:, :keep].mean(1)
+
+
+def trimmed_fit(query: np.ndarray, reference: np.ndarray, trim: float) -> np.ndarray:
     """Mean squared distance of the best ``trim`` fraction of query points (B, P, 3) to
     their nearest reference point (B, R, 3): (B,)."""
     d2 = knn_points(torch.from_numpy(query), torch.from_numpy(reference), 1).dists[..., 0]
-    keep = max(1, int(round(trim * d2.shape[1])))
-    return d2.sort(dim=1).values[:, :keep].mean(1).numpy()
+    return trimmed_mean(d2.numpy(), trim)
 
 
 def _score(
@@ -109,7 +114,7 @@ def _score(
 ) -> np.ndarray:
     """Trimmed fit both ways (B,): kept source -> template, masked template -> source."""
     if mask is None and source_mask is None:  # same sizes everywhere: one batched search
-        return _trimmed_fit(moved, template, trim) + _trimmed_fit(template, moved, trim)
+        return trimmed_fit(moved, template, trim) + trimmed_fit(template, moved, trim)
     scores = np.empty(template.shape[0])
     for b in range(template.shape[0]):  # masks differ in size between hypotheses
         src = moved[b] if source_mask is None else moved[b][source_mask[b]]
@@ -118,8 +123,8 @@ def _score(
             scores[b] = np.inf
             continue
         scores[b] = (
-            _trimmed_fit(src[None], template[b][None], trim)[0]
-            + _trimmed_fit(tpl[None], src[None], trim)[0]
+            trimmed_fit(src[None], template[b][None], trim)[0]
+            + trimmed_fit(tpl[None], src[None], trim)[0]
         )
     return scores
 

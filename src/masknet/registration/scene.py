@@ -8,28 +8,34 @@ clutter. :func:`locate` searches instead:
 1. Frame: everything is measured in template radii about the template's centroid, so
    the result does not depend on the unit. The scene is thinned on a voxel grid of
    ``voxel`` radii.
-2. Candidate regions: one centre per occupied cell of a grid of ``spacing`` radii, so
-   that every part of the scene lies within ``0.87 * spacing`` radii of a centre. Each
-   centre's region is the scene within ``crop`` radii of it (regions with fewer than
-   ``min_region_points`` points are skipped).
+2. Candidate centres: one scene point per occupied cell of a grid of ``spacing`` radii
+   (every scene point lies within ``1.73 * spacing`` of one), kept where the scene holds
+   ``min_region_points`` points within ``crop`` radii of it.
 3. Hypotheses: the template, thinned to ``hypothesis_points``, is placed at every centre
-   in each of the 24 rotations of the cube, and every placement runs ICP *of the
-   template onto the region* (each template point finds its nearest scene point: the
-   object explains itself, the clutter need not be explained), all in one batched call.
+   in each of the 24 rotations of the cube, and every placement runs trimmed ICP *of the
+   template onto the thinned scene* (each template point finds its nearest scene point,
+   and the best ``trim`` of the pairs move it: the object explains itself, the clutter
+   need not be explained), all placements at once. Every 5 iterations the worst three
+   quarters are dropped.
 4. Scoring: the trimmed mean squared distance of the moved template points to the
-   scene (the best ``trim`` fraction): low where the whole object lies on scene points.
+   scene (the best ``trim`` fraction): low where the object lies on scene points.
 5. Refinement: the ``candidates`` best placements run ICP again at ``refine_points``
    template points against the scene around them, with correspondences cut at
    ``refine_distance`` radii, are scored again, and the best runs a last ICP against the
    full-resolution scene.
 
 The result maps **scene points into the template frame** (masknet's convention,
-``template ~= source @ R.T + t``). The source mask marks the scene points within
-``inlier_distance`` radii of the moved template (or 1.5 template point spacings, if more:
-a sparse template's points are farther apart than that): the points of the object.
+``template ~= source @ R.T + t``). The source mask marks the scene points within the
+inlier distance of the moved template: ``inlier_distance`` radii, or 1.5 template point
+spacings for a sparser template (at most ``refine_distance``).
+
+The template should be the object as the scan sees it (a view captured by a sensor, as
+a scanned model is): the score asks every template point to lie on the scan, so a full
+360-degree model against a one-sided view is found less often.
 
 Cost, 2 CPU threads: a few seconds for a 12,000-point object in a 240,000-point scene
-ten times its size; it grows with the scene's area in template radii.
+ten times its size; it grows with the scene's area in template radii, up to
+``max_placements`` (then the centre grid is made coarser).
 
 Example::
 
@@ -45,14 +51,15 @@ from typing import NamedTuple
 
 import numpy as np
 import torch
-from pykdtree.kdtree import KDTree
 from scipy.spatial import cKDTree
 
 from masknet.errors import MaskNetError
 from masknet.geometry.align import rigid_align
+from masknet.geometry.clouds import MIN_POINTS, unit_radius
+from masknet.geometry.knn import KDTreeIndex
 from masknet.geometry.sampling import farthest_point_sample
 from masknet.registration.icp_tree import icp_single
-from masknet.registration.robust import hypothesis_rotations
+from masknet.registration.robust import hypothesis_rotations, trimmed_fit, trimmed_mean
 
 __all__ = ["SceneSearch", "SceneMatch", "is_scene", "locate", "polish"]
 
@@ -101,9 +108,11 @@ class SceneSearch(NamedTuple):
                 raise MaskNetError(f"scene search: {name} must be positive")
         if not 0 < self.trim <= 1:
             raise MaskNetError("scene search: trim must be in (0, 1]")
-        for name in ("hypotheses", "hypothesis_points", "iterations"):
-            if getattr(self, name) < 1:
-                raise MaskNetError(f"scene search: {name} must be >= 1")
+        if not self.scene_ratio > 0:
+            raise MaskNetError("scene search: scene_ratio must be positive")
+        for name, low in (("hypotheses", 1), ("hypothesis_points", MIN_POINTS), ("iterations", 1)):
+            if getattr(self, name) < low:
+                raise MaskNetError(f"scene search: {name} must be >= {low}")
         if self.max_placements < self.hypotheses:
             raise MaskNetError("scene search: max_placements must be >= hypotheses")
         if self.candidates < 1 or self.refine_points < 3:
@@ -132,7 +141,8 @@ class SceneMatch(NamedTuple):
 
 
 def _radius(points: np.ndarray) -> float:
-    return float(np.linalg.norm(points - points.mean(0), axis=1).max())
+    """The project's unit radius of one cloud (P, 3) (:func:`unit_radius`), a float."""
+    return float(unit_radius(torch.from_numpy(np.asarray(points, np.float64))[None])[0])
 
 
 def _spread(points: np.ndarray) -> float:
@@ -145,7 +155,8 @@ def is_scene(template: np.ndarray, source: np.ndarray, options: SceneSearch | No
     ``template`` (N, 3) (:class:`SceneSearch`): an object to find in a scene, not a view
     of the object, with or without outliers."""
     ratio = (options or SceneSearch()).scene_ratio
-    return _spread(source) >= ratio * max(_spread(template), 1e-12)
+    spread = _spread(template)
+    return spread > 0 and _spread(source) >= ratio * spread
 
 
 def _voxel_thin(points: np.ndarray, size: float) -> np.ndarray:
@@ -155,36 +166,23 @@ def _voxel_thin(points: np.ndarray, size: float) -> np.ndarray:
     return points[np.sort(first)]
 
 
-def _trimmed(d2: np.ndarray, trim: float) -> np.ndarray:
-    """Mean of the smallest ``trim`` fraction of each row of squared distances (B, P): (B,)."""
-    keep = max(1, int(round(trim * d2.shape[1])))
-    return np.partition(d2, keep - 1, axis=1)[:, :keep].mean(1)
-
-
-def _trimmed_fit(moved: np.ndarray, tree: cKDTree, trim: float) -> float:
-    """:func:`_trimmed` of the squared distances of ``moved`` (P, 3) to the tree's points."""
-    return float(_trimmed(np.square(tree.query(moved, k=1)[0])[None], trim)[0])
-
-
 def _inlier_distance(unit_template: np.ndarray, options: SceneSearch) -> float:
     """The inlier distance in template radii for a unit-radius template (N, 3): the
-    option, or 1.5 median nearest-neighbour spacings of the template if more."""
+    option, or 1.5 median nearest-neighbour spacings of the template if more, but never
+    more than ``refine_distance`` (a template of a few points has huge spacings)."""
     spacing = float(np.median(cKDTree(unit_template).query(unit_template, k=2)[0][:, 1]))
-    return max(options.inlier_distance, 1.5 * spacing)
+    return max(options.inlier_distance, min(1.5 * spacing, options.refine_distance))
 
 
 def _nearest(
-    poses: np.ndarray, points: np.ndarray, reference: np.ndarray, tree
+    poses: np.ndarray, points: np.ndarray, index: KDTreeIndex
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``points`` (P, 3) moved by each of ``poses`` (B, 4, 4), their nearest ``reference``
-    points through ``tree`` (a pykdtree over it), and the squared distances (B, P)."""
+    """``points`` (P, 3) moved by each of ``poses`` (B, 4, 4): the moved points (B, P, 3),
+    their nearest points of the one cloud in ``index`` (B, P, 3), squared distances (B, P)."""
     moved = np.einsum("bij,pj->bpi", poses[:, :3, :3], points) + poses[:, None, :3, 3]
-    dist, idx = tree.query(moved.reshape(-1, 3).astype(np.float32), k=1)
-    return (
-        moved,
-        reference[idx.astype(np.int64)].reshape(moved.shape),
-        np.square(dist).reshape(moved.shape[:2]),
-    )
+    near = index.query(torch.from_numpy(moved.reshape(1, -1, 3).astype(np.float32)), 1)
+    matched = index.reference[0, near.idx[0, :, 0]].double().numpy().reshape(moved.shape)
+    return moved, matched, near.dists[0, :, 0].double().numpy().reshape(moved.shape[:2])
 
 
 def _apply(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -211,14 +209,16 @@ def locate(
 
     # 1-2. Thinned scene and candidate centres (those with enough scene around them).
     thin = _voxel_thin(scn, opts.voxel)
-    thin_tree = KDTree(thin.astype(np.float32))  # float32 search: the hot loop
+    # Nearest neighbours in the hot loop, in float32 (the refinement is float64).
+    thin_index = KDTreeIndex(torch.from_numpy(thin[None].astype(np.float32)))
+    thin_balls = cKDTree(thin)  # ball queries: regions around centres and poses
     # A scene too large for the budget is searched on a coarser grid (less reliably).
     spacing = opts.spacing
     centres = _voxel_thin(thin, spacing)
     while len(centres) * opts.hypotheses > opts.max_placements:
         spacing *= 1.25
         centres = _voxel_thin(thin, spacing)
-    counts = np.array([len(m) for m in cKDTree(thin).query_ball_point(centres, opts.crop)])
+    counts = np.array([len(m) for m in thin_balls.query_ball_point(centres, opts.crop)])
     centres = centres[counts >= opts.min_region_points]
     if not len(centres):
         raise MaskNetError(
@@ -235,15 +235,15 @@ def locate(
     poses[:, :3, :3] = np.tile(rotations, (len(centres), 1, 1))
     poses[:, :3, 3] = np.repeat(centres, len(rotations), axis=0)
     for iteration in range(opts.iterations):
-        moved, matched, d2 = _nearest(poses, small, thin, thin_tree)
+        moved, matched, d2 = _nearest(poses, small, thin_index)
         if iteration and iteration % PRUNE_EVERY == 0:
             # Placements that fit worst are dropped as they go: the right one fits early.
-            keep = np.argsort(_trimmed(d2, opts.trim), kind="stable")
+            keep = np.argsort(trimmed_mean(d2, opts.trim), kind="stable")
             keep = keep[: max(len(keep) // 4, opts.candidates)]
             poses, moved, matched, d2 = poses[keep], moved[keep], matched[keep], d2[keep]
         # Trimmed ICP: only the best ``trim`` of each placement's pairs move it, so the
         # template's parts that the scan does not see do not pull it.
-        keep_count = max(3, int(round(opts.trim * d2.shape[1])))
+        keep_count = max(MIN_POINTS, int(round(opts.trim * d2.shape[1])))
         cut = np.partition(d2, keep_count - 1, axis=1)[:, keep_count - 1 : keep_count]
         weights = torch.from_numpy((d2 <= cut).astype(np.float64))
         rot, trans = rigid_align(torch.from_numpy(moved), torch.from_numpy(matched), weights)
@@ -252,15 +252,14 @@ def locate(
         poses = update @ poses
 
     # 4. Trimmed fit of every placement: the best few go on.
-    _, _, d2 = _nearest(poses, small, thin, thin_tree)
-    best = np.argsort(_trimmed(d2, opts.trim), kind="stable")[: opts.candidates]
-    thin_ckd = cKDTree(thin)
+    _, _, d2 = _nearest(poses, small, thin_index)
+    best = np.argsort(trimmed_mean(d2, opts.trim), kind="stable")[: opts.candidates]
 
     # 5. The best placements at finer resolution against the thinned scene, rescored.
     fine = tpl[farthest_point_sample(tpl, opts.refine_points).indices]
     refined = []
     for pose in poses[best]:
-        around = thin[thin_ckd.query_ball_point(pose[:3, 3], opts.crop + 1.0)]
+        around = thin[thin_balls.query_ball_point(pose[:3, 3], opts.crop + 1.0)]
         run = icp_single(
             around,
             fine,
@@ -269,14 +268,15 @@ def locate(
             max_correspondence_distance=opts.refine_distance,
         )
         pose = run.transform[0].numpy()
-        refined.append((_trimmed_fit(_apply(pose, fine), thin_ckd, opts.trim), pose))
+        fit = trimmed_fit(_apply(pose, fine)[None], around[None], opts.trim)[0]
+        refined.append((fit, pose))
     pose = min(refined, key=lambda item: item[0])[1]
 
     # Last: the full template against the full-resolution scene around the object.
     tolerance = _inlier_distance(tpl, opts)
     full_tree = cKDTree(scn)
     around = scn[full_tree.query_ball_point(pose[:3, 3], 1.0 + opts.refine_distance)]
-    if len(around) >= 3:
+    if len(around) >= MIN_POINTS:
         pose = (
             icp_single(
                 around,
@@ -327,7 +327,6 @@ def polish(
     points = np.asarray(points, np.float64)
     radius = max(_radius(template), 1e-12)
     cut = radius * _inlier_distance((template - template.mean(0)) / radius, opts)
-    tree = cKDTree(template)
     best, best_fit = starts[0], np.inf
     for start in starts:
         run = icp_single(
@@ -338,7 +337,7 @@ def polish(
             max_correspondence_distance=cut,
         )
         pose = run.transform[0].numpy().astype(np.float64)
-        fit = _trimmed_fit(_apply(pose, points), tree, opts.trim)
+        fit = trimmed_fit(_apply(pose, points)[None], template[None], opts.trim)[0]
         if fit < best_fit:
             best, best_fit = pose, fit
     return best
