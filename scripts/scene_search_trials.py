@@ -3,8 +3,8 @@
     python scripts/scene_search_trials.py --trials 20 --out docs/results/scene_search.json
 
 Each trial builds a scene of nine bundled ModelNet40 test shapes on a 3 x 3 grid, three
-radii apart, each turned at random and seen from a viewpoint 5 radii above it (hidden-point
-removal keeps what that viewpoint sees, as a depth sensor does). The middle one is the
+radii apart, each turned at random and seen by one sensor 8 radii above the grid's centre
+(hidden-point removal, shape by shape, keeps what the sensor sees). The middle one is the
 object. ``register(template, scene)`` runs with its defaults (the scene search, then
 Mask-ICP) for two templates:
 
@@ -34,6 +34,8 @@ from masknet.data import bundled_sample_path, load_modelnet40
 from masknet.data.views import hidden_point_removal
 from masknet.evaluation.registration import pose_errors
 
+SENSOR = np.array([3.0, 3.0, 8.0])  # one depth sensor above the grid's centre
+
 
 def make_scene(
     shapes: np.ndarray, trial: int
@@ -47,8 +49,7 @@ def make_scene(
         rot = Rotation.random(random_state=rng).as_matrix()
         shift = np.array([3.0 * (cell // 3), 3.0 * (cell % 3), 0.0])
         points = shapes[index] @ rot.T + shift
-        viewpoint = shift + np.array([0.0, 0.0, 5.0]) + rng.normal(0, 1, 3)
-        visible = hidden_point_removal(points, viewpoint)
+        visible = hidden_point_removal(points, SENSOR)
         parts.append(points[visible])
         if cell == 4:
             truth = np.eye(4)

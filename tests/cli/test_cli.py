@@ -344,6 +344,15 @@ def test_register_finds_an_object_in_a_scene(tmp_path, capsys):
     assert "found on the object" in (tmp_path / "v.html").read_text()
     assert main([*args, "--scene", "off"]) == 0
     assert "scene search:" not in capsys.readouterr().out
+    swapped = [
+        "register",
+        str(tmp_path / "scene.npy"),
+        str(tmp_path / "object.npy"),
+        "-o",
+        str(out),
+    ]
+    assert main(swapped) == 0
+    assert "give the object as TEMPLATE" in capsys.readouterr().err
     # Forced on a scene without the object: it says it found little.
     np.save(tmp_path / "other.npy", shapes[0] * [0.2, 3.0, 0.2])
     other = ["register", str(tmp_path / "other.npy"), str(tmp_path / "scene.npy"), "-o", str(out)]

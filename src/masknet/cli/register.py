@@ -135,6 +135,14 @@ def run(args: argparse.Namespace) -> None:
         source, source_rows = read_points(
             args.source, drop_nonfinite=args.drop_nonfinite, return_rows=True
         )
+    from masknet.registration.scene import is_scene
+
+    if args.scene != "off" and is_scene(source, template):
+        print(
+            "masknet: warning: TEMPLATE is at least 3 times as spread out as SOURCE; to find "
+            "an object in a scan, give the object as TEMPLATE and the scan as SOURCE",
+            file=sys.stderr,
+        )
     if args.two_sided and args.no_mask:
         raise MaskNetError("--two-sided and --no-mask exclude each other")
     if args.method == "robust" and not args.no_mask:
