@@ -32,6 +32,7 @@ from masknet._atomic import atomic_target
 from masknet.evaluation.registration import pose_errors
 from masknet.io import read_points, require_open3d
 from masknet.models import TwoSidedMaskNet
+from masknet.registration.scene import SceneSearch
 
 
 def open3d_ground_truth(
@@ -144,6 +145,9 @@ def main() -> None:
     pipelines = {
         "Mask-ICP (the default: scene search, then Mask-ICP)": {},
         "robust (scene search, then robust)": {"method": "robust"},
+        "Mask-ICP, the Kinect's position given (viewpoint 0 0 0)": {
+            "scene": SceneSearch(viewpoint=(0.0, 0.0, 0.0))
+        },
         "ICP (scene search, then ICP)": {"use_mask": False},
         "Mask-ICP without the scene search": {"scene": False},
         "two-sided Mask-ICP without the scene search": {"scene": False, "model": two_sided},

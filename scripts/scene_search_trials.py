@@ -11,7 +11,8 @@ Mask-ICP) for two templates:
 * the view: the object's points as the scene sees them, a random half of them with
   Gaussian noise of 0.005 radii (so no point is a copy of a scene point) -- a model
   captured by the same kind of sensor, as the carton is;
-* the full model: all 1,024 points of the shape, of which the scene sees one side.
+* the full model: all 1,024 points of the shape, of which the scene sees one side, without
+  and with the sensor's position (``SceneSearch(viewpoint=...)``).
 
 A trial finds the object's location when the translation error is under 0.2 radii, and its
 pose when the rotation error is also under 5 degrees (a symmetric shape can be found in a
@@ -33,6 +34,7 @@ from masknet._atomic import atomic_target
 from masknet.data import bundled_sample_path, load_modelnet40
 from masknet.data.views import hidden_point_removal
 from masknet.evaluation.registration import pose_errors
+from masknet.registration.scene import SceneSearch
 
 SENSOR = np.array([3.0, 3.0, 8.0])  # one depth sensor above the grid's centre
 
@@ -71,9 +73,14 @@ def main() -> None:
         rng = np.random.default_rng(1000 + trial)
         view = seen[rng.choice(len(seen), max(3, len(seen) // 2), replace=False)]
         view = view + rng.normal(0, 0.005, view.shape)
-        for template_kind, template in (("view", view), ("full model", full)):
+        with_sensor = SceneSearch(viewpoint=tuple(SENSOR))
+        for template_kind, template, search in (
+            ("view", view, None),
+            ("full model", full, None),
+            ("full model, sensor position given", full, with_sensor),
+        ):
             tic = time.perf_counter()
-            result = register(template, scene)
+            result = register(template, scene, scene=search)
             seconds = time.perf_counter() - tic
             rot, trans = pose_errors(result.transform[None], truth[None])
             row = {
@@ -89,7 +96,7 @@ def main() -> None:
             rows.append(row)
             print(row, flush=True)
     summary = {}
-    for kind in ("view", "full model"):
+    for kind in ("view", "full model", "full model, sensor position given"):
         part = [r for r in rows if r["template"] == kind]
         located = np.array([r["trans"] < 0.2 for r in part])
         posed = located & np.array([r["rot_deg"] < 5 for r in part])

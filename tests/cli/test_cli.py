@@ -344,6 +344,10 @@ def test_register_finds_an_object_in_a_scene(tmp_path, capsys):
     assert "found on the object" in (tmp_path / "v.html").read_text()
     assert main([*args, "--scene", "off"]) == 0
     assert "scene search:" not in capsys.readouterr().out
+    assert main([*args, "--viewpoint", "0", "0", "10"]) == 0  # a sensor above the grid
+    assert "scene search:" in capsys.readouterr().out
+    assert main([*args, "--viewpoint", "0", "nan", "1"]) == 2
+    assert "viewpoint" in capsys.readouterr().err
     swapped = [
         "register",
         str(tmp_path / "scene.npy"),

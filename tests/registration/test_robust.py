@@ -70,3 +70,13 @@ def test_robust_option_names_match_the_options_table():
     from masknet.registration.methods import OPTIONS
 
     assert set(OPTIONS["robust"]) == set(RobustOptions._fields)
+
+
+def test_trimmed_mean_over_valid_entries():
+    from masknet.registration.robust import trimmed_mean
+
+    d2 = np.array([[4.0, 1.0, 9.0, 2.0], [5.0, 7.0, 3.0, 1.0]])
+    np.testing.assert_allclose(trimmed_mean(d2, 0.5), [1.5, 2.0])
+    valid = np.array([[True, False, True, True], [False, False, False, False]])
+    # Row 0 keeps round(0.5 * 3) = 2 of {4, 9, 2}: (2 + 4) / 2; row 1 has nothing valid.
+    np.testing.assert_allclose(trimmed_mean(d2, 0.5, valid), [3.0, np.inf])

@@ -124,3 +124,24 @@ def test_auto_search_falls_back_where_it_finds_nothing():
     with pytest.raises(MaskNetError, match="no region"):
         register(shapes[0], sparse, scene=True)
     assert not is_scene(np.zeros((10, 3)), sparse)  # a template with no spread: never
+
+
+def test_a_viewpoint_scores_the_side_facing_the_sensor(scene_pair):
+    from masknet.registration.scene import _facing, _outward_normals
+
+    rng = np.random.default_rng(1)
+    sphere = rng.normal(size=(400, 3))
+    sphere /= np.linalg.norm(sphere, axis=1, keepdims=True)
+    normals = _outward_normals(sphere)
+    assert (np.einsum("ij,ij->i", normals, sphere) > 0.9).mean() > 0.95  # outward
+    facing = _facing(np.eye(4)[None], sphere, normals, np.array([0.0, 0.0, 10.0]))[0]
+    assert (facing == (sphere[:, 2] > 0.1)).mean() > 0.97  # the cap z > 0.1 faces the sensor
+    obj, scene, truth, on_object = scene_pair
+    found = locate(obj, scene, SceneSearch(viewpoint=(3.0, 3.0, 10.0)))
+    rot, trans = pose_errors(found.transform[None], truth[None])
+    assert rot[0] < 1.0 and trans[0] < 0.02
+    # The object here is sampled all round: the side facing the sensor is about half of it.
+    kept = found.source_mask
+    assert (kept & on_object).sum() > 0.4 * on_object.sum() and (kept & ~on_object).sum() < 20
+    with pytest.raises(MaskNetError, match="viewpoint"):
+        SceneSearch(viewpoint=(0.0, np.nan, 1.0)).check()

@@ -104,12 +104,35 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "distance from the median point); the scene points "
         "found on the object go to <stem>_source_mask.txt",
     )
+    p.add_argument(
+        "--viewpoint",
+        nargs=3,
+        type=float,
+        metavar=("X", "Y", "Z"),
+        help="with a scene search: the sensor's position in SOURCE's coordinates (0 0 0 for "
+        "a depth frame in camera coordinates); then only the side of TEMPLATE facing it "
+        "must lie on the scan, so a full 360-degree model can be found",
+    )
     add_file_options(p)
     add_model_options(
         p,
         default_pretrained=None,
         default_text="modelnet40; with --two-sided or --method robust the two-sided scans",
     )
+
+
+def scene_option(args: argparse.Namespace, template, source):
+    """``register``'s ``scene`` argument from ``--scene`` and ``--viewpoint``: None, a bool,
+    or the search's options (a viewpoint with ``--scene auto`` applies where the clouds
+    call for a search)."""
+    from masknet.registration.scene import SceneSearch, is_scene
+
+    choice = {"auto": None, "on": True, "off": False}[args.scene]
+    if args.viewpoint is None or choice is False:
+        return choice
+    search = SceneSearch(viewpoint=tuple(args.viewpoint))
+    search.check()
+    return search if choice or is_scene(template, source, search) else None
 
 
 def run(args: argparse.Namespace) -> None:
@@ -169,7 +192,7 @@ def run(args: argparse.Namespace) -> None:
             init=args.init,
             refine_iterations=args.refine,
             max_points=args.max_points,
-            scene={"auto": None, "on": True, "off": False}[args.scene],
+            scene=scene_option(args, template, source),
             **options,
         )
     moved = source @ result.R.T + result.t

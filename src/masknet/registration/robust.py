@@ -92,10 +92,21 @@ def _subsample(points: np.ndarray, count: int) -> np.ndarray:
     return np.stack([p[farthest_point_sample(p, count).indices] for p in points])
 
 
-def trimmed_mean(d2: np.ndarray, trim: float) -> np.ndarray:
-    """Mean of the smallest ``trim`` fraction of each row of (B, P) squared distances: (B,)."""
-    keep = max(1, int(round(trim * d2.shape[1])))
-    return np.sort(d2, axis=1)[:, :keep].mean(1)
+def trimmed_mean(d2: np.ndarray, trim: float, valid: np.ndarray | None = None) -> np.ndarray:
+    """Mean of the smallest ``trim`` fraction of each row of (B, P) squared distances: (B,).
+
+    ``valid`` (B, P) bool limits each row to its valid entries (the fraction is of those);
+    a row without any is inf.
+    """
+    if valid is None:
+        keep = max(1, int(round(trim * d2.shape[1])))
+        return np.sort(d2, axis=1)[:, :keep].mean(1)
+    ordered = np.sort(np.where(valid, d2, np.inf), axis=1)
+    counts = valid.sum(1)
+    keep = np.maximum(1, np.round(trim * counts)).astype(np.int64)
+    sums = np.cumsum(np.where(np.isfinite(ordered), ordered, 0.0), axis=1)
+    means = sums[np.arange(len(d2)), keep - 1] / keep
+    return np.where(counts > 0, means, np.inf)
 
 
 def trimmed_fit(query: np.ndarray, reference: np.ndarray, trim: float) -> np.ndarray:

@@ -57,6 +57,7 @@ from masknet.errors import MaskNetError
 from masknet.geometry.align import rigid_align
 from masknet.geometry.clouds import MIN_POINTS, unit_radius
 from masknet.geometry.knn import KDTreeIndex
+from masknet.geometry.normals import estimate_normals
 from masknet.geometry.sampling import farthest_point_sample
 from masknet.registration.icp_tree import icp_single
 from masknet.registration.robust import hypothesis_rotations, trimmed_fit, trimmed_mean
@@ -64,6 +65,7 @@ from masknet.registration.robust import hypothesis_rotations, trimmed_fit, trimm
 __all__ = ["SceneSearch", "SceneMatch", "is_scene", "locate", "polish"]
 
 PRUNE_EVERY = 5  # hypothesis-stage iterations between drops of the worst three quarters
+MIN_FACING = 0.2  # with a viewpoint: a placement showing the sensor fewer points is out
 
 
 class SceneSearch(NamedTuple):
@@ -79,6 +81,10 @@ class SceneSearch(NamedTuple):
     refine_distance: correspondence cut-off of the refinement.
     inlier_distance: scene points this close to the moved template are the object's (at
         least 1.5 times the template's median nearest-neighbour spacing).
+    viewpoint: the sensor's position in the scene's coordinates (input units), e.g.
+        (0, 0, 0) for a depth frame in camera coordinates. With it, only the template
+        points that face the sensor (outward PCA normals towards it) need to lie on the
+        scene, so a full 360-degree model can be found in a one-sided scan.
     max_placements: the most placements (centres x hypotheses) of the batched stage; a
         larger scene gets a coarser centre grid (reported as ``SceneMatch.spacing``).
     scene_ratio: :func:`is_scene` calls a source a scene when it is at least this many times
@@ -100,6 +106,7 @@ class SceneSearch(NamedTuple):
     inlier_distance: float = 0.02
     scene_ratio: float = 3.0
     max_placements: int = 50_000
+    viewpoint: tuple[float, float, float] | None = None
 
     def check(self) -> None:
         """MaskNetError naming the first option out of range."""
@@ -113,6 +120,10 @@ class SceneSearch(NamedTuple):
         for name, low in (("hypotheses", 1), ("hypothesis_points", MIN_POINTS), ("iterations", 1)):
             if getattr(self, name) < low:
                 raise MaskNetError(f"scene search: {name} must be >= {low}")
+        if self.viewpoint is not None and (
+            np.shape(self.viewpoint) != (3,) or not np.isfinite(self.viewpoint).all()
+        ):
+            raise MaskNetError("scene search: viewpoint must be 3 finite numbers (x, y, z)")
         if self.max_placements < self.hypotheses:
             raise MaskNetError("scene search: max_placements must be >= hypotheses")
         if self.candidates < 1 or self.refine_points < 3:
@@ -123,7 +134,8 @@ class SceneMatch(NamedTuple):
     """What :func:`locate` finds.
 
     transform: (4, 4) scene -> template. source_mask: (P,) bool, the scene points on the
-    object. fitness: fraction of template points within the inlier distance of the scene at
+    object. fitness: fraction of template points (those facing the sensor, with a
+    viewpoint) within the inlier distance of the scene at
     the found pose. inlier_rmse: RMS distance of those points, in the input's units.
     regions: candidate regions searched. hypotheses: placements run in the batched stage.
     seconds: the search's time. spacing: the centre grid used, in template radii (the
@@ -185,6 +197,55 @@ def _nearest(
     return moved, matched, near.dists[0, :, 0].double().numpy().reshape(moved.shape[:2])
 
 
+def _outward_normals(points: np.ndarray) -> np.ndarray:
+    """PCA normals (N, 3) of a cloud (N, 3), each turned away from the cloud's centroid."""
+    normals = estimate_normals(torch.from_numpy(points[None]))[0][0].numpy()
+    flip = np.einsum("ij,ij->i", normals, points - points.mean(0)) < 0
+    return np.where(flip[:, None], -normals, normals)
+
+
+def _facing(
+    poses: np.ndarray, points: np.ndarray, normals: np.ndarray | None, sensor: np.ndarray | None
+) -> np.ndarray | None:
+    """(B, P) bool: which template points (P, 3), moved by each of ``poses`` (B, 4, 4),
+    face ``sensor`` (3,); None without a sensor (every point counts)."""
+    if sensor is None:
+        return None
+    moved = np.einsum("bij,pj->bpi", poses[:, :3, :3], points) + poses[:, None, :3, 3]
+    turned = np.einsum("bij,pj->bpi", poses[:, :3, :3], normals)
+    return np.einsum("bpi,bpi->bp", turned, sensor - moved) > 0
+
+
+def _scores(d2: np.ndarray, facing: np.ndarray | None, trim: float) -> np.ndarray:
+    """Trimmed fit (B,) of each placement's squared distances (B, P), over the points that
+    face the sensor; inf where under ``MIN_FACING`` of them do."""
+    scores = trimmed_mean(d2, trim, facing)
+    if facing is not None:
+        scores[facing.sum(1) < MIN_FACING * d2.shape[1]] = np.inf
+    return scores
+
+
+def _trim_weights(d2: np.ndarray, facing: np.ndarray | None, trim: float) -> np.ndarray:
+    """(B, P) float64 weights of trimmed ICP: 1 for the best ``trim`` of each placement's
+    pairs (among the points facing the sensor), else 0."""
+    valid = np.ones(d2.shape, bool) if facing is None else facing
+    ordered = np.sort(np.where(valid, d2, np.inf), axis=1)
+    keep = np.maximum(MIN_POINTS, np.round(trim * valid.sum(1))).astype(np.int64)
+    cut = ordered[np.arange(len(d2)), np.minimum(keep, d2.shape[1]) - 1]
+    return (valid & (d2 <= cut[:, None])).astype(np.float64)
+
+
+def _seen(
+    pose: np.ndarray, points: np.ndarray, normals: np.ndarray | None, sensor: np.ndarray | None
+) -> np.ndarray:
+    """(P,) bool: the template points facing the sensor at ``pose`` (all without one, or
+    where fewer than 3 would)."""
+    facing = _facing(pose[None], points, normals, sensor)
+    if facing is None or facing[0].sum() < MIN_POINTS:
+        return np.ones(len(points), bool)
+    return facing[0]
+
+
 def _apply(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
     return points @ transform[:3, :3].T + transform[:3, 3]
 
@@ -228,7 +289,10 @@ def locate(
 
     # 3. Every rotation at every centre: ICP of the template onto the scene, all
     # placements at once against one KD-tree of the thinned scene.
-    small = tpl[farthest_point_sample(tpl, opts.hypothesis_points).indices]
+    sensor = None if opts.viewpoint is None else (np.asarray(opts.viewpoint) - centre) / radius
+    normals = None if sensor is None else _outward_normals(tpl)
+    pick = farthest_point_sample(tpl, opts.hypothesis_points).indices
+    small, small_normals = tpl[pick], None if normals is None else normals[pick]
     rotations = hypothesis_rotations(opts.hypotheses)
     count = len(centres) * len(rotations)
     poses = np.tile(np.eye(4), (count, 1, 1))  # template -> scene
@@ -236,16 +300,16 @@ def locate(
     poses[:, :3, 3] = np.repeat(centres, len(rotations), axis=0)
     for iteration in range(opts.iterations):
         moved, matched, d2 = _nearest(poses, small, thin_index)
+        facing = _facing(poses, small, small_normals, sensor)
         if iteration and iteration % PRUNE_EVERY == 0:
             # Placements that fit worst are dropped as they go: the right one fits early.
-            keep = np.argsort(trimmed_mean(d2, opts.trim), kind="stable")
+            keep = np.argsort(_scores(d2, facing, opts.trim), kind="stable")
             keep = keep[: max(len(keep) // 4, opts.candidates)]
             poses, moved, matched, d2 = poses[keep], moved[keep], matched[keep], d2[keep]
+            facing = None if facing is None else facing[keep]
         # Trimmed ICP: only the best ``trim`` of each placement's pairs move it, so the
         # template's parts that the scan does not see do not pull it.
-        keep_count = max(MIN_POINTS, int(round(opts.trim * d2.shape[1])))
-        cut = np.partition(d2, keep_count - 1, axis=1)[:, keep_count - 1 : keep_count]
-        weights = torch.from_numpy((d2 <= cut).astype(np.float64))
+        weights = torch.from_numpy(_trim_weights(d2, facing, opts.trim))
         rot, trans = rigid_align(torch.from_numpy(moved), torch.from_numpy(matched), weights)
         update = np.tile(np.eye(4), (len(poses), 1, 1))
         update[:, :3, :3], update[:, :3, 3] = rot.numpy(), trans.numpy()
@@ -253,34 +317,40 @@ def locate(
 
     # 4. Trimmed fit of every placement: the best few go on.
     _, _, d2 = _nearest(poses, small, thin_index)
-    best = np.argsort(trimmed_mean(d2, opts.trim), kind="stable")[: opts.candidates]
+    scores = _scores(d2, _facing(poses, small, small_normals, sensor), opts.trim)
+    best = np.argsort(scores, kind="stable")[: opts.candidates]
 
     # 5. The best placements at finer resolution against the thinned scene, rescored.
-    fine = tpl[farthest_point_sample(tpl, opts.refine_points).indices]
+    pick = farthest_point_sample(tpl, opts.refine_points).indices
+    fine, fine_normals = tpl[pick], None if normals is None else normals[pick]
     refined = []
     for pose in poses[best]:
         around = thin[thin_balls.query_ball_point(pose[:3, 3], opts.crop + 1.0)]
-        run = icp_single(
-            around,
-            fine,
-            pose,
-            max_iterations=2 * opts.iterations,
-            max_correspondence_distance=opts.refine_distance,
-        )
-        pose = run.transform[0].numpy()
-        fit = trimmed_fit(_apply(pose, fine)[None], around[None], opts.trim)[0]
-        refined.append((fit, pose))
+        for _ in range(1 if sensor is None else 2):  # the side facing the sensor moves
+            seen = _seen(pose, fine, fine_normals, sensor)
+            run = icp_single(
+                around,
+                fine[seen],
+                pose,
+                max_iterations=2 * opts.iterations,
+                max_correspondence_distance=opts.refine_distance,
+            )
+            pose = run.transform[0].numpy()
+        seen = _seen(pose, fine, fine_normals, sensor)
+        fit = trimmed_fit(_apply(pose, fine[seen])[None], around[None], opts.trim)[0]
+        refined.append((fit if seen.mean() >= MIN_FACING else np.inf, pose))
     pose = min(refined, key=lambda item: item[0])[1]
 
     # Last: the full template against the full-resolution scene around the object.
     tolerance = _inlier_distance(tpl, opts)
     full_tree = cKDTree(scn)
     around = scn[full_tree.query_ball_point(pose[:3, 3], 1.0 + opts.refine_distance)]
+    seen = _seen(pose, tpl, normals, sensor)
     if len(around) >= MIN_POINTS:
         pose = (
             icp_single(
                 around,
-                tpl,
+                tpl[seen],
                 pose,
                 max_iterations=2 * opts.iterations,
                 max_correspondence_distance=tolerance,
@@ -288,7 +358,7 @@ def locate(
             .transform[0]
             .numpy()
         )
-    moved_tpl = _apply(pose, tpl)
+    moved_tpl = _apply(pose, tpl[_seen(pose, tpl, normals, sensor)])
     dist, _ = full_tree.query(moved_tpl, k=1)
     close = dist <= tolerance
     fitness = float(close.mean())
