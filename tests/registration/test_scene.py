@@ -134,7 +134,7 @@ def test_a_viewpoint_scores_the_side_facing_the_sensor(scene_pair):
     sphere /= np.linalg.norm(sphere, axis=1, keepdims=True)
     normals = _outward_normals(sphere)
     assert (np.einsum("ij,ij->i", normals, sphere) > 0.9).mean() > 0.95  # outward
-    facing = _facing(np.eye(4)[None], sphere, normals, np.array([0.0, 0.0, 10.0]))[0]
+    facing = _facing(np.eye(4)[None], sphere[None], normals, np.array([0.0, 0.0, 10.0]))[0]
     assert (facing == (sphere[:, 2] > 0.1)).mean() > 0.97  # the cap z > 0.1 faces the sensor
     obj, scene, truth, on_object = scene_pair
     found = locate(obj, scene, SceneSearch(viewpoint=(3.0, 3.0, 10.0)))

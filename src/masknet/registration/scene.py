@@ -205,13 +205,13 @@ def _outward_normals(points: np.ndarray) -> np.ndarray:
 
 
 def _facing(
-    poses: np.ndarray, points: np.ndarray, normals: np.ndarray | None, sensor: np.ndarray | None
+    poses: np.ndarray, moved: np.ndarray, normals: np.ndarray | None, sensor: np.ndarray | None
 ) -> np.ndarray | None:
-    """(B, P) bool: which template points (P, 3), moved by each of ``poses`` (B, 4, 4),
-    face ``sensor`` (3,); None without a sensor (every point counts)."""
+    """(B, P) bool: which template points, moved by each of ``poses`` (B, 4, 4) to ``moved``
+    (B, P, 3), face ``sensor`` (3,) (their normals (P, 3) turn towards it); None without a
+    sensor (every point counts)."""
     if sensor is None:
         return None
-    moved = np.einsum("bij,pj->bpi", poses[:, :3, :3], points) + poses[:, None, :3, 3]
     turned = np.einsum("bij,pj->bpi", poses[:, :3, :3], normals)
     return np.einsum("bpi,bpi->bp", turned, sensor - moved) > 0
 
@@ -240,7 +240,7 @@ def _seen(
 ) -> np.ndarray:
     """(P,) bool: the template points facing the sensor at ``pose`` (all without one, or
     where fewer than 3 would)."""
-    facing = _facing(pose[None], points, normals, sensor)
+    facing = _facing(pose[None], _apply(pose, points)[None], normals, sensor)
     if facing is None or facing[0].sum() < MIN_POINTS:
         return np.ones(len(points), bool)
     return facing[0]
@@ -300,7 +300,7 @@ def locate(
     poses[:, :3, 3] = np.repeat(centres, len(rotations), axis=0)
     for iteration in range(opts.iterations):
         moved, matched, d2 = _nearest(poses, small, thin_index)
-        facing = _facing(poses, small, small_normals, sensor)
+        facing = _facing(poses, moved, small_normals, sensor)
         if iteration and iteration % PRUNE_EVERY == 0:
             # Placements that fit worst are dropped as they go: the right one fits early.
             keep = np.argsort(_scores(d2, facing, opts.trim), kind="stable")
@@ -316,8 +316,8 @@ def locate(
         poses = update @ poses
 
     # 4. Trimmed fit of every placement: the best few go on.
-    _, _, d2 = _nearest(poses, small, thin_index)
-    scores = _scores(d2, _facing(poses, small, small_normals, sensor), opts.trim)
+    moved, _, d2 = _nearest(poses, small, thin_index)
+    scores = _scores(d2, _facing(poses, moved, small_normals, sensor), opts.trim)
     best = np.argsort(scores, kind="stable")[: opts.candidates]
 
     # 5. The best placements at finer resolution against the thinned scene, rescored.
