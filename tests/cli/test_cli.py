@@ -389,6 +389,16 @@ def test_mask_files_have_a_line_per_input_row_after_drop_nonfinite(tmp_path, pai
     np.testing.assert_allclose(np.loadtxt(out).reshape(-1, 3), points[mask.astype(bool)], atol=1e-6)
 
 
+def test_register_says_how_many_rows_it_dropped(tmp_path, pair_files, capsys):
+    template, source, _ = pair_files
+    points = read_points(source)
+    points[[1, 4, 7]] = np.nan
+    np.savetxt(tmp_path / "s.xyz", points)
+    args = ["register", str(template), str(tmp_path / "s.xyz"), "-o", str(tmp_path / "r.xyz")]
+    assert main([*args, "--drop-nonfinite"]) == 0
+    assert "3 non-finite rows dropped" in capsys.readouterr().out
+
+
 def test_a_failed_write_keeps_the_files_that_were_there(tmp_path, pair_files):
     template, source, _ = pair_files
     folder = tmp_path / "d"

@@ -231,7 +231,9 @@ def run(args: argparse.Namespace) -> None:
 
     n, m = result.sampled
     sampled = "" if (n, m) == (len(template), len(source)) else f" (sampled to {n} and {m})"
-    print(f"{name}: template {len(template)} points, source {len(source)}{sampled}")
+    dropped = len(source_rows) - len(source)
+    dropped_text = f", {dropped:,} non-finite rows dropped" if dropped else ""
+    print(f"{name}: template {len(template)} points, source {len(source)}{sampled}{dropped_text}")
     if result.mask is not None:
         print(f"inliers: {int(result.mask.sum())} of {len(template)} template points")
     if "search_fitness" in result.info:
