@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from masknet.cli._common import (
     add_cloud_arguments,
@@ -23,6 +24,11 @@ from masknet.cli._common import (
 )
 from masknet.errors import MaskNetError
 from masknet.names import METHOD_TITLES, METHODS
+
+if TYPE_CHECKING:  # heavy imports stay out of ``masknet --help``
+    import numpy as np
+
+    from masknet.registration.scene import SceneSearch
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -121,7 +127,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
 
 
-def scene_option(args: argparse.Namespace, template, source):
+def scene_option(
+    args: argparse.Namespace, template: np.ndarray, source: np.ndarray
+) -> bool | SceneSearch | None:
     """``register``'s ``scene`` argument from ``--scene`` and ``--viewpoint``: None, a bool,
     or the search's options (a viewpoint with ``--scene auto`` applies where the clouds
     call for a search)."""
@@ -219,11 +227,11 @@ def run(args: argparse.Namespace) -> None:
         layers = {"template": template, "source": source, "registered": moved}
         if result.mask is not None:
             layers["inliers"] = template[result.mask]
-        if result.source_mask is not None:
-            layers["registered"] = moved[result.source_mask]
-            layers["rejected"] = moved[~result.source_mask]
         if "search_fitness" in result.info:  # a scene: the object and its surroundings
             layers = scene_layers(template, moved, result.source_mask)
+        elif result.source_mask is not None:
+            layers["registered"] = moved[result.source_mask]
+            layers["rejected"] = moved[~result.source_mask]
         title = f"{name}: {Path(args.source).name} -> {Path(args.template).name}"
         writers += view_writers(args.html, layers, title)
     with progress("writing the outputs"):

@@ -61,6 +61,7 @@ from masknet.geometry.normals import estimate_normals
 from masknet.geometry.sampling import farthest_point_sample
 from masknet.registration.icp_tree import icp_single
 from masknet.registration.robust import hypothesis_rotations, trimmed_fit, trimmed_mean
+from masknet.registration.rounds import apply_transform
 
 __all__ = ["SceneSearch", "SceneMatch", "is_scene", "locate", "polish"]
 
@@ -191,7 +192,8 @@ def _nearest(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``points`` (P, 3) moved by each of ``poses`` (B, 4, 4): the moved points (B, P, 3),
     their nearest points of the one cloud in ``index`` (B, P, 3), squared distances (B, P)."""
-    moved = np.einsum("bij,pj->bpi", poses[:, :3, :3], points) + poses[:, None, :3, 3]
+    batch = np.ascontiguousarray(np.broadcast_to(points, (len(poses), *points.shape)))
+    moved = apply_transform(poses, batch)
     near = index.query(torch.from_numpy(moved.reshape(1, -1, 3).astype(np.float32)), 1)
     matched = index.reference[0, near.idx[0, :, 0]].double().numpy().reshape(moved.shape)
     return moved, matched, near.dists[0, :, 0].double().numpy().reshape(moved.shape[:2])
@@ -247,7 +249,8 @@ def _seen(
 
 
 def _apply(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
-    return points @ transform[:3, :3].T + transform[:3, 3]
+    """One (4, 4) transform applied to points (P, 3): :func:`apply_transform` of one pair."""
+    return apply_transform(transform[None], points[None])[0]
 
 
 def locate(
@@ -363,9 +366,8 @@ def locate(
     close = dist <= tolerance
     fitness = float(close.mean())
     rmse = float(np.sqrt(np.square(dist[close]).mean())) * radius if close.any() else 0.0
-    source_mask = np.zeros(len(scene), bool)
     near = cKDTree(moved_tpl).query(scn, k=1, distance_upper_bound=tolerance)[0]
-    source_mask[np.isfinite(near)] = True
+    source_mask = np.isfinite(near)  # (P,) bool: scene points on the moved template
 
     # pose maps unit-frame template -> unit-frame scene; invert and leave the unit frame:
     # template = centre + radius * tpl, scene = centre + radius * scn.
