@@ -3,10 +3,15 @@ two-sided network as a learned denoiser beside the distance rule and Open3D's fi
 
     python scripts/two_sided_benchmark.py --data $MASKNET_DATA --pairs 1000 --ratios 0 --out docs/results/two_sided_clean.json
     python scripts/two_sided_benchmark.py --data $MASKNET_DATA --pairs 200 --ratios 0,0.1,0.2 --out docs/results/two_sided.json
+    python scripts/two_sided_benchmark.py --data $MASKNET_DATA --decompose --pairs 1000 --ratios 0 --out docs/results/two_sided_decomposed.json
 
 ModelNet40 test shapes, the paper's protocol (70% views, rotations up to 45 degrees),
 uniform outliers in the source's bounding box (:class:`masknet.data.PairConfig`). The
 denoisers run on the same pairs as they are (misaligned) and on aligned ones (no motion).
+
+``--decompose`` splits the two-sided network's difference from the paper's mask, after one
+round, into its two parts: the template mask (computed without the rejected source points)
+and the source points it drops.
 """
 
 from __future__ import annotations
@@ -26,6 +31,9 @@ from masknet.evaluation.metrics import outlier_removal_metrics
 from masknet.evaluation.registration import pair_arrays, pose_errors
 from masknet.models import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
+from masknet.registration.api import DEFAULT_ITERATIONS, _default_network
+from masknet.registration.backends import BACKENDS
+from masknet.registration.rounds import apply_transform, initial_transform, keep_source_points
 
 
 def denoise_rows(model: TwoSidedMaskNet, points: np.ndarray, ratio: float, args) -> list[dict]:
@@ -55,6 +63,58 @@ def denoise_rows(model: TwoSidedMaskNet, points: np.ndarray, ratio: float, args)
     return out
 
 
+def one_round(tpl, src, method, template_mask, source_keep) -> np.ndarray:
+    """(P, 4, 4): one round of Mask-X with the given masks, as ``register`` runs it
+    (centroid shift, then the method on the kept source points)."""
+    options = {"max_iterations": DEFAULT_ITERATIONS[method]}
+    if method == "pointnetlk":
+        options["network"] = _default_network(method)
+    src = src if source_keep is None else keep_source_points(src, source_keep)
+    start = initial_transform("centroid", src, tpl, template_mask)
+    return (
+        BACKENDS[method](tpl, apply_transform(start, src), template_mask, options).transform @ start
+    )
+
+
+def decompose_rows(masks: dict, points: np.ndarray, ratio: float, args) -> list[dict]:
+    """Paired differences from the paper's mask after one round, with each of the two
+    sided network's masks swapped in alone."""
+    pairs = make_test_pairs(points, args.pairs, PairConfig(outlier_ratio=ratio), args.seed)
+    tpl, src, truth = pair_arrays(pairs)
+    real = pairs.source_mask.numpy()
+    paper = masks["Mask-X"].predict_mask(tpl, src)
+    two_template, keep = masks["two-sided Mask-X"].predict_masks(tpl, src)
+    rejected = {
+        "real_points_kept": float(keep[real].mean()),
+        "pairs_keeping_every_real_point": float((keep | ~real).all(1).mean()),
+    }
+    print(rejected, flush=True)
+    variants = {
+        "Mask-X (paper's template mask, every source point)": (paper, None),
+        "two-sided Mask-X (both masks)": (two_template, keep),
+        "two-sided template mask, every source point": (two_template, None),
+        "paper's template mask, two-sided source mask": (paper, keep),
+    }
+    rows = []
+    for method in args.methods.split(","):
+        errors = {}
+        for name, (template_mask, source_keep) in variants.items():
+            estimate = one_round(tpl, src, method, template_mask, source_keep)
+            errors[name] = pose_errors(estimate, truth)[0]
+        base = next(iter(errors.values()))
+        for name, rot in errors.items():
+            diff = rot - base
+            rows.append(
+                {"outliers": ratio, "method": method, "variant": name}
+                | {"mean_rot": float(rot.mean()), "median_rot": float(np.median(rot))}
+                | {"paired_diff_vs_mask_x": float(diff.mean())}
+                | {"paired_se": float(diff.std(ddof=1) / np.sqrt(len(diff)))}
+                | rejected
+            )
+            print(rows[-1], flush=True)
+    return rows
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--data", required=True)
@@ -63,6 +123,7 @@ def main() -> None:
     p.add_argument("--methods", default="icp,pointnetlk")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--iterations", default="1,3", help="rounds of mask -> register to run")
+    p.add_argument("--decompose", action="store_true", help="split the one-round difference")
     p.add_argument("--out")
     args = p.parse_args()
     torch.set_num_threads(2)
@@ -72,6 +133,13 @@ def main() -> None:
         "Mask-X": MaskNet.pretrained(),
         "two-sided Mask-X": TwoSidedMaskNet.pretrained(),
     }
+    if args.decompose:
+        ratios = [float(r) for r in args.ratios.split(",")]
+        rows = [row for r in ratios for row in decompose_rows(masks, points, r, args)]
+        if args.out:
+            Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+            Path(args.out).write_text(json.dumps({"decomposed": rows}, indent=1))
+        return
     rows, denoising = [], []
     for ratio in [float(r) for r in args.ratios.split(",")]:
         pairs = make_test_pairs(points, args.pairs, PairConfig(outlier_ratio=ratio), args.seed)

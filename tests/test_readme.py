@@ -53,5 +53,8 @@ def test_readme_python_example_runs(index, small_masknet, one_thread):
     if "result" in namespace:
         assert namespace["result"].transform.shape == (4, 4)
         assert np.isfinite(namespace["result"].transform).all()
+    if "quality" in namespace:  # a Mask-ICP result on a clean pair mostly lies on the template
+        assert 0.5 < namespace["quality"].fitness <= 1
+        assert namespace["quality"].inlier_rmse < namespace["quality"].max_distance
     if "kept" in namespace:
         assert namespace["kept"].mask.shape == (len(namespace["noisy_scan"]),)

@@ -5,6 +5,8 @@
     >>> mask = model.predict_mask(template, source)   # (N,) bool, top-k with k = len(source)
     >>> from masknet import register
     >>> result = register(template, source)           # Mask-ICP; result.transform (4, 4)
+    >>> from masknet import evaluate_registration
+    >>> evaluate_registration(template, source, result.transform).fitness  # inlier fraction
     >>> from masknet import denoise
     >>> kept = denoise(noisy, template)               # aligned clouds: kept.points, kept.mask
 
@@ -22,6 +24,7 @@ __all__ = [
     "MaskNet",
     "MaskNetError",
     "denoise",
+    "evaluate_registration",
     "RegistrationResult",
     "register",
     "select_mask",
@@ -36,13 +39,14 @@ _LAZY = {
     "MaskNet": "masknet.models",
     "select_mask": "masknet.models",
     "RegistrationResult": "masknet.registration",
+    "evaluate_registration": "masknet.registration",
     "register": "masknet.registration",
 }
 
 if TYPE_CHECKING:
     from masknet.denoising import DenoiseResult, denoise
     from masknet.models import MaskNet, select_mask
-    from masknet.registration import RegistrationResult, register
+    from masknet.registration import RegistrationResult, evaluate_registration, register
 
 
 def __getattr__(name: str):

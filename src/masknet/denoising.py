@@ -18,10 +18,9 @@ import functools
 from typing import NamedTuple
 
 import numpy as np
-import torch
 
 from masknet.errors import MaskNetError
-from masknet.geometry.clouds import as_cloud_batch, unit_radius
+from masknet.geometry.clouds import as_cloud_batch, median_spacing, unit_radius
 from masknet.geometry.knn import knn_points
 from masknet.geometry.sampling import farthest_point_sample
 from masknet.models.masknet import MaskNet
@@ -31,7 +30,6 @@ from masknet.registration.sampling import spread_mask
 __all__ = [
     "DenoiseResult",
     "denoise",
-    "template_spacing",
     "open3d_radius_outlier_removal",
     "open3d_statistical_outlier_removal",
 ]
@@ -54,12 +52,6 @@ NETWORK_POINTS = 2048
 @functools.lru_cache(maxsize=1)
 def _default_model() -> TwoSidedMaskNet:
     return TwoSidedMaskNet.pretrained("scans")
-
-
-def template_spacing(template: np.ndarray) -> float:
-    """Median distance from a template point (N, 3) to its nearest neighbour."""
-    cloud = torch.from_numpy(np.ascontiguousarray(template, dtype=np.float64))[None]
-    return float(knn_points(cloud, cloud, 2).dists[0, :, 1].sqrt().median())
 
 
 def denoise(
@@ -107,7 +99,7 @@ def denoise(
     if not single:
         raise MaskNetError("denoise takes one noisy cloud (P, 3) and one template (N, 3)")
     if method == "distance":
-        limit = 3 * template_spacing(template) if max_distance is None else max_distance
+        limit = 3 * median_spacing(template) if max_distance is None else max_distance
         if not limit > 0:
             raise MaskNetError(f"max_distance must be positive, got {limit}")
         d = knn_points(y.double(), x.double(), 1).dists[0, :, 0].sqrt().numpy()

@@ -233,7 +233,21 @@ def test_register_round_trip_through_the_files(tmp_path, small_masknet_weights, 
     np.testing.assert_allclose(moved, source @ transform[:3, :3].T + transform[:3, 3], atol=1e-5)
     inliers = tmp_path / f"registered_inliers{extension}"
     assert inliers.exists()
-    assert "Mask-ICP" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "Mask-ICP" in printed
+    assert f"fit: 100.0% of the {len(source):,} source points within" in printed
+
+
+def test_register_warns_when_the_source_does_not_lie_on_the_template(tmp_path, pair_files, capsys):
+    template, _, _ = pair_files
+    noise = np.random.default_rng(0).uniform(-1, 1, (500, 3))  # no surface at all
+    np.save(tmp_path / "noise.npy", noise)
+    out = tmp_path / "moved.xyz"
+    assert main(["register", str(template), str(tmp_path / "noise.npy"), "-o", str(out)]) == 0
+    printed = capsys.readouterr()
+    fit = float(printed.out.split("fit: ")[1].split("%")[0])
+    assert fit < 20
+    assert "warning: under 20% of SOURCE lies on TEMPLATE" in printed.err
 
 
 def test_register_no_mask_writes_no_inliers(tmp_path, pair_files, capsys):

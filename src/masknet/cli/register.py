@@ -25,6 +25,9 @@ from masknet.cli._common import (
 from masknet.errors import MaskNetError
 from masknet.names import METHOD_TITLES, METHODS
 
+# Below this fraction of the source on the template after registration, the CLI warns.
+LOW_FITNESS = 0.2
+
 if TYPE_CHECKING:  # heavy imports stay out of ``masknet --help``
     import numpy as np
 
@@ -148,7 +151,8 @@ def run(args: argparse.Namespace) -> None:
     import numpy as np
 
     from masknet.io import read_points, write_points, write_text_atomic
-    from masknet.registration import register
+    from masknet.registration import evaluate_registration, register
+    from masknet.registration.evaluation import DEFAULT_SPACINGS
     from masknet.registration.methods import GLOBAL_METHODS
 
     if args.refine < 0:
@@ -268,4 +272,18 @@ def run(args: argparse.Namespace) -> None:
     print(
         "reported: " + ", ".join(f"{k} {np.asarray(v).item():.4g}" for k, v in result.info.items())
     )
+    on_object = source if result.source_mask is None else source[result.source_mask]
+    quality = evaluate_registration(template, on_object, result.transform)
+    print(
+        f"fit: {100 * float(quality.fitness):.1f}% of the {len(on_object):,} "
+        f"{'kept ' if result.source_mask is not None else ''}source points within "
+        f"{float(quality.max_distance):.3g} of TEMPLATE ({DEFAULT_SPACINGS:g} template spacings), "
+        f"RMSE {float(quality.inlier_rmse):.3g} (input units)"
+    )
+    if float(quality.fitness) < LOW_FITNESS:
+        print(
+            f"masknet: warning: under {100 * LOW_FITNESS:.0f}% of SOURCE lies on TEMPLATE after "
+            "registration: it has probably failed, or the clouds barely overlap",
+            file=sys.stderr,
+        )
     print(f"wrote {', '.join(str(p) for p, _ in writers)}")

@@ -2,7 +2,7 @@
 take them (validated batches, unit radius)."""
 
 from masknet.geometry.align import centroid, centroid_alignment, rigid_align
-from masknet.geometry.clouds import MIN_POINTS, as_cloud_batch, unit_radius
+from masknet.geometry.clouds import MIN_POINTS, as_cloud_batch, median_spacing, unit_radius
 from masknet.geometry.knn import KNN, knn_points
 from masknet.geometry.se3 import (
     invert_transform,
@@ -25,6 +25,7 @@ __all__ = [
     "knn_points",
     "invert_transform",
     "make_transform",
+    "median_spacing",
     "random_rotation",
     "rigid_align",
     "rotation_error_deg",

@@ -7,8 +7,9 @@ import torch
 from torch import Tensor
 
 from masknet.errors import MaskNetError
+from masknet.geometry.knn import knn_points
 
-__all__ = ["MIN_POINTS", "as_cloud_batch", "unit_radius"]
+__all__ = ["MIN_POINTS", "as_cloud_batch", "median_spacing", "unit_radius"]
 
 # The fewest points a template or source may have for MaskNet and the registration networks.
 MIN_POINTS = 3
@@ -53,3 +54,10 @@ def as_cloud_batch(template: np.ndarray, source: np.ndarray) -> tuple[Tensor, Te
         torch.from_numpy(np.ascontiguousarray(s, np.float32)),
         single,
     )
+
+
+def median_spacing(points: np.ndarray) -> float:
+    """Median distance from a point of ``points`` (P, 3) to its nearest neighbour, in
+    the cloud's units."""
+    cloud = torch.from_numpy(np.ascontiguousarray(points, dtype=np.float64))[None]
+    return float(knn_points(cloud, cloud, 2).dists[0, :, 1].sqrt().median())

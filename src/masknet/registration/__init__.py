@@ -1,6 +1,7 @@
 """Registration: ``register`` (Mask-X for every method) and the algorithms behind it.
 
 * :mod:`.api`: the facade, :func:`register` and :class:`RegistrationResult`;
+* :mod:`.evaluation`: :func:`evaluate_registration`, inlier fraction and RMSE of any result;
 * :mod:`.methods`: method names, titles, options and defaults; :mod:`.options`: the
   typed options (``ICPCriteria``, ``Selection``, ``Rounds``, ``RobustOptions``);
 * :mod:`.validation` and :mod:`.sampling`: argument checks, large clouds to network size;
@@ -10,6 +11,7 @@
 """
 
 from masknet.registration.api import RegistrationResult, register
+from masknet.registration.evaluation import RegistrationQuality, evaluate_registration
 from masknet.registration.icp import ICPSolution, icp
 from masknet.registration.methods import METHOD_TITLES, METHODS
 from masknet.registration.open3d_icp import open3d_icp
@@ -20,10 +22,12 @@ __all__ = [
     "METHODS",
     "METHOD_TITLES",
     "ICPSolution",
+    "RegistrationQuality",
     "RegistrationResult",
     "RobustOptions",
     "Rounds",
     "Selection",
+    "evaluate_registration",
     "icp",
     "open3d_icp",
     "register",

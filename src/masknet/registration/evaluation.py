@@ -1,0 +1,98 @@
+"""``evaluate_registration``: how well a transform puts the source on the template.
+
+The same measure as Open3D's ``pipelines.registration.evaluate_registration``: a source
+point is an inlier when its nearest template point, after the transform, is within
+``max_distance``; ``fitness`` is the fraction of source points that are inliers and
+``inlier_rmse`` the root mean square of their distances. Unlike the ``fitness`` an ICP
+run reports (which counts every pair when it has no distance cut-off), it judges any
+method's result on the same footing, and says when a registration has failed.
+
+Example::
+
+    result = register(template, source)
+    quality = evaluate_registration(template, source, result.transform)
+    if quality.fitness < 0.3:
+        print("the source barely touches the template: check the result")
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+import torch
+
+from masknet.errors import MaskNetError
+from masknet.geometry.clouds import median_spacing
+from masknet.geometry.knn import knn_points
+from masknet.geometry.se3 import transform_points
+from masknet.registration.validation import as_numpy_batch
+
+__all__ = ["DEFAULT_SPACINGS", "RegistrationQuality", "evaluate_registration"]
+
+# The default inlier distance, in template spacings (median nearest-neighbour distance).
+# A registered surface point lies within about half a spacing of a template point. On 300
+# clean ModelNet40 pairs after plain ICP, 1.5 spacings gave a median fitness of 1.00 to
+# results within 2 degrees and 0.55 to those over 10 degrees off; 3 spacings gave 0.93
+# to the failures too.
+DEFAULT_SPACINGS = 1.5
+
+
+class RegistrationQuality(NamedTuple):
+    """fitness: () or (B,), the fraction of source points within ``max_distance`` of
+    the template. inlier_rmse: () or (B,), the root mean square distance of those points,
+    in input units (0 where there are none, as Open3D). max_distance: () or (B,), the
+    distance used."""
+
+    fitness: np.ndarray
+    inlier_rmse: np.ndarray
+    max_distance: np.ndarray
+
+
+def evaluate_registration(
+    template: np.ndarray,
+    source: np.ndarray,
+    transform: np.ndarray,
+    max_distance: float | None = None,
+) -> RegistrationQuality:
+    """Inlier fraction and RMSE of ``source`` moved by ``transform`` against ``template``.
+
+    Args:
+        template: (N, 3) or (B, N, 3) points.
+        source: (M, 3) or (B, M, 3) points.
+        transform: (4, 4) or (B, 4, 4) source -> template, as ``register`` returns it.
+        max_distance: inlier cut-off in input units; None takes ``DEFAULT_SPACINGS``
+            times each template's median nearest-neighbour distance, so the result
+            does not depend on the unit.
+
+    Returns:
+        RegistrationQuality, unbatched for unbatched clouds.
+
+    Raises:
+        MaskNetError: bad clouds (shape, NaN/inf, too few points) or a bad transform
+            or ``max_distance``.
+    """
+    template_b, source_b, single = as_numpy_batch(template, source)
+    tf = np.array(transform, dtype=np.float64)
+    b = template_b.shape[0]
+    if tf.shape == (4, 4):
+        tf = np.broadcast_to(tf, (b, 4, 4)).copy()  # writable, for torch
+    if tf.shape != (b, 4, 4) or not np.isfinite(tf).all():
+        raise MaskNetError(f"transform must be finite (4, 4) or ({b}, 4, 4), got {tf.shape}")
+    if max_distance is not None and not (np.isfinite(max_distance) and max_distance > 0):
+        raise MaskNetError(f"max_distance must be a positive number, got {max_distance}")
+    if max_distance is None:
+        limits = np.array([DEFAULT_SPACINGS * median_spacing(t) for t in template_b])
+    else:
+        limits = np.full(b, float(max_distance))
+    moved = transform_points(torch.from_numpy(tf), torch.from_numpy(source_b))
+    d2 = knn_points(moved, torch.from_numpy(template_b), 1).dists[..., 0].numpy()
+    inlier = d2 <= limits[:, None] ** 2
+    count = inlier.sum(1)
+    fitness = count / d2.shape[1]
+    rmse = np.sqrt(np.where(inlier, d2, 0.0).sum(1) / np.maximum(count, 1))
+
+    def out(a: np.ndarray) -> np.ndarray:
+        return a[0] if single else a
+
+    return RegistrationQuality(out(fitness), out(rmse), out(limits))
