@@ -124,6 +124,9 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--iterations", default="1,3", help="rounds of mask -> register to run")
     p.add_argument("--decompose", action="store_true", help="split the one-round difference")
+    p.add_argument(
+        "--two-sided-weights", help="a two-sided weights file (default: the shipped one)"
+    )
     p.add_argument("--out")
     args = p.parse_args()
     torch.set_num_threads(2)
@@ -131,7 +134,11 @@ def main() -> None:
     masks = {
         "X": None,
         "Mask-X": MaskNet.pretrained(),
-        "two-sided Mask-X": TwoSidedMaskNet.pretrained(),
+        "two-sided Mask-X": (
+            TwoSidedMaskNet.from_file(args.two_sided_weights)
+            if args.two_sided_weights
+            else TwoSidedMaskNet.pretrained()
+        ),
     }
     if args.decompose:
         ratios = [float(r) for r in args.ratios.split(",")]

@@ -41,6 +41,18 @@ def test_frozen_template_branch_gets_no_gradient():
     assert model.source_point.weight.grad is not None
 
 
+def test_fine_tuning_a_two_sided_file_keeps_its_weights(tmp_path):
+    from masknet.training.two_sided_task import TwoSidedTask
+
+    model = _small()
+    path = tmp_path / "two.safetensors"
+    model.save(path)
+    built = TwoSidedTask(init=str(path)).build_model()
+    assert isinstance(built, TwoSidedMaskNet) and built.config["encoder_channels"] == [16, 32]
+    for key, value in model.state_dict().items():
+        assert torch.equal(built.state_dict()[key], value)
+
+
 def test_save_load_round_trip(tmp_path):
     model = _small()
     model.save(tmp_path / "m.safetensors")

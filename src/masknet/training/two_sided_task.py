@@ -26,6 +26,7 @@ from masknet.data.pairs import Pairs, derive_seed
 from masknet.evaluation.metrics import mask_metrics
 from masknet.models.masknet import MaskNet, select_mask
 from masknet.models.two_sided import TwoSidedMaskNet
+from masknet.models.weights import read_metadata
 from masknet.training.scan_task import KIND_OF, ScanMaskNetTask
 
 __all__ = ["TwoSidedTask"]
@@ -52,7 +53,8 @@ class TwoSidedTask(ScanMaskNetTask):
 
     corruption: what goes into the sources.
     init: the shipped MaskNet weights the encoder and template branch start from
-        (a name for :meth:`MaskNet.pretrained`), or "" for random ones.
+        (a name for :meth:`MaskNet.pretrained`, or a MaskNet file), a two-sided network's
+        file to fine-tune, or "" for random weights.
     """
 
     corruption: CorruptionConfig = field(default_factory=CorruptionConfig)
@@ -70,6 +72,9 @@ class TwoSidedTask(ScanMaskNetTask):
     def build_model(self) -> nn.Module:
         if not self.init:
             return TwoSidedMaskNet(**self.model_config)
+        two_sided_key = TwoSidedMaskNet._config_key()
+        if self.init.endswith(".safetensors") and two_sided_key in read_metadata(self.init):
+            return TwoSidedMaskNet.from_file(self.init)  # fine-tuning a two-sided network
         if self.init.endswith(".safetensors"):
             masknet = MaskNet.from_file(self.init)
         else:
