@@ -105,3 +105,14 @@ def test_train_two_sided_on_scans_exports_loadable_weights(tmp_path, scan_folder
     # The frozen paper network inside is the --init weights, unchanged.
     start = MaskNet.from_file(weights).state_dict()
     assert all(torch.equal(v, start[k]) for k, v in model.masknet.state_dict().items())
+    # Fine-tuning that two-sided file: its source branch goes on learning from where it was.
+    again = tmp_path / "run3"
+    args[args.index("--init") + 1] = str(out / "best.safetensors")
+    args[args.index("--out") + 1] = str(again)
+    assert main(args) == 0
+    tuned = TwoSidedMaskNet.from_file(again / "best.safetensors")
+    assert all(torch.equal(v, start[k]) for k, v in tuned.masknet.state_dict().items())
+    assert not torch.equal(tuned.source_point.weight, model.source_point.weight)
+    moved = (tuned.source_point.weight - model.source_point.weight).norm()
+    fresh = TwoSidedMaskNet(**model.config).source_point.weight  # what a new start would be
+    assert moved < 0.5 * (fresh - model.source_point.weight).norm()
