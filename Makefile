@@ -13,7 +13,7 @@ $(STAMP): pyproject.toml constraints.txt
 	@bash scripts/install-system-deps.sh
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	# The constraints file pins torch to the CPU wheel (no CUDA downloads).
+	# The constraints file pins torch's version; the build comes from pip's index (README).
 	$(BIN)/python -m pip install -q -c constraints.txt -e '.[dev]'
 	@touch $(STAMP)
 

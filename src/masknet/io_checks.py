@@ -32,13 +32,14 @@ def check_geometry(points: np.ndarray, name: str) -> None:
         raise MaskNetError(f"{name}: all {len(points)} points lie on one line; nothing to register")
     if len(points) <= FEW_POINTS:
         print(
-            f"warning: {name}: only {len(points)} points; the result is unreliable", file=sys.stderr
+            f"masknet: warning: {name}: only {len(points)} points; the result is unreliable",
+            file=sys.stderr,
         )
     distance = np.linalg.norm(centred, axis=1)
     typical = float(np.median(distance))
     if typical > 0 and distance.max() > 1000 * typical:
         print(
-            f"warning: {name}: one point lies {distance.max() / typical:.3g} times farther out "
+            f"masknet: warning: {name}: one point lies {distance.max() / typical:.3g} times farther out "
             "than the median point; an outlier sets the cloud's scale",
             file=sys.stderr,
         )

@@ -246,8 +246,16 @@ def test_register_warns_when_the_source_does_not_lie_on_the_template(tmp_path, p
     assert main(["register", str(template), str(tmp_path / "noise.npy"), "-o", str(out)]) == 0
     printed = capsys.readouterr()
     fit = float(printed.out.split("fit: ")[1].split("%")[0])
-    assert fit < 20
-    assert "warning: under 20% of SOURCE lies on TEMPLATE" in printed.err
+    assert fit < 50
+    assert "warning: under 50% of noise.npy lies on template.xyz" in printed.err
+
+
+def test_register_says_when_the_viewpoint_went_unused(tmp_path, pair_files, capsys):
+    template, source, _ = pair_files
+    out = tmp_path / "moved.xyz"
+    args = ["register", str(template), str(source), "-o", str(out), "--viewpoint", "0", "0", "5"]
+    assert main(args) == 0  # two clouds of one object: no scene search
+    assert "--viewpoint was not used" in capsys.readouterr().err
 
 
 def test_register_no_mask_writes_no_inliers(tmp_path, pair_files, capsys):

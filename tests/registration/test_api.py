@@ -364,6 +364,8 @@ def test_unknown_init_and_bad_refine_are_refused(pairs, small_masknet):
         register(template, source, model=small_masknet, init="ransac")
     with pytest.raises(MaskNetError, match="refine_iterations"):
         register(template, source, model=small_masknet, refine_iterations=-1)
+    with pytest.raises(MaskNetError, match="max_points must be an integer >= 3, got 2"):
+        register(template[0], source[0], model=small_masknet, max_points=2)
 
 
 @pytest.mark.parametrize("method", ["open3d-ransac", "open3d-fgr"])

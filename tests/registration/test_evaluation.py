@@ -70,6 +70,8 @@ def test_batches_and_an_explicit_distance(shape):
     [
         (np.eye(3), None, "transform must be"),
         (np.full((4, 4), np.nan), None, "transform must be"),
+        (2 * np.eye(4), None, "must be rigid"),
+        (np.diag([1.0, 1.0, -1.0, 1.0]), None, "must be rigid"),
         (np.eye(4), -1.0, "max_distance"),
         (np.eye(4), float("nan"), "max_distance"),
     ],

@@ -119,7 +119,10 @@ class RegistrationResult:
     @property
     def fitness(self) -> np.ndarray | None:
         """Fraction of source points with a template point within the correspondence
-        distance (Open3D's definition), () or (B,); None where the method does not report it."""
+        distance (Open3D's definition), () or (B,), as the method reports it; None where it
+        does not. ICP without ``max_correspondence_distance`` counts every pair, so it is 1
+        whatever the result: :func:`~masknet.registration.evaluate_registration` judges any
+        result alike."""
         return self.info.get("fitness")
 
     @property
@@ -291,7 +294,9 @@ def register(
         iterations, refine_iterations = merged.pop("iterations"), merged.pop("refine_iterations")
         k, threshold = merged.pop("k"), merged.pop("threshold")
         options = {key: v for key, v in merged.items() if v is not None or key in options}
-    check_arguments(method, options, iterations, k, threshold, use_mask, init, refine_iterations)
+    check_arguments(
+        method, options, iterations, k, threshold, use_mask, init, refine_iterations, max_points
+    )
     tpl_full, src_full, single = as_numpy_batch(template, source)
     found = _search_scene(tpl_full, src_full, single, scene)
     if found is not None:  # the method registers the object's points, from the pose found

@@ -79,6 +79,12 @@ def evaluate_registration(
         tf = np.broadcast_to(tf, (b, 4, 4)).copy()  # writable, for torch
     if tf.shape != (b, 4, 4) or not np.isfinite(tf).all():
         raise MaskNetError(f"transform must be finite (4, 4) or ({b}, 4, 4), got {tf.shape}")
+    rot = tf[:, :3, :3]
+    rigid = np.allclose(rot @ rot.transpose(0, 2, 1), np.eye(3), atol=1e-4)
+    if not rigid or (np.linalg.det(rot) < 0).any() or not np.allclose(tf[:, 3], [0, 0, 0, 1]):
+        raise MaskNetError(
+            "transform must be rigid: a rotation and a translation, last row 0 0 0 1"
+        )
     if max_distance is not None and not (np.isfinite(max_distance) and max_distance > 0):
         raise MaskNetError(f"max_distance must be a positive number, got {max_distance}")
     if max_distance is None:

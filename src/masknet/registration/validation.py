@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 
 from masknet.errors import MaskNetError
-from masknet.geometry.clouds import as_cloud_batch
+from masknet.geometry.clouds import MIN_POINTS, as_cloud_batch
 from masknet.registration.methods import INITS, METHODS, OPTIONS
 
 __all__ = ["as_numpy_batch", "check_arguments"]
@@ -22,9 +22,10 @@ def check_arguments(
     use_mask: bool,
     init: str,
     refine_iterations: Any,
+    max_points: Any = 1024,
 ) -> None:
     """Raise :class:`MaskNetError` for an unknown method, option or init, or bad
-    iterations, refine_iterations, k or threshold."""
+    iterations, refine_iterations, max_points, k or threshold."""
     if method not in METHODS:
         raise MaskNetError(f"unknown registration method {method!r}; choose from {METHODS}")
     unknown = sorted(set(options) - set(OPTIONS[method]))
@@ -36,6 +37,7 @@ def check_arguments(
     for name, value, low in (
         ("iterations", iterations, 1),
         ("refine_iterations", refine_iterations, 0),
+        ("max_points", max_points, MIN_POINTS),
     ):
         if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < low:
             raise MaskNetError(f"{name} must be an integer >= {low}, got {value!r}")
