@@ -10,6 +10,7 @@ export MASKNET_DATA ?= $(if $(wildcard $(SHARED_DATA)),$(abspath $(SHARED_DATA))
 .PHONY: install demo test lint format sample clean
 
 $(STAMP): pyproject.toml constraints.txt
+	@echo "Installing masknet and its dependencies into $(VENV) (a few minutes the first time)..."
 	@bash scripts/install-system-deps.sh
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
