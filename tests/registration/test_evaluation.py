@@ -74,6 +74,7 @@ def test_batches_and_an_explicit_distance(shape):
         (np.diag([1.0, 1.0, -1.0, 1.0]), None, "must be rigid"),
         (np.eye(4), -1.0, "max_distance"),
         (np.eye(4), float("nan"), "max_distance"),
+        (np.eye(4), "0.1", "max_distance"),
     ],
 )
 def test_bad_arguments_are_one_clear_error(shape, transform, distance, words):

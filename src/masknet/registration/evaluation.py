@@ -85,8 +85,12 @@ def evaluate_registration(
         raise MaskNetError(
             "transform must be rigid: a rotation and a translation, last row 0 0 0 1"
         )
-    if max_distance is not None and not (np.isfinite(max_distance) and max_distance > 0):
-        raise MaskNetError(f"max_distance must be a positive number, got {max_distance}")
+    if max_distance is not None and (
+        isinstance(max_distance, bool)
+        or not isinstance(max_distance, int | float | np.number)
+        or not (np.isfinite(max_distance) and max_distance > 0)
+    ):
+        raise MaskNetError(f"max_distance must be a positive number, got {max_distance!r}")
     if max_distance is None:
         limits = np.array([DEFAULT_SPACINGS * median_spacing(t) for t in template_b])
     else:
