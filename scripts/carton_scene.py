@@ -28,9 +28,8 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from masknet import register
-from masknet._atomic import atomic_target
 from masknet.evaluation.registration import pose_errors
-from masknet.io import read_points, require_open3d
+from masknet.io import read_points, require_open3d, write_text_atomic
 from masknet.models import TwoSidedMaskNet
 from masknet.registration.scene import SceneSearch
 
@@ -192,18 +191,13 @@ def main() -> None:
             )
             trials.append(row)
             print(row, flush=True)
-    with atomic_target(out / "carton.json") as tmp:
-        Path(tmp).write_text(
-            json.dumps(
-                {
-                    "ground_truth": truth.tolist(),
-                    "seeds": [{k: v for k, v in r.items() if k != "pose"} for r in runs],
-                    "pipelines": rows,
-                    "trials": trials,
-                },
-                indent=1,
-            )
-        )
+    report = {
+        "ground_truth": truth.tolist(),
+        "seeds": [{k: v for k, v in r.items() if k != "pose"} for r in runs],
+        "pipelines": rows,
+        "trials": trials,
+    }
+    write_text_atomic(out / "carton.json", json.dumps(report, indent=1))
 
 
 if __name__ == "__main__":

@@ -30,10 +30,10 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from masknet import register
-from masknet._atomic import atomic_target
 from masknet.data import bundled_sample_path, load_modelnet40
 from masknet.data.views import hidden_point_removal
 from masknet.evaluation.registration import pose_errors
+from masknet.io import write_text_atomic
 from masknet.registration.scene import SceneSearch
 
 SENSOR = np.array([3.0, 3.0, 8.0])  # one depth sensor above the grid's centre
@@ -107,8 +107,7 @@ def main() -> None:
             "median_seconds": float(np.median([r["seconds"] for r in part])),
         }
     print(json.dumps(summary, indent=1))
-    with atomic_target(args.out) as tmp:
-        Path(tmp).write_text(json.dumps({"summary": summary, "rows": rows}, indent=1))
+    write_text_atomic(args.out, json.dumps({"summary": summary, "rows": rows}, indent=1))
 
 
 if __name__ == "__main__":

@@ -17,9 +17,9 @@ and the source points it drops.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import time
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -29,9 +29,10 @@ from masknet.data import PairConfig, load_modelnet40, make_test_pairs
 from masknet.denoising import denoise, open3d_statistical_outlier_removal
 from masknet.evaluation.metrics import outlier_removal_metrics
 from masknet.evaluation.registration import pair_arrays, pose_errors
-from masknet.models import MaskNet
+from masknet.io import write_text_atomic
+from masknet.models import REGISTRATION_NETWORKS, MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
-from masknet.registration.api import DEFAULT_ITERATIONS, _default_network
+from masknet.registration.api import DEFAULT_ITERATIONS
 from masknet.registration.backends import BACKENDS
 from masknet.registration.rounds import apply_transform, initial_transform, keep_source_points
 
@@ -63,12 +64,28 @@ def denoise_rows(model: TwoSidedMaskNet, points: np.ndarray, ratio: float, args)
     return out
 
 
+def paired_difference(errors: np.ndarray, base: np.ndarray) -> dict[str, float]:
+    """Mean per-pair difference of two methods' errors on the same pairs, and its
+    standard error: a small difference told from the pairs' own spread."""
+    diff = errors - base
+    return {
+        "paired_diff_vs_mask_x": float(diff.mean()),
+        "paired_se": float(diff.std(ddof=1) / np.sqrt(len(diff))),
+    }
+
+
+@functools.cache
+def pointnetlk_network() -> torch.nn.Module:
+    """The shipped PointNetLK, as ``register`` uses it, loaded once."""
+    return REGISTRATION_NETWORKS["pointnetlk"].pretrained().eval()
+
+
 def one_round(tpl, src, method, template_mask, source_keep) -> np.ndarray:
     """(P, 4, 4): one round of Mask-X with the given masks, as ``register`` runs it
     (centroid shift, then the method on the kept source points)."""
     options = {"max_iterations": DEFAULT_ITERATIONS[method]}
     if method == "pointnetlk":
-        options["network"] = _default_network(method)
+        options["network"] = pointnetlk_network()
     src = src if source_keep is None else keep_source_points(src, source_keep)
     start = initial_transform("centroid", src, tpl, template_mask)
     return (
@@ -103,12 +120,10 @@ def decompose_rows(masks: dict, points: np.ndarray, ratio: float, args) -> list[
             errors[name] = pose_errors(estimate, truth)[0]
         base = next(iter(errors.values()))
         for name, rot in errors.items():
-            diff = rot - base
             rows.append(
                 {"outliers": ratio, "method": method, "variant": name}
                 | {"mean_rot": float(rot.mean()), "median_rot": float(np.median(rot))}
-                | {"paired_diff_vs_mask_x": float(diff.mean())}
-                | {"paired_se": float(diff.std(ddof=1) / np.sqrt(len(diff)))}
+                | paired_difference(rot, base)
                 | rejected
             )
             print(rows[-1], flush=True)
@@ -144,8 +159,7 @@ def main() -> None:
         ratios = [float(r) for r in args.ratios.split(",")]
         rows = [row for r in ratios for row in decompose_rows(masks, points, r, args)]
         if args.out:
-            Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-            Path(args.out).write_text(json.dumps({"decomposed": rows}, indent=1))
+            write_text_atomic(args.out, json.dumps({"decomposed": rows}, indent=1))
         return
     rows, denoising = [], []
     for ratio in [float(r) for r in args.ratios.split(",")]:
@@ -185,14 +199,14 @@ def main() -> None:
                 print(rows[-1], flush=True)
             # Paired over the same pairs: two-sided minus the paper's mask, and its standard
             # error, so that a small difference can be told from the pairs' own spread.
-            diff = errors["two-sided Mask-X"] - errors["Mask-X"]
-            rows[-1]["paired_diff_vs_mask_x"] = float(diff.mean())
-            rows[-1]["paired_se"] = float(diff.std(ddof=1) / np.sqrt(len(diff)))
-            print(f"two-sided - Mask-X: {diff.mean():+.3f} +- {rows[-1]['paired_se']:.3f}")
+            rows[-1] |= paired_difference(errors["two-sided Mask-X"], errors["Mask-X"])
+            print(
+                f"two-sided - Mask-X: {rows[-1]['paired_diff_vs_mask_x']:+.3f} "
+                f"+- {rows[-1]['paired_se']:.3f}"
+            )
     if args.out:
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(
-            json.dumps({"registration": rows, "denoising": denoising}, indent=1)
+        write_text_atomic(
+            args.out, json.dumps({"registration": rows, "denoising": denoising}, indent=1)
         )
 
 

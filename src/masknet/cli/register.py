@@ -25,7 +25,8 @@ from masknet.cli._common import (
 from masknet.errors import MaskNetError
 from masknet.names import METHOD_TITLES, METHODS
 
-# Below this fraction of the source on the template after registration, the CLI warns. On
+# Below this fraction of the source on the template after registration (or of the template
+# on the scan, after a scene search), the CLI warns. On
 # clean ModelNet40 pairs, results within 2 degrees have a median fitness of 1.00 and those
 # over 10 degrees off 0.55; partial overlaps of real scans sit lower when right.
 LOW_FITNESS = 0.5
@@ -259,7 +260,7 @@ def run(args: argparse.Namespace) -> None:
             f"in {result.times['search']:.1f} s; {100 * float(result.info['search_fitness']):.1f}% "
             "of the template lies on the scene where it was found"
         )
-        if float(result.info["search_fitness"]) < 0.5:
+        if float(result.info["search_fitness"]) < LOW_FITNESS:
             print(
                 "masknet: warning: under half of TEMPLATE lies on SOURCE where it fits best; "
                 "the object may not be in this scan (or TEMPLATE shows more of it than the "
@@ -292,7 +293,7 @@ def run(args: argparse.Namespace) -> None:
             "may have failed, or the clouds overlap only in part)",
             file=sys.stderr,
         )
-    if getattr(args, "viewpoint", None) is not None and "search_fitness" not in result.info:
+    if args.viewpoint is not None and "search_fitness" not in result.info:
         print(
             "masknet: warning: --viewpoint was not used: it serves the scene search, and none "
             "ran (--scene on forces one)",

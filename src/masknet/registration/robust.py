@@ -56,7 +56,13 @@ from masknet.registration.backends import run_icp
 from masknet.registration.options import RobustOptions
 from masknet.registration.rounds import apply_transform, keep_source_points, mask_and_register
 
-__all__ = ["hypothesis_rotations", "robust_register", "trimmed_fit", "trimmed_mean"]
+__all__ = [
+    "hypothesis_rotations",
+    "robust_register",
+    "trimmed_fit",
+    "trimmed_mean",
+    "trimmed_order",
+]
 
 
 class RobustRun(NamedTuple):
@@ -92,6 +98,17 @@ def _subsample(points: np.ndarray, count: int) -> np.ndarray:
     return np.stack([p[farthest_point_sample(p, count).indices] for p in points])
 
 
+def trimmed_order(
+    d2: np.ndarray, trim: float, valid: np.ndarray, min_keep: int = 1
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each row of (B, P) squared distances sorted, invalid entries (``valid`` (B, P)
+    False) last as inf, and how many of each row the ``trim`` fraction of its valid
+    entries keeps (B,), at least ``min_keep``."""
+    ordered = np.sort(np.where(valid, d2, np.inf), axis=1)
+    keep = np.maximum(min_keep, np.round(trim * valid.sum(1))).astype(np.int64)
+    return ordered, keep
+
+
 def trimmed_mean(d2: np.ndarray, trim: float, valid: np.ndarray | None = None) -> np.ndarray:
     """Mean of the smallest ``trim`` fraction of each row of (B, P) squared distances: (B,).
 
@@ -101,12 +118,10 @@ def trimmed_mean(d2: np.ndarray, trim: float, valid: np.ndarray | None = None) -
     if valid is None:
         keep = max(1, int(round(trim * d2.shape[1])))
         return np.sort(d2, axis=1)[:, :keep].mean(1)
-    ordered = np.sort(np.where(valid, d2, np.inf), axis=1)
-    counts = valid.sum(1)
-    keep = np.maximum(1, np.round(trim * counts)).astype(np.int64)
+    ordered, keep = trimmed_order(d2, trim, valid)
     sums = np.cumsum(np.where(np.isfinite(ordered), ordered, 0.0), axis=1)
     means = sums[np.arange(len(d2)), keep - 1] / keep
-    return np.where(counts > 0, means, np.inf)
+    return np.where(valid.any(1), means, np.inf)
 
 
 def trimmed_fit(query: np.ndarray, reference: np.ndarray, trim: float) -> np.ndarray:

@@ -55,12 +55,17 @@ from scipy.spatial import cKDTree
 
 from masknet.errors import MaskNetError
 from masknet.geometry.align import rigid_align
-from masknet.geometry.clouds import MIN_POINTS, unit_radius
+from masknet.geometry.clouds import MIN_POINTS, median_spacing, unit_radius
 from masknet.geometry.knn import KDTreeIndex
 from masknet.geometry.normals import estimate_normals
 from masknet.geometry.sampling import farthest_point_sample
 from masknet.registration.icp_tree import icp_single
-from masknet.registration.robust import hypothesis_rotations, trimmed_fit, trimmed_mean
+from masknet.registration.robust import (
+    hypothesis_rotations,
+    trimmed_fit,
+    trimmed_mean,
+    trimmed_order,
+)
 from masknet.registration.rounds import apply_transform
 
 __all__ = ["SceneSearch", "SceneMatch", "is_scene", "locate", "polish"]
@@ -183,7 +188,7 @@ def _inlier_distance(unit_template: np.ndarray, options: SceneSearch) -> float:
     """The inlier distance in template radii for a unit-radius template (N, 3): the
     option, or 1.5 median nearest-neighbour spacings of the template if more, but never
     more than ``refine_distance`` (a template of a few points has huge spacings)."""
-    spacing = float(np.median(cKDTree(unit_template).query(unit_template, k=2)[0][:, 1]))
+    spacing = median_spacing(unit_template)
     return max(options.inlier_distance, min(1.5 * spacing, options.refine_distance))
 
 
@@ -231,8 +236,7 @@ def _trim_weights(d2: np.ndarray, facing: np.ndarray | None, trim: float) -> np.
     """(B, P) float64 weights of trimmed ICP: 1 for the best ``trim`` of each placement's
     pairs (among the points facing the sensor), else 0."""
     valid = np.ones(d2.shape, bool) if facing is None else facing
-    ordered = np.sort(np.where(valid, d2, np.inf), axis=1)
-    keep = np.maximum(MIN_POINTS, np.round(trim * valid.sum(1))).astype(np.int64)
+    ordered, keep = trimmed_order(d2, trim, valid, min_keep=MIN_POINTS)
     cut = ordered[np.arange(len(d2)), np.minimum(keep, d2.shape[1]) - 1]
     return (valid & (d2 <= cut[:, None])).astype(np.float64)
 

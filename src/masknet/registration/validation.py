@@ -22,7 +22,7 @@ def check_arguments(
     use_mask: bool,
     init: str,
     refine_iterations: Any,
-    max_points: Any = 1024,
+    max_points: Any,
 ) -> None:
     """Raise :class:`MaskNetError` for an unknown method, option or init, or bad
     iterations, refine_iterations, max_points, k or threshold."""
