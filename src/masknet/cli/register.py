@@ -26,9 +26,9 @@ from masknet.errors import MaskNetError
 from masknet.names import METHOD_TITLES, METHODS
 
 # Below this fraction of the source on the template after registration (or of the template
-# on the scan, after a scene search), the CLI warns. On
-# clean ModelNet40 pairs, results within 2 degrees have a median fitness of 1.00 and those
-# over 10 degrees off 0.55; partial overlaps of real scans sit lower when right.
+# on the scan, after a scene search), the CLI warns: right results on clean pairs fit fully,
+# wrong ones about half (docs/RESULTS.md, "Did a registration work?"); partial overlaps of
+# real scans sit lower when right.
 LOW_FITNESS = 0.5
 
 if TYPE_CHECKING:  # heavy imports stay out of ``masknet --help``

@@ -30,11 +30,9 @@ from masknet.registration.validation import as_numpy_batch
 
 __all__ = ["DEFAULT_SPACINGS", "RegistrationQuality", "evaluate_registration"]
 
-# The default inlier distance, in template spacings (median nearest-neighbour distance).
-# A registered surface point lies within about half a spacing of a template point. On 300
-# clean ModelNet40 pairs after plain ICP, 1.5 spacings gave a median fitness of 1.00 to
-# results within 2 degrees and 0.55 to those over 10 degrees off; 3 spacings gave 0.93
-# to the failures too.
+# The default inlier distance, in template spacings (median nearest-neighbour distance):
+# where right and wrong results fit most differently (docs/RESULTS.md, "Did a registration
+# work?", scripts/fit_calibration.py); at 3 spacings wrong results fit as well as right ones.
 DEFAULT_SPACINGS = 1.5
 
 
