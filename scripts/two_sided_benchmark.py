@@ -28,7 +28,7 @@ from masknet import register
 from masknet.data import PairConfig, load_modelnet40, make_test_pairs
 from masknet.denoising import denoise, open3d_statistical_outlier_removal
 from masknet.evaluation.metrics import outlier_removal_metrics
-from masknet.evaluation.registration import pair_arrays, pose_errors
+from masknet.evaluation.registration import pair_arrays, paired_difference, pose_errors
 from masknet.io import write_text_atomic
 from masknet.models import REGISTRATION_NETWORKS, MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
@@ -62,16 +62,6 @@ def denoise_rows(model: TwoSidedMaskNet, points: np.ndarray, ratio: float, args)
             out.append(row | outlier_removal_metrics(mask, real))
             print(out[-1], flush=True)
     return out
-
-
-def paired_difference(errors: np.ndarray, base: np.ndarray) -> dict[str, float]:
-    """Mean per-pair difference of two methods' errors on the same pairs, and its
-    standard error: a small difference told from the pairs' own spread."""
-    diff = errors - base
-    return {
-        "paired_diff_vs_mask_x": float(diff.mean()),
-        "paired_se": float(diff.std(ddof=1) / np.sqrt(len(diff))),
-    }
 
 
 @functools.cache
@@ -123,7 +113,7 @@ def decompose_rows(masks: dict, points: np.ndarray, ratio: float, args) -> list[
             rows.append(
                 {"outliers": ratio, "method": method, "variant": name}
                 | {"mean_rot": float(rot.mean()), "median_rot": float(np.median(rot))}
-                | paired_difference(rot, base)
+                | paired_difference(rot, base, "paired_diff_vs_mask_x")
                 | rejected
             )
             print(rows[-1], flush=True)
@@ -180,6 +170,7 @@ def main() -> None:
                     use_mask=model is not None,
                     model=model,
                     iterations=rounds,
+                    refine_masks="network",  # the same mask in every round, as published
                 )
                 rot, trans = pose_errors(result.transform, truth)
                 errors[name] = rot
@@ -199,7 +190,9 @@ def main() -> None:
                 print(rows[-1], flush=True)
             # Paired over the same pairs: two-sided minus the paper's mask, and its standard
             # error, so that a small difference can be told from the pairs' own spread.
-            rows[-1] |= paired_difference(errors["two-sided Mask-X"], errors["Mask-X"])
+            rows[-1] |= paired_difference(
+                errors["two-sided Mask-X"], errors["Mask-X"], "paired_diff_vs_mask_x"
+            )
             print(
                 f"two-sided - Mask-X: {rows[-1]['paired_diff_vs_mask_x']:+.3f} "
                 f"+- {rows[-1]['paired_se']:.3f}"

@@ -45,7 +45,15 @@ def test_plots_and_contents(quick_run):
     assert [r["chance"] for r in missing] == pytest.approx([0.9, 0.7, 0.5])
     assert all(r["precision"] > r["chance"] for r in missing)  # the shipped model beats chance
     rounds = json.loads((quick_run / "iterations.json").read_text())["rows"]
-    assert [r["round"] for r in rounds] == [1, 2, 3, 1, 2, 3]
+    loops = [(r["pipeline"], r["loop"], r["round"]) for r in rounds]
+    assert loops == [
+        (p, loop, n)
+        for p in ("Mask-ICP", "Mask-PointNetLK")
+        for n in (1, 2, 3)
+        for loop in ("paper's loop", "refined loop")
+    ]
+    refined = [r for r in rounds if r["loop"] == "refined loop"]
+    assert all(math.isfinite(r["paired_diff"]) and r["paired_se"] >= 0 for r in refined)
     networks = {
         r["pipeline"]: r for r in json.loads((quick_run / "networks.json").read_text())["rows"]
     }

@@ -93,13 +93,17 @@ def test_single_pair_shapes(pairs, small_masknet):
 def test_batch_shapes_and_equals_single(pairs, small_masknet):
     template, source = pairs.template.numpy(), pairs.source.numpy()
     b, n, _ = template.shape
-    result = register(template, source, model=small_masknet, iterations=2)
+    # The paper's loop: no source mask, so a batch and its pairs see the same points (a
+    # batch fills rejected source slots with kept points to keep one shape).
+    result = register(template, source, model=small_masknet, iterations=2, refine_masks="network")
     assert result.R.shape == (b, 3, 3) and result.t.shape == (b, 3)
     assert result.transform.shape == (b, 4, 4) and result.mask.shape == (b, n)
     assert len(result.rounds) == 2 and all(r.shape == (b, 4, 4) for r in result.rounds)
     for key in ("converged", "fitness", "inlier_rmse", "iterations"):
         assert result.info[key].shape == (b,), key
-    one = register(template[1], source[1], model=small_masknet, iterations=2)
+    one = register(
+        template[1], source[1], model=small_masknet, iterations=2, refine_masks="network"
+    )
     np.testing.assert_allclose(one.transform, result.transform[1], atol=1e-9)
     np.testing.assert_array_equal(one.mask, result.mask[1])
 
@@ -170,7 +174,9 @@ def test_only_masked_template_points_take_part(pairs):
 def test_each_round_masks_the_moved_source(pairs):
     template, source = pairs.template.numpy(), pairs.source.numpy()
     fake = _FixedMask(pairs.mask.numpy())
-    result = register(template, source, model=fake, iterations=3, k=500, max_iterations=2)
+    result = register(
+        template, source, model=fake, iterations=3, k=500, max_iterations=2, refine_masks="network"
+    )
     assert len(fake.calls) == 3
     for i, (tpl, src, k, threshold) in enumerate(fake.calls):
         np.testing.assert_array_equal(tpl, template)

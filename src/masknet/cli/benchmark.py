@@ -22,8 +22,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "experiment",
-        help="registration, networks, iterations, precision-vs-missing, rotation-sweep, "
-        "noise, generalization, timing, denoising, outliers, scans, robust, or all",
+        help="registration, networks, iterations, masks-per-round, refine-masks, "
+        "precision-vs-missing, rotation-sweep, noise, generalization, timing, denoising, "
+        "outliers, scans, robust, or all",
     )
     p.add_argument("--data", help="ModelNet40 folder or .npz (default: $MASKNET_DATA)")
     p.add_argument("--pairs", type=positive_int, help="pairs per setting (default 1000)")

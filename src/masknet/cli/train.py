@@ -20,7 +20,7 @@ from masknet.names import NETWORK_METHODS
 if TYPE_CHECKING:
     from masknet.training import Task
 
-MODELS = ("masknet", "masknet2", "denoise", *NETWORK_METHODS)
+MODELS = ("masknet", "masknet2", "refine", "denoise", *NETWORK_METHODS)
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -35,7 +35,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         default="masknet",
         help="masknet (partial pairs), masknet2 (the two-sided MaskNet: template and "
         "source masks, trained with outliers and clutter in the source; --init names the "
-        "MaskNet it starts from, default modelnet40), denoise (MaskNet scoring the points of a source "
+        "MaskNet it starts from, default modelnet40), refine (the refinement mask of rounds >= 2: "
+        "both masks of a pair already brought close, trained with residual poses, outliers and "
+        "clutter; --init fine-tunes a refinement-mask file), denoise (MaskNet scoring the points of a source "
         "with outliers, 10%% by default), or a registration network: pointnetlk, dcp, "
         "pcrnet (full-cloud pairs, as their papers train) or prnet, rpmnet (partial pairs)",
     )
@@ -168,6 +170,25 @@ def build_task(args: argparse.Namespace) -> TrainSetup:
             task = TwoSidedTask(pairs=base.pairs, num_points=args.num_points, **init)
         args.init = None  # the task starts from those MaskNet weights itself
         return TrainSetup(task, TwoSidedMaskNet, precision)
+    if args.model == "refine":
+        from masknet.models.refine import RefineMaskNet
+        from masknet.training.refine_task import RefineMaskTask
+
+        init = {"init": args.init} if args.init else {}
+        config = args.model_config if args.model_config is not None else {}
+        base = MaskNetTask(pairs=pair_config(args), num_points=args.num_points, model_config=config)
+        if args.scans:
+            task = _scans.scan_task(args, base, RefineMaskTask, **init)
+        else:
+            task = RefineMaskTask(
+                pairs=base.pairs, num_points=args.num_points, model_config=config, **init
+            )
+        try:
+            task.build_model()
+        except (TypeError, MaskNetError) as exc:
+            raise MaskNetError(f"refine: {exc}") from None
+        args.init = None  # the task loads those weights itself
+        return TrainSetup(task, RefineMaskNet, precision)
     if args.scans:
         raise MaskNetError(f"--scans trains MaskNet (--model masknet), not {args.model}")
     defaults = TRAINING_DEFAULTS[args.model]

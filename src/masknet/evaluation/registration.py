@@ -35,6 +35,7 @@ __all__ = [
     "time_pipeline",
     "benchmark_registration",
     "iteration_errors",
+    "paired_difference",
 ]
 
 
@@ -90,6 +91,15 @@ def summarize_errors(rotation: np.ndarray, translation: np.ndarray) -> dict[str,
         out[f"{name}_median"] = float(np.median(e))
         out[f"{name}_rmse"] = float(np.sqrt(np.mean(e**2)))
     return out
+
+
+def paired_difference(
+    errors: np.ndarray, base: np.ndarray, name: str = "paired_diff"
+) -> dict[str, float]:
+    """Mean of ``errors - base`` ((P,) each, the same pairs) as ``name``, and its standard
+    error as ``paired_se``."""
+    diff = np.asarray(errors, np.float64) - np.asarray(base, np.float64)
+    return {name: float(diff.mean()), "paired_se": float(diff.std(ddof=1) / np.sqrt(len(diff)))}
 
 
 def error_summary(estimate: np.ndarray, truth: np.ndarray) -> dict[str, float]:

@@ -23,6 +23,7 @@ from masknet.experiments import (
     registration,
     robust,
     rotation_sweep,
+    rounds,
     scans,
     timing,
 )
@@ -37,6 +38,8 @@ EXPERIMENTS: dict[str, Callable[[BenchmarkContext], ExperimentResult]] = {
     "registration": registration.run,
     "networks": networks.run,
     "iterations": iterations.run,
+    "masks-per-round": rounds.masks_per_round,
+    "refine-masks": rounds.refine_masks,
     "precision-vs-missing": precision_vs_missing.run,
     "rotation-sweep": rotation_sweep.run,
     "noise": noise.run,

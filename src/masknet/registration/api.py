@@ -48,6 +48,7 @@ from masknet.registration.options import (
     Selection,
     resolve_options,
 )
+from masknet.registration.refinement import DEFAULT_REFINER, Refiner, resolve_refiner
 from masknet.registration.robust import robust_register
 from masknet.registration.rounds import apply_transform, mask_and_register
 from masknet.registration.sampling import fit_to_network, spread_mask
@@ -214,6 +215,7 @@ def register(
     rounds: Rounds | None = None,
     robust: RobustOptions | None = None,
     scene: bool | SceneSearch | None = None,
+    refine_masks: str | Refiner | None = DEFAULT_REFINER,
     **options: Any,
 ) -> RegistrationResult:
     """Register a partial source to a full template, optionally through MaskNet's mask.
@@ -231,8 +233,9 @@ def register(
             about 20x the time of one Mask-ICP).
         use_mask: Mask-X (True) or plain X (False).
         iterations: rounds of {mask -> initialise -> register -> move the source}.
-        model: the MaskNet to use; None loads the shipped weights once (for
-            ``"robust"`` the two-sided ``masknet2_scans``, else ``masknet_modelnet40``). A
+        model: the MaskNet of the first round; None loads shipped weights once: the
+            paper's ``masknet_modelnet40`` for one round, the two-sided
+            ``masknet2_scans`` for ``iterations`` > 1 and ``"robust"``. A
             :class:`~masknet.models.two_sided.TwoSidedMaskNet` masks both clouds: the
             method then sees only the source points it keeps.
         k, threshold: inlier selection, as :meth:`MaskNet.predict_mask` (default
@@ -264,6 +267,15 @@ def register(
             (the share of template points on the scan), ``search_regions`` and
             ``search_spacing`` (the centre grid, in template radii), while its
             ``fitness`` and ``inlier_rmse`` are still the method's, before the polish.
+        refine_masks: the masks of rounds >= 2 (``iterations`` > 1, with a mask), taken
+            on the pair as the previous round left it, in one frame
+            (:mod:`masknet.registration.refinement`): ``"nearest"`` (default, the
+            nearest-neighbour rule), ``"learned"`` (the shipped
+            :class:`~masknet.models.refine.RefineMaskNet`), an object with
+            ``predict_masks(template, source)``, or ``"network"`` / None: ``model``
+            again in every round, each cloud centred on its own centroid (the paper's
+            loop). Refined rounds mask the source too (``source_mask``) and start from
+            the pose reached.
         **options: for the method. ``"robust"``: the fields of
             :class:`~masknet.registration.options.RobustOptions` (it ignores
             ``iterations``, ``init``, ``k`` and ``threshold``). ``"icp"``: ``max_iterations`` (default 10),
@@ -306,7 +318,12 @@ def register(
     if method not in GLOBAL_METHODS:
         options.setdefault("max_iterations", DEFAULT_ITERATIONS[method])
     if use_mask and model is None:
-        model = _default_two_sided() if method == "robust" else _default_model()
+        # One round is the paper's Mask-X. A loop starts from the two-sided network, which
+        # also rejects source outliers; its clean-pair cost after one round is recovered
+        # by the refined rounds (docs/RESULTS.md, masks per round).
+        loop = method == "robust" or iterations > 1
+        model = _default_two_sided() if loop else _default_model()
+    refiner = resolve_refiner(refine_masks, model if use_mask else None)
     if method in NETWORK_METHODS and options.get("network") is None:
         options["network"] = _default_network(method)
 
@@ -317,7 +334,13 @@ def register(
 
     if method == "robust":
         robust = robust_register(
-            tpl, src, model if use_mask else None, RobustOptions(**options), times, precision
+            tpl,
+            src,
+            model if use_mask else None,
+            RobustOptions(**options),
+            times,
+            precision,
+            refiner,
         )
         total, mask, source_mask, info = robust
         inliers, rounds = None, [total[0] if single else total]
@@ -334,6 +357,7 @@ def register(
             threshold=threshold,
             precision=precision,
             init=init,
+            refiner=refiner,
         )
         total, mask, source_mask = state.transform, state.mask, state.source_mask
         info, inliers = state.run.info, state.run.correspondence_inliers

@@ -54,6 +54,7 @@ from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
 from masknet.registration.backends import run_icp
 from masknet.registration.options import RobustOptions
+from masknet.registration.refinement import Refiner
 from masknet.registration.rounds import apply_transform, keep_source_points, mask_and_register
 
 __all__ = [
@@ -162,9 +163,11 @@ def robust_register(
     options: RobustOptions,
     times: dict[str, float],
     precision: str = "auto",
+    refiner: Refiner | None = None,
 ) -> RobustRun:
     """The robust pipeline (module docstring) for template (B, N, 3), source (B, M, 3),
-    float64; ``model`` None runs plain ICP from every hypothesis."""
+    float64; ``model`` None runs plain ICP from every hypothesis. ``refiner`` masks the
+    candidates' rounds >= 2 (:mod:`masknet.registration.refinement`)."""
     options.check()
     b = template.shape[0]
     # 1. Unit-free frame: template centroid and source median at the origin, radius 1.
@@ -215,6 +218,7 @@ def robust_register(
         times,
         precision=precision,
         start=chosen,
+        refiner=refiner,
     )
     total, run_info = final.transform, final.run.info
     kept = final.source_mask

@@ -1,0 +1,220 @@
+"""Refinement masks: both inlier masks of a pair that registration has already brought close.
+
+The paper's MaskNet centres each cloud on its own centroid, so it never sees where the
+source lies relative to the template: rounds >= 2 of the iterative loop learn nothing
+from the pose found. This network takes the pair **in one frame**, the source moved by
+the current estimate, and predicts
+
+* the template points that the source covers (``template_mask``), and
+* the source points that lie on the template's object (``source_mask``: noise points,
+  outliers and clutter are rejected).
+
+Every point is described by two local contexts, each max-pooled over ``k`` neighbours
+through a small shared MLP:
+
+1. **its own cloud**: offsets to its k nearest neighbours in units of that cloud's
+   median k-th-neighbour distance, with their lengths (density-free shape);
+2. **the other cloud**: offsets to its k nearest points of the other cloud, in units of
+   the other cloud's spacing, their lengths in that unit and in template radii, and
+   the ratio of the two clouds' spacings. The nearest-neighbour distance, the cue of the
+   plain nearest-neighbour rule, is one of these inputs; the network learns when to
+   trust it (noise, different densities, outliers that happen to lie near the surface,
+   a residual rotation that moves far points more).
+
+A point MLP, a max-pool per cloud, and one head per role (the template's points and
+the source's) give the logits. All offsets are taken in the shared frame, scaled by the
+template's radius, so nothing depends on the unit or on where the pair sits.
+
+forward(template (B, N, 3), source (B, M, 3)) -> (template scores (B, N), source scores
+(B, M)) in [0, 1] (logits with ``logits=True``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Literal
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from masknet.geometry.knn import knn_points
+from masknet.models.layers import gather_points
+from masknet.models.masknet import PAIRS_PER_CALL, prepare_inputs, select_mask
+from masknet.models.weights import SafetensorsWeights
+
+__all__ = ["RefineMaskNet", "cross_offsets", "kth_spacing"]
+
+
+def kth_spacing(points: Tensor, k: int) -> tuple[Tensor, Tensor]:
+    """Each cloud's median distance to its k-th nearest other point, and the neighbours.
+
+    points (B, P, 3) -> (spacing (B,), neighbour indices (B, P, k), the point itself
+    excluded; k clamped to P - 1).
+    """
+    k = max(1, min(k, points.shape[1] - 1))
+    with torch.no_grad():
+        found = knn_points(points.float(), points.float(), k + 1)
+    d = found.dists[:, :, -1].clamp_min(0).sqrt()
+    return d.median(dim=1).values.clamp_min(1e-9), found.idx[:, :, 1:]
+
+
+def _mlp_pool(layers: nn.ModuleList, x: Tensor) -> Tensor:
+    """A shared MLP over (B, P, k, C) neighbour features, max-pooled over k -> (B, P, C')."""
+    for i, layer in enumerate(layers):
+        x = layer(x)
+        x = torch.relu(x) if i < len(layers) - 1 else x
+    return torch.relu(x.amax(dim=2))
+
+
+def cross_offsets(
+    query: Tensor, reference: Tensor, k: int, reference_spacing: Tensor, query_spacing: Tensor
+) -> Tensor:
+    """Offsets from each query point to its k nearest reference points.
+
+    query (B, P, 3), reference (B, R, 3), in template radii; spacings (B,) each.
+    Returns (B, P, k, 6): offset / reference spacing (3), its length in that unit,
+    its length in template radii, and log(reference spacing / query spacing).
+    """
+    k = max(1, min(k, reference.shape[1]))
+    with torch.no_grad():
+        idx = knn_points(query.float(), reference.float(), k).idx
+    offsets = gather_points(reference, idx) - query[:, :, None, :]
+    length = offsets.norm(dim=-1, keepdim=True)
+    unit = reference_spacing[:, None, None, None]
+    ratio = torch.log(reference_spacing / query_spacing)[:, None, None, None].expand_as(length)
+    return torch.cat([offsets / unit, length / unit, length, ratio], dim=-1)
+
+
+class RefineMaskNet(SafetensorsWeights, nn.Module):
+    """Template and source masks of a pair in one frame (see the module docstring).
+
+    Weights: :meth:`save`, :meth:`from_file`, :meth:`pretrained` (shipped files are
+    ``refinemask_<name>.safetensors``).
+    """
+
+    weights_prefix = "refinemask_"
+
+    def __init__(
+        self,
+        k: int = 12,
+        local_channels: Sequence[int] = (32, 64),
+        point_channels: Sequence[int] = (128, 256),
+        head_channels: Sequence[int] = (128, 64),
+    ):
+        super().__init__()
+        self.config = {
+            "k": k,
+            "local_channels": list(local_channels),
+            "point_channels": list(point_channels),
+            "head_channels": list(head_channels),
+        }
+        self.k = k
+
+        def mlp(dims: Sequence[int]) -> nn.ModuleList:
+            return nn.ModuleList(nn.Linear(a, b) for a, b in zip(dims[:-1], dims[1:], strict=True))
+
+        self.own = mlp([4, *local_channels])
+        self.cross = mlp([6, *local_channels])
+        self.point = mlp([2 * local_channels[-1], *point_channels])
+        feat = point_channels[-1]
+        self.template_head = mlp([3 * feat, *head_channels, 1])
+        self.source_head = mlp([3 * feat, *head_channels, 1])
+
+    @classmethod
+    def pretrained(
+        cls, name: str = "scans", map_location: str | torch.device = "cpu"
+    ) -> RefineMaskNet:
+        """Shipped weights (default ``"scans"``; its card is ``refinemask_scans.md``)."""
+        return super().pretrained(name, map_location)
+
+    def _features(
+        self, points: Tensor, other: Tensor, own: tuple[Tensor, Tensor], other_spacing: Tensor
+    ) -> Tensor:
+        """Per-point features (B, P, C) of ``points`` against ``other``."""
+        spacing, idx = own
+        offsets = gather_points(points, idx) - points[:, :, None, :]
+        length = offsets.norm(dim=-1, keepdim=True)
+        unit = spacing[:, None, None, None]
+        local = _mlp_pool(self.own, torch.cat([offsets, length], dim=-1) / unit)
+        cross = _mlp_pool(self.cross, cross_offsets(points, other, self.k, other_spacing, spacing))
+        x = torch.cat([local, cross], dim=-1)
+        for layer in self.point:
+            x = torch.relu(layer(x))
+        return x
+
+    @staticmethod
+    def _head(layers: nn.ModuleList, x: Tensor, g_own: Tensor, g_other: Tensor) -> Tensor:
+        b, p, _ = x.shape
+        x = torch.cat([x, g_own[:, None].expand(b, p, -1), g_other[:, None].expand(b, p, -1)], -1)
+        for i, layer in enumerate(layers):
+            x = layer(x)
+            x = torch.relu(x) if i < len(layers) - 1 else x
+        return x.squeeze(-1)
+
+    def forward(
+        self, template: Tensor, source: Tensor, logits: bool = False
+    ) -> tuple[Tensor, Tensor]:
+        """template (B, N, 3) and source (B, M, 3) in one frame, about unit template radius
+        -> template scores (B, N), source scores (B, M)."""
+        offset = template.mean(dim=1, keepdim=True)  # one shared frame: relative position kept
+        template, source = template - offset, source - offset
+        own_t, own_s = kth_spacing(template, self.k), kth_spacing(source, self.k)
+        f_t = self._features(template, source, own_t, own_s[0])
+        f_s = self._features(source, template, own_s, own_t[0])
+        g_t, g_s = f_t.amax(dim=1), f_s.amax(dim=1)
+        t_logits = self._head(self.template_head, f_t, g_t, g_s)
+        s_logits = self._head(self.source_head, f_s, g_s, g_t)
+        if logits:
+            return t_logits, s_logits
+        return torch.sigmoid(t_logits), torch.sigmoid(s_logits)
+
+    # ------------------------------------------------------------------ numpy inference
+    @torch.inference_mode()
+    def predict(
+        self,
+        template: np.ndarray,
+        source: np.ndarray,
+        precision: Literal["auto", "fp32", "bf16"] = "fp32",
+        normalize: bool = True,
+        pairs_per_call: int = PAIRS_PER_CALL,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Scores for numpy clouds in one frame: template (N, 3) or (B, N, 3), source (M, 3)
+        or (B, M, 3) -> (template scores (N,) or (B, N), source scores (M,) or (B, M)),
+        float32 in [0, 1]. ``normalize`` scales each pair by its template's radius."""
+        device = next(self.parameters()).device
+        t, s, single, precision = prepare_inputs(template, source, normalize, precision, device)
+        was_training = self.training
+        self.eval()
+        outs_t, outs_s = [], []
+        step = max(1, pairs_per_call)
+        with torch.autocast(device.type, dtype=torch.bfloat16, enabled=precision == "bf16"):
+            for i in range(0, t.shape[0], step):
+                st, ss = self(t[i : i + step].to(device), s[i : i + step].to(device))
+                outs_t.append(st.float().cpu())
+                outs_s.append(ss.float().cpu())
+        self.train(was_training)
+        st, ss = torch.cat(outs_t).numpy(), torch.cat(outs_s).numpy()
+        return (st[0], ss[0]) if single else (st, ss)
+
+    def predict_masks(
+        self,
+        template: np.ndarray,
+        source: np.ndarray,
+        k: int | None = None,
+        threshold: float | None = None,
+        source_threshold: float = 0.5,
+        precision: Literal["auto", "fp32", "bf16"] = "fp32",
+        normalize: bool = True,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Boolean masks (template (N,) or (B, N), source (M,) or (B, M)) for clouds in one
+        frame. Source points are kept at score >= ``source_threshold``. The template mask
+        is the top ``k`` scores, by default as many as there are kept source points
+        (MaskNet's top-k rule), or the scores >= ``threshold`` when that is given."""
+        t_scores, s_scores = self.predict(template, source, precision, normalize)
+        source_mask = s_scores >= source_threshold
+        if k is None and threshold is None:
+            k = torch.from_numpy(np.atleast_1d(source_mask.sum(-1)).clip(3))
+        scores = torch.from_numpy(t_scores)
+        template_mask = select_mask(scores, k=k, threshold=threshold).numpy()
+        return template_mask, source_mask

@@ -1,0 +1,126 @@
+"""The masks of rounds >= 2: both inlier masks of a pair that registration has brought close.
+
+Round 1 of Mask-X masks the template with MaskNet, which centres each cloud on its own
+centroid and so cannot see the pose. From round 2 on the source has been moved by the
+current estimate, so relative position is information. A *refiner* turns the pair, in
+that one frame, into a template mask and a source mask; both have the protocol
+
+    predict_masks(template (B, N, 3), source (B, M, 3)) -> (template (B, N) bool,
+                                                             source (B, M) bool)
+
+Two refiners:
+
+* :class:`NearestNeighbourMasks`, the geometric rule: source points near the template
+  are kept, and as many template points as there are kept source points, those nearest
+  the kept source.
+* :class:`~masknet.models.refine.RefineMaskNet`, the learned refinement mask, which takes
+  the same distances among its inputs.
+
+:func:`resolve_refiner` maps ``register``'s ``refine_masks`` argument onto one.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Any, Protocol
+
+import numpy as np
+
+from masknet.errors import MaskNetError
+
+__all__ = ["DEFAULT_REFINER", "REFINERS", "NearestNeighbourMasks", "Refiner", "resolve_refiner"]
+
+# ``refine_masks`` by name: the rule, the shipped learned refiner, or the first round's
+# network again (the paper's loop).
+REFINERS = ("nearest", "learned", "network")
+DEFAULT_REFINER = "nearest"
+
+
+class Refiner(Protocol):
+    """Masks of a pair in one frame (see the module docstring)."""
+
+    def predict_masks(
+        self, template: np.ndarray, source: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+def _nonzero_median(d: np.ndarray) -> float:
+    """Median of the positive entries of ``d`` (exact duplicates say nothing of spacing)."""
+    positive = d[d > 0]
+    return float(np.median(positive)) if len(positive) else 0.0
+
+
+class NearestNeighbourMasks:
+    """The nearest-neighbour rule for a pair in one frame.
+
+    A source point is kept when its nearest template point lies within
+    ``max(source_spacings * s, source_median_factor * median)``, where ``s`` is the
+    template's median point spacing and ``median`` the median of those distances over the
+    source (a residual pose moves every point, so the cut-off grows with it). The template
+    mask is the ``k`` template points nearest the kept source, ``k`` the number of kept
+    source points (MaskNet's top-k rule; :func:`masknet.register` samples a large source
+    at the template's spacing, so the counts compare).
+    """
+
+    def __init__(self, source_spacings: float = 3.0, source_median_factor: float = 3.0) -> None:
+        if not source_spacings > 0 or not source_median_factor > 0:
+            raise MaskNetError("the rule's distance factors must be positive")
+        self.source_spacings = source_spacings
+        self.source_median_factor = source_median_factor
+
+    def predict_masks(
+        self, template: np.ndarray, source: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """template (N, 3) or (B, N, 3), source (M, 3) or (B, M, 3) in one frame ->
+        (template mask (N,) or (B, N), source mask (M,) or (B, M)), bool."""
+        t, s = np.asarray(template, np.float64), np.asarray(source, np.float64)
+        if t.ndim == 2:
+            masks = self.predict_masks(t[None], s[None])
+            return masks[0][0], masks[1][0]
+        pairs = [self._pair(t[i], s[i]) for i in range(t.shape[0])]
+        return np.stack([p[0] for p in pairs]), np.stack([p[1] for p in pairs])
+
+    def _pair(self, template: np.ndarray, source: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        from pykdtree.kdtree import KDTree
+
+        t_tree = KDTree(template)
+        t_spacing = _nonzero_median(t_tree.query(template, k=2)[0][:, 1])
+        d_source = t_tree.query(source, k=1)[0]
+        cut = max(self.source_spacings * t_spacing, self.source_median_factor * np.median(d_source))
+        source_mask = d_source <= cut
+        if source_mask.sum() < 3:  # nothing sensible to keep: keep everything
+            source_mask[:] = True
+        kept = source[source_mask]
+        k = int(np.clip(len(kept), 3, len(template)))
+        d_template = KDTree(kept).query(template, k=1)[0]
+        template_mask = np.zeros(len(template), bool)
+        template_mask[np.argsort(d_template, kind="stable")[:k]] = True
+        return template_mask, source_mask
+
+
+@functools.cache
+def _shipped_refiner() -> Any:
+    from masknet.models.refine import RefineMaskNet
+
+    return RefineMaskNet.pretrained()
+
+
+def resolve_refiner(spec: Any, first_round_model: Any) -> Refiner | None:
+    """The refiner that ``refine_masks=spec`` names; None means the first round's network
+    again (``"network"``, the paper's loop) or no mask at all (no first-round model)."""
+    if first_round_model is None:
+        return None
+    if spec is None or (isinstance(spec, str) and spec == "network"):
+        return None
+    if isinstance(spec, str):
+        if spec == "nearest":
+            return NearestNeighbourMasks()
+        if spec == "learned":
+            return _shipped_refiner()
+        raise MaskNetError(f"unknown refine_masks {spec!r}; choose from {REFINERS}")
+    if not callable(getattr(spec, "predict_masks", None)):
+        raise MaskNetError(
+            "refine_masks must be one of "
+            f"{REFINERS} or an object with predict_masks(template, source)"
+        )
+    return spec

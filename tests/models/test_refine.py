@@ -1,0 +1,79 @@
+"""The refinement mask network: one frame, both masks, any unit, safetensors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from masknet.data import bundled_sample_path, load_modelnet40
+from masknet.errors import MaskNetError
+from masknet.models.refine import RefineMaskNet, cross_offsets, kth_spacing
+
+SMALL = {"k": 6, "local_channels": (8, 16), "point_channels": (16, 32), "head_channels": (16,)}
+
+
+@pytest.fixture(scope="module")
+def net() -> RefineMaskNet:
+    torch.manual_seed(0)
+    return RefineMaskNet(**SMALL).eval()
+
+
+@pytest.fixture(scope="module")
+def pair() -> tuple[np.ndarray, np.ndarray]:
+    shape = load_modelnet40(bundled_sample_path(), "test").points[0, :300].astype(np.float64)
+    return shape, shape[shape[:, 0] > 0]
+
+
+def test_cross_offsets_measure_the_nearest_point_of_the_other_cloud():
+    query = torch.tensor([[[0.0, 0.0, 0.0]]])
+    reference = torch.tensor([[[0.0, 0.0, 2.0], [3.0, 0.0, 0.0]]])
+    out = cross_offsets(query, reference, 2, torch.tensor([0.5]), torch.tensor([0.25]))
+    assert out.shape == (1, 1, 2, 6)
+    nearest = out[0, 0, 0]
+    assert torch.allclose(nearest[:3], torch.tensor([0.0, 0.0, 4.0]))  # offset / 0.5
+    assert torch.isclose(nearest[3], torch.tensor(4.0)) and torch.isclose(
+        nearest[4], torch.tensor(2.0)
+    )
+    assert torch.isclose(nearest[5], torch.log(torch.tensor(2.0)))
+
+
+def test_kth_spacing_is_the_median_kth_neighbour_distance():
+    line = torch.arange(10, dtype=torch.float32)[:, None] * torch.tensor([[0.5, 0.0, 0.0]])
+    spacing, idx = kth_spacing(line[None], 3)
+    assert float(spacing) == pytest.approx(1.0)  # third neighbour of an inner point
+    assert idx.shape == (1, 10, 3) and not (idx[0] == torch.arange(10)[:, None]).any()
+
+
+def test_scores_do_not_depend_on_unit_position_or_order(net, pair):
+    template, source = pair
+    t_scores, s_scores = net.predict(template, source)
+    assert t_scores.shape == (len(template),) and s_scores.shape == (len(source),)
+    shifted = net.predict(1000 * template + 5.0, 1000 * source + 5.0)
+    np.testing.assert_allclose(shifted[0], t_scores, atol=2e-4)
+    order = np.random.default_rng(0).permutation(len(source))
+    np.testing.assert_allclose(net.predict(template, source[order])[1], s_scores[order], atol=2e-4)
+
+
+def test_relative_position_changes_the_scores(net, pair):
+    template, source = pair
+    near = net.predict(template, source)[0]
+    far = net.predict(template, source + np.array([0.5, 0.0, 0.0]))[0]
+    assert np.abs(near - far).max() > 1e-3  # one frame: where the source lies is an input
+
+
+def test_masks_default_to_as_many_template_points_as_kept_source_points(net, pair):
+    template, source = pair
+    t_mask, s_mask = net.predict_masks(template, source)
+    assert t_mask.dtype == bool and t_mask.sum() == min(len(template), max(3, s_mask.sum()))
+    batch = net.predict_masks(template[None].repeat(2, 0), source[None].repeat(2, 0))
+    np.testing.assert_array_equal(batch[0][1], t_mask)
+
+
+def test_weights_round_trip(net, tmp_path, pair):
+    path = tmp_path / "refine.safetensors"
+    net.save(path)
+    again = RefineMaskNet.from_file(path)
+    np.testing.assert_allclose(again.predict(*pair)[0], net.predict(*pair)[0], atol=1e-6)
+    with pytest.raises(MaskNetError, match="no shipped RefineMaskNet weights named"):
+        RefineMaskNet.pretrained("nope")

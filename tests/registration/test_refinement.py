@@ -1,0 +1,51 @@
+"""The masks of rounds >= 2: the nearest-neighbour rule and the choice of refiner."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from masknet.data import bundled_sample_path, load_modelnet40
+from masknet.errors import MaskNetError
+from masknet.registration.refinement import NearestNeighbourMasks, resolve_refiner
+
+
+@pytest.fixture(scope="module")
+def shape() -> np.ndarray:
+    return load_modelnet40(bundled_sample_path(), "test").points[1].astype(np.float64)
+
+
+def test_at_the_true_pose_the_rule_finds_the_overlap_and_the_outliers(shape):
+    seen = shape[:, 0] > -0.1
+    rng = np.random.default_rng(0)
+    outliers = rng.uniform(-1, 1, (40, 3)) * 3 + np.array([4.0, 0, 0])  # off the shape
+    source = np.concatenate([shape[seen], outliers])
+    t_mask, s_mask = NearestNeighbourMasks().predict_masks(shape, source)
+    assert s_mask[: seen.sum()].all() and not s_mask[seen.sum() :].any()
+    assert t_mask.sum() == seen.sum()
+    np.testing.assert_array_equal(t_mask, seen)
+
+
+def test_the_rule_takes_batches(shape):
+    source = shape[shape[:, 1] > 0]
+    single = NearestNeighbourMasks().predict_masks(shape, source)
+    batch = NearestNeighbourMasks().predict_masks(
+        np.stack([shape, shape]), np.stack([source, source])
+    )
+    np.testing.assert_array_equal(batch[0][1], single[0])
+    np.testing.assert_array_equal(batch[1][0], single[1])
+
+
+def test_resolve_refiner():
+    model = object()
+    assert isinstance(resolve_refiner("nearest", model), NearestNeighbourMasks)
+    assert resolve_refiner("network", model) is None and resolve_refiner(None, model) is None
+    assert resolve_refiner("nearest", None) is None  # no mask at all: nothing to refine
+    custom = NearestNeighbourMasks(2.0, 2.0)
+    assert resolve_refiner(custom, model) is custom
+    with pytest.raises(MaskNetError, match="unknown refine_masks 'closest'"):
+        resolve_refiner("closest", model)
+    with pytest.raises(MaskNetError, match="predict_masks"):
+        resolve_refiner(42, model)
+    with pytest.raises(MaskNetError, match="positive"):
+        NearestNeighbourMasks(0.0)

@@ -1,0 +1,122 @@
+"""The rounds of Mask-X: later rounds start from the pose reached and use refined masks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from masknet import register
+from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
+from masknet.registration import rounds as rounds_module
+from masknet.registration.backends import BACKENDS, BackendRun
+from masknet.registration.refinement import NearestNeighbourMasks
+from masknet.registration.rounds import keep_source_points
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+
+@pytest.fixture(scope="module")
+def pairs():
+    shapes = load_modelnet40(bundled_sample_path()).points
+    return make_test_pairs(shapes, 4, PairConfig(max_angle_deg=20, max_translation=0.3), seed=3)
+
+
+def test_keep_source_points_drops_rejected_points_of_one_pair():
+    source = np.arange(30, dtype=np.float64).reshape(1, 10, 3)
+    keep = np.zeros((1, 10), bool)
+    keep[0, [1, 4, 5, 8]] = True
+    kept = keep_source_points(source, keep)
+    # exactly the kept points, each once (a cycled fill would count some twice)
+    np.testing.assert_array_equal(kept[0], source[0, [1, 4, 5, 8]])
+    # a batch keeps one shape, from kept points only
+    batch = keep_source_points(np.repeat(source, 2, 0), np.repeat(keep, 2, 0))
+    assert batch.shape == (2, 10, 3)
+    assert set(map(tuple, batch[1])) == set(map(tuple, source[0, [1, 4, 5, 8]]))
+    # too few kept: unchanged
+    few = np.zeros((1, 10), bool)
+    few[0, :2] = True
+    np.testing.assert_array_equal(keep_source_points(source, few), source)
+
+
+class _Spy:
+    """A back-end that records the source it is given and moves it by a fixed step."""
+
+    def __init__(self) -> None:
+        self.sources: list[np.ndarray] = []
+
+    def __call__(self, template, source, mask, options) -> BackendRun:
+        self.sources.append(source.copy())
+        step = np.tile(np.eye(4), (len(source), 1, 1))
+        step[:, :3, 3] = [0.01, 0.0, 0.0]
+        return BackendRun(step, {})
+
+
+@pytest.mark.parametrize("use_mask", [False, True])
+def test_later_rounds_start_from_the_pose_reached(monkeypatch, pairs, use_mask):
+    spy = _Spy()
+    monkeypatch.setitem(BACKENDS, "icp", spy)
+    template, source = pairs.template[0].numpy(), pairs.source[0].numpy()
+    result = register(template, source, iterations=3, use_mask=use_mask)
+    assert len(spy.sources) == 3
+    for i in (1, 2):  # no centroid shift: exactly the source moved by the last round
+        before = result.rounds[i - 1]
+        expected = source @ before[:3, :3].T + before[:3, 3]
+        got = spy.sources[i][0]
+        if use_mask:  # the refiner's source mask picks rows; each row is a moved point
+            distances = np.linalg.norm(got[:, None] - expected[None], axis=-1).min(1)
+            assert distances.max() < 1e-12
+        else:
+            np.testing.assert_allclose(got, expected, atol=1e-12)
+
+
+def test_the_papers_loop_recentres_every_round(monkeypatch, pairs):
+    spy = _Spy()
+    monkeypatch.setitem(BACKENDS, "icp", spy)
+    template, source = pairs.template[0].numpy(), pairs.source[0].numpy()
+    register(template, source, iterations=2, refine_masks="network")
+    # round 2 re-centres: its source centroid sits on the masked template's centroid,
+    # not where round 1 left it (0.01 further along x)
+    first, second = spy.sources[0][0].mean(0), spy.sources[1][0].mean(0)
+    np.testing.assert_allclose(first, second, atol=1e-9)
+
+
+def test_refined_loop_with_the_rule_reaches_a_precise_mask(pairs):
+    template, source = pairs.template.numpy(), pairs.source.numpy()
+    truth = pairs.mask.numpy()
+    for i in range(len(template)):
+        one = register(template[i], source[i], iterations=1)
+        three = register(template[i], source[i], iterations=3, refine_masks="nearest")
+        precision = (three.mask & truth[i]).sum() / three.mask.sum()
+        assert precision >= 0.97, i  # the rule at a pose within a degree or so
+        assert three.source_mask is not None and three.source_mask.all()
+        angle = np.degrees(
+            np.arccos(np.clip((np.trace(three.R.T @ _truth_R(pairs, i)) - 1) / 2, -1, 1))
+        )
+        angle_one = np.degrees(
+            np.arccos(np.clip((np.trace(one.R.T @ _truth_R(pairs, i)) - 1) / 2, -1, 1))
+        )
+        assert angle <= max(angle_one, 0.5), i
+
+
+def _truth_R(pairs, i: int) -> np.ndarray:
+    return pairs.transform[i, :3, :3].double().numpy()
+
+
+def test_refiner_masks_are_used_from_round_two(monkeypatch, pairs):
+    calls = []
+
+    class Recorder(NearestNeighbourMasks):
+        def predict_masks(self, template, source):
+            calls.append(source.copy())
+            return super().predict_masks(template, source)
+
+    template, source = pairs.template[1].numpy(), pairs.source[1].numpy()
+    result = register(template, source, iterations=3, refine_masks=Recorder())
+    # rounds 2 and 3, then once at the pose returned
+    assert len(calls) == 3
+    last = result.rounds[-1]
+    np.testing.assert_allclose(calls[-1][0], source @ last[:3, :3].T + last[:3, 3], atol=1e-12)
+    assert (
+        rounds_module.mask_and_register.__doc__
+        and "refiner" in rounds_module.mask_and_register.__doc__
+    )
