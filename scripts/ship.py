@@ -4,6 +4,7 @@
     python scripts/ship.py masknet runs/seen20 modelnet40_seen20 --data PATH
     python scripts/ship.py masknet runs/ft modelnet40 --data PATH --previous OLD_CARD.json
     python scripts/ship.py denoise runs/denoise denoise_modelnet40 --data PATH
+    python scripts/ship.py refine runs/refinemask_scans scans --data PATH --eval-scans DIR
     python scripts/ship.py pointnetlk runs/pointnetlk modelnet40 --data PATH
     python scripts/ship.py dcp runs/dcp modelnet40 --data PATH  (prnet, pcrnet, rpmnet)
 
@@ -28,8 +29,8 @@ from masknet import cards
 from masknet.data import PairConfig, load_modelnet40, make_test_pairs
 from masknet.denoising import open3d_radius_outlier_removal, open3d_statistical_outlier_removal
 from masknet.evaluation.evaluate import evaluate_masknet, format_table
-from masknet.evaluation.metrics import outlier_removal_metrics
 from masknet.evaluation.registration import batched_errors, error_summary
+from masknet.metrics import outlier_removal_metrics
 from masknet.models import REGISTRATION_NETWORKS, MaskNet
 
 WEIGHTS = Path(__file__).resolve().parents[1] / "src" / "masknet" / "resources" / "weights"
@@ -119,6 +120,35 @@ def ship_denoise(args: argparse.Namespace, previous: dict | None) -> None:
     install(args.run, f"masknet_{args.name}.safetensors", card, cards.render_denoise_card(card))
 
 
+def ship_refine(args: argparse.Namespace, previous: dict | None) -> None:
+    """Refinement mask: against the nearest-neighbour rule at fixed residual rotations, on
+    ModelNet40 test pairs (clean, noise, outliers, sensor-like views) and pairs
+    cut from ``--eval-scans`` (with and without shared points)."""
+    import os
+
+    from masknet.experiments.context import BenchmarkContext
+    from masknet.experiments.rounds import refiner_table
+    from masknet.models.refine import RefineMaskNet
+    from masknet.registration.refinement import NearestNeighbourMasks
+
+    run, log = cards.read_run(args.run)
+    model = RefineMaskNet.from_file(args.run / "best.safetensors")
+    if args.eval_scans:
+        os.environ["MASKNET_SCANS"] = args.eval_scans
+    ctx = BenchmarkContext(data=args.data, pairs=args.pairs, seed=args.seed, progress=False)
+    refiners = {"rule": NearestNeighbourMasks(), "learned": model}
+    rows = refiner_table(ctx, refiners, args.pairs, args.pairs_per_scan)
+    for row in rows:
+        print(row)
+    best = max(log, key=lambda row: float(row["val_score"]))
+    test = {"pairs": args.pairs, "pairs_per_scan": args.pairs_per_scan, "seed": args.seed}
+    test["rows"] = rows
+    card = cards.base_card(args.name, run, log, model.config, best, test, previous)
+    card["parameters"] = sum(p.numel() for p in model.parameters())
+    card["version"] = args.version
+    install(args.run, f"refinemask_{args.name}.safetensors", card, cards.render_refine_card(card))
+
+
 def ship_network(args: argparse.Namespace, previous: dict | None) -> None:
     """A registration network beside the same architecture at its starting (untrained,
     seeded) weights and beside identity (no motion), on the network's training protocol
@@ -162,7 +192,7 @@ def ship_network(args: argparse.Namespace, previous: dict | None) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="kind", required=True)
-    for kind in ("masknet", "denoise", *REGISTRATION_NETWORKS):
+    for kind in ("masknet", "denoise", "refine", *REGISTRATION_NETWORKS):
         p = sub.add_parser(kind, help=f"ship {kind} weights")
         p.add_argument("run", type=Path, help="the training run folder")
         p.add_argument("name", help="name of the shipped weights, e.g. modelnet40")
@@ -171,8 +201,9 @@ def main() -> None:
         p.add_argument("--seed", type=int, default=0)
         p.add_argument("--previous", type=Path, help="card (.json) of the --init weights")
         p.add_argument("--scans", help="masknet: the --scans folder of the run (held-out scans)")
-        p.add_argument("--eval-scans", help="masknet: a folder of scans never trained on")
+        p.add_argument("--eval-scans", help="masknet, refine: a folder of scans never trained on")
         p.add_argument("--pairs-per-scan", type=int, default=100)
+        p.add_argument("--version", default="1.0", help="refine: the version on the card")
         p.add_argument(
             "--previous-run",
             type=Path,
@@ -182,7 +213,9 @@ def main() -> None:
     previous = json.loads(args.previous.read_text()) if args.previous else None
     if args.previous_run:
         previous = cards.run_summary(args.previous_run)
-    ship = {"masknet": ship_masknet, "denoise": ship_denoise}.get(args.kind, ship_network)
+    ship = {"masknet": ship_masknet, "denoise": ship_denoise, "refine": ship_refine}.get(
+        args.kind, ship_network
+    )
     ship(args, previous)
 
 

@@ -27,9 +27,9 @@ import torch
 from masknet import register
 from masknet.data import PairConfig, load_modelnet40, make_test_pairs
 from masknet.denoising import denoise, open3d_statistical_outlier_removal
-from masknet.evaluation.metrics import outlier_removal_metrics
 from masknet.evaluation.registration import pair_arrays, paired_difference, pose_errors
 from masknet.io import write_text_atomic
+from masknet.metrics import outlier_removal_metrics
 from masknet.models import REGISTRATION_NETWORKS, MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
 from masknet.registration.api import DEFAULT_ITERATIONS

@@ -17,6 +17,9 @@ def test_shipped_cards_render(path):
     card = json.loads(path.read_text())
     if path.stem.startswith("masknet_"):
         text = cards.render_masknet_card(card)
+    elif path.stem.startswith("refinemask_"):
+        text = cards.render_refine_card(card)
+        assert text == path.with_suffix(".md").read_text()  # the card shipped is this render
     else:
         text = cards.render_network_card(card, path.stem.split("_")[0])
     assert text.startswith(f"# Model card: `{path.stem}`")

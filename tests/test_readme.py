@@ -56,5 +56,11 @@ def test_readme_python_example_runs(index, small_masknet, one_thread):
     if "quality" in namespace:  # a Mask-ICP result on a clean pair mostly lies on the template
         assert 0.5 < namespace["quality"].fitness <= 1
         assert namespace["quality"].inlier_rmse < namespace["quality"].max_distance
+    if "covered" in namespace:  # the refined loop: three rounds, masks at the pose returned
+        loop = namespace["result"]
+        assert len(loop.rounds) == 3 and loop.source_mask.shape == (len(source),)
+        truth = pair.mask[0].numpy()
+        assert (loop.mask & truth).sum() / loop.mask.sum() >= 0.9
+        assert len(namespace["learned"].rounds) == 3
     if "kept" in namespace:
         assert namespace["kept"].mask.shape == (len(namespace["noisy_scan"]),)

@@ -24,6 +24,7 @@ from masknet.geometry.clouds import as_cloud_batch, median_spacing, unit_radius
 from masknet.geometry.knn import knn_points
 from masknet.geometry.sampling import farthest_point_sample
 from masknet.models.masknet import MaskNet
+from masknet.models.refine import RefineMaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
 from masknet.registration.sampling import spread_mask
 
@@ -54,6 +55,15 @@ def _default_model() -> TwoSidedMaskNet:
     return TwoSidedMaskNet.pretrained("scans")
 
 
+@functools.lru_cache(maxsize=1)
+def _default_refiner() -> RefineMaskNet:
+    return RefineMaskNet.pretrained()
+
+
+# "distance" and "refined" need aligned clouds; "masknet" does not.
+METHODS = ("distance", "masknet", "refined")
+
+
 def denoise(
     noisy: np.ndarray,
     template: np.ndarray,
@@ -65,9 +75,9 @@ def denoise(
 ) -> DenoiseResult:
     """Remove the points of ``noisy`` (P, 3) that the clean ``template`` (N, 3) does not explain.
 
-    For ``"distance"`` the clouds must be aligned (denoise after a registration, e.g.
-    ``register`` and then this on the moved source); ``"masknet"`` with the two-sided
-    network does not need it.
+    For ``"distance"`` and ``"refined"`` the clouds must be aligned (denoise after a
+    registration, e.g. ``register`` and then this on the moved source); ``"masknet"``
+    with the two-sided network does not need it.
 
     Example::
 
@@ -77,22 +87,25 @@ def denoise(
         method: ``"distance"`` (the default: keep points within ``max_distance`` of their
             nearest template point; default three times the template's point spacing) or
             ``"masknet"`` (the network scores each noisy point given the template; both
-            are scaled by the template's radius, so the outliers cannot set the scale).
-            Noisy clouds over 2,048 points are scored on a farthest-point sample of
+            are scaled by the template's radius, so the outliers cannot set the scale), or
+            ``"refined"`` (the refinement mask of the iterative loop,
+            :class:`~masknet.models.refine.RefineMaskNet`, which sees the two clouds in
+            one frame: for registered clouds). Noisy clouds over 2,048 points are scored on a farthest-point sample of
             2,048 and each point takes the label of its nearest sampled point.
         model: for ``"masknet"``: a :class:`TwoSidedMaskNet` (None: the shipped
             ``masknet2_scans`` weights) or a paper MaskNet trained for denoising
-            (``masknet train --model denoise``; aligned clouds only).
-        threshold: for ``"masknet"``: keep points scoring at least this.
+            (``masknet train --model denoise``; aligned clouds only); for ``"refined"``:
+            a :class:`RefineMaskNet` (None: the shipped ``refinemask_scans``).
+        threshold: for ``"masknet"`` and ``"refined"``: keep points scoring at least this.
         max_distance: for ``"distance"``, in the clouds' units.
         precision: MaskNet's inference precision (``"auto"``: bf16 where native).
 
     Returns:
-        DenoiseResult; ``scores`` are the network's for ``"masknet"``, and
+        DenoiseResult; ``scores`` are the network's for ``"masknet"`` and ``"refined"``, and
         ``exp(-(d / max_distance)^2)`` of the distance d for ``"distance"``.
     """
-    if method not in ("masknet", "distance"):
-        raise MaskNetError(f"unknown denoising method {method!r}; choose masknet or distance")
+    if method not in METHODS:
+        raise MaskNetError(f"unknown denoising method {method!r}; choose {', '.join(METHODS)}")
     if not 0 <= threshold <= 1:
         raise MaskNetError(f"threshold must be in [0, 1], got {threshold}")
     y, x, single = as_cloud_batch(np.asarray(noisy), np.asarray(template))
@@ -106,13 +119,14 @@ def denoise(
         mask = d <= limit
         scores = np.exp(-((d / limit) ** 2)).astype(np.float32)
         return DenoiseResult(np.asarray(noisy)[mask], mask, scores)
-    model = model or _default_model()
+    if model is None:
+        model = _default_refiner() if method == "refined" else _default_model()
     y_np = y[0].numpy()
     sampled = None
     if len(y_np) > NETWORK_POINTS:
         sampled = farthest_point_sample(y_np, NETWORK_POINTS).indices
         y = y[:, sampled]
-    if isinstance(model, TwoSidedMaskNet):
+    if isinstance(model, TwoSidedMaskNet | RefineMaskNet):
         # predict's normalize scales both clouds by the template's radius.
         scores = model.predict(x.numpy(), y.numpy(), precision=precision)[1][0]
     else:

@@ -41,14 +41,19 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--method",
-        choices=["distance", "masknet"],
+        choices=["distance", "masknet", "refined"],
         default="distance",
         help="distance (default): keep points near the template (aligned clouds); "
         "masknet: the two-sided MaskNet's source mask, no alignment needed (shipped "
-        "masknet2_scans, or --weights from masknet train --model masknet2 or denoise)",
+        "masknet2_scans, or --weights from masknet train --model masknet2 or denoise); "
+        "refined: the refinement mask, which sees both clouds in one frame (aligned clouds; "
+        "shipped refinemask_scans, or --weights from masknet train --model refine)",
     )
     p.add_argument(
-        "--threshold", type=finite_float, default=0.5, help="masknet: keep points scoring >= this"
+        "--threshold",
+        type=finite_float,
+        default=0.5,
+        help="masknet, refined: keep points scoring >= this",
     )
     p.add_argument(
         "--max-distance",
@@ -77,11 +82,16 @@ def run(args: argparse.Namespace) -> None:
         result = denoise(noisy, template, method="distance", max_distance=args.max_distance)
         rule = f"distance <= {args.max_distance or '3x template spacing'}"
     else:
-        model = load_model(args, two_sided=True)
+        if args.method == "refined":
+            from masknet.models.refine import RefineMaskNet
+
+            model = RefineMaskNet.from_file(args.weights) if args.weights else None
+        else:
+            model = load_model(args, two_sided=True)
         result = denoise(
             noisy,
             template,
-            method="masknet",
+            method=args.method,
             model=model,
             threshold=args.threshold,
             precision=args.inference_precision,

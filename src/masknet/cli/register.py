@@ -77,7 +77,19 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "source point",
     )
     p.add_argument(
-        "--iterations", type=positive_int, default=1, help="rounds of mask -> register (default 1)"
+        "--iterations",
+        type=positive_int,
+        default=1,
+        help="rounds of mask -> register (default 1, the paper's Mask-X); from round 2 on the "
+        "masks are refined on the pair as the last round left it (--refine-masks)",
+    )
+    p.add_argument(
+        "--refine-masks",
+        choices=["nearest", "learned", "network"],
+        default=None,
+        help="the masks of rounds >= 2: nearest (the default: the nearest-neighbour rule), "
+        "learned (the refinement network refinemask_scans), network (MaskNet again in every "
+        "round, each cloud centred on its own: the paper's loop)",
     )
     p.add_argument(
         "--max-iterations",
@@ -129,7 +141,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     add_model_options(
         p,
         default_pretrained=None,
-        default_text="modelnet40; with --two-sided or --method robust the two-sided scans",
+        default_text="modelnet40; with --two-sided, --iterations above 1 or --method robust "
+        "the two-sided scans",
     )
 
 
@@ -185,6 +198,13 @@ def run(args: argparse.Namespace) -> None:
         raise MaskNetError("--two-sided and --no-mask exclude each other")
     if args.method == "robust" and not args.no_mask:
         args.two_sided = True  # the robust pipeline's default mask
+    if (
+        args.iterations > 1
+        and not args.no_mask
+        and args.weights is None
+        and args.pretrained is None
+    ):
+        args.two_sided = True  # the loop's default first round, as register() chooses
     model = None if args.no_mask else load_model(args, two_sided=args.two_sided)
     options = {}
     if args.max_iterations is not None and args.method not in GLOBAL_METHODS:
@@ -207,6 +227,7 @@ def run(args: argparse.Namespace) -> None:
             init=args.init,
             refine_iterations=args.refine,
             max_points=args.max_points,
+            **({} if args.refine_masks is None else {"refine_masks": args.refine_masks}),
             scene=scene_option(args, template, source),
             **options,
         )

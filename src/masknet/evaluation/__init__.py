@@ -1,5 +1,5 @@
 """Evaluation: mask metrics and seeded benchmarks."""
 
-from masknet.evaluation.metrics import MaskMetrics, mask_metrics
+from masknet.metrics import MaskMetrics, mask_metrics
 
 __all__ = ["MaskMetrics", "mask_metrics"]

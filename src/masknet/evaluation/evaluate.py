@@ -10,7 +10,7 @@ import torch
 from tqdm.auto import tqdm
 
 from masknet.data.pairs import PairConfig, Pairs, make_test_pairs
-from masknet.evaluation.metrics import MaskMetrics, mask_metrics
+from masknet.metrics import MaskMetrics, mask_metrics
 from masknet.models.masknet import PAIRS_PER_CALL, MaskNet, select_mask
 
 __all__ = [

@@ -38,8 +38,8 @@ import torch
 from torch import Tensor, nn
 
 from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
-from masknet.evaluation.metrics import mask_metrics
 from masknet.io import write_text_atomic
+from masknet.metrics import mask_metrics
 from masknet.models import MaskNet, select_mask
 from masknet.models.reference import PaperMaskNet
 from masknet.runtime import default_precision

@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 
 from masknet.data.pairs import PairConfig
-from masknet.evaluation.metrics import outlier_removal_metrics
 from masknet.experiments.context import BenchmarkContext, ExperimentResult
 from masknet.experiments.pipelines import shipped_masknet
 from masknet.experiments.plots import line_plot, series_by
+from masknet.metrics import outlier_removal_metrics
 
 
 def run(ctx: BenchmarkContext) -> ExperimentResult:

@@ -47,6 +47,7 @@ __all__ = [
     "MaskNet",
     "FusedMaskNet",
     "select_mask",
+    "predict_two_masks",
     "centre",
     "centre_pair",
     "PAIRS_PER_CALL",
@@ -116,6 +117,34 @@ def prepare_inputs(
     if precision == "auto":
         precision = default_precision(device)
     return t, s, single, precision
+
+
+@torch.inference_mode()
+def predict_two_masks(
+    model: nn.Module,
+    template: np.ndarray,
+    source: np.ndarray,
+    precision: str,
+    normalize: bool,
+    pairs_per_call: int = PAIRS_PER_CALL,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Scores of a network whose forward gives (template scores, source scores): numpy
+    template (N, 3) or (B, N, 3) and source (M, 3) or (B, M, 3) -> ((N,) or (B, N),
+    (M,) or (B, M)), float32, run ``pairs_per_call`` pairs at a time in eval mode."""
+    device = next(model.parameters()).device
+    t, s, single, precision = prepare_inputs(template, source, normalize, precision, device)
+    was_training = model.training
+    model.eval()
+    outs_t, outs_s = [], []
+    step = max(1, pairs_per_call)
+    with torch.autocast(device.type, dtype=torch.bfloat16, enabled=precision == "bf16"):
+        for i in range(0, t.shape[0], step):
+            st, ss = model(t[i : i + step].to(device), s[i : i + step].to(device))
+            outs_t.append(st.float().cpu())
+            outs_s.append(ss.float().cpu())
+    model.train(was_training)
+    st, ss = torch.cat(outs_t).numpy(), torch.cat(outs_s).numpy()
+    return (st[0], ss[0]) if single else (st, ss)
 
 
 class MaskNet(SafetensorsWeights, nn.Module):

@@ -40,7 +40,7 @@ from torch import Tensor, nn
 
 from masknet.geometry.knn import knn_points
 from masknet.models.layers import gather_points
-from masknet.models.masknet import PAIRS_PER_CALL, prepare_inputs, select_mask
+from masknet.models.masknet import PAIRS_PER_CALL, predict_two_masks, select_mask
 from masknet.models.weights import SafetensorsWeights
 
 __all__ = ["RefineMaskNet", "cross_offsets", "kth_spacing"]
@@ -182,20 +182,7 @@ class RefineMaskNet(SafetensorsWeights, nn.Module):
         """Scores for numpy clouds in one frame: template (N, 3) or (B, N, 3), source (M, 3)
         or (B, M, 3) -> (template scores (N,) or (B, N), source scores (M,) or (B, M)),
         float32 in [0, 1]. ``normalize`` scales each pair by its template's radius."""
-        device = next(self.parameters()).device
-        t, s, single, precision = prepare_inputs(template, source, normalize, precision, device)
-        was_training = self.training
-        self.eval()
-        outs_t, outs_s = [], []
-        step = max(1, pairs_per_call)
-        with torch.autocast(device.type, dtype=torch.bfloat16, enabled=precision == "bf16"):
-            for i in range(0, t.shape[0], step):
-                st, ss = self(t[i : i + step].to(device), s[i : i + step].to(device))
-                outs_t.append(st.float().cpu())
-                outs_s.append(ss.float().cpu())
-        self.train(was_training)
-        st, ss = torch.cat(outs_t).numpy(), torch.cat(outs_s).numpy()
-        return (st[0], ss[0]) if single else (st, ss)
+        return predict_two_masks(self, template, source, precision, normalize, pairs_per_call)
 
     def predict_masks(
         self,

@@ -9,7 +9,7 @@ import torch
 from torch import Tensor, nn
 
 from masknet.data.pairs import PairConfig, Pairs
-from masknet.evaluation.metrics import mask_metrics
+from masknet.metrics import mask_metrics
 from masknet.models.masknet import MaskNet, select_mask
 from masknet.training.pair_task import PairTask
 

@@ -15,36 +15,20 @@ precision and the source F1, which picks the best weights.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 from torch import Tensor, nn
 
-from masknet.data.pairs import Pairs, derive_seed
+from masknet.data.pairs import Pairs
 from masknet.data.residuals import ResidualConfig, residual_pairs
-from masknet.evaluation.metrics import mask_metrics
+from masknet.metrics import mask_metrics
 from masknet.models.refine import RefineMaskNet
-from masknet.training.scan_task import KIND_OF
+from masknet.training.scan_task import KIND_OF, MappedEpoch
 from masknet.training.two_sided_task import TwoSidedTask
 
 __all__ = ["RefineMaskTask"]
-
-
-class _Residual:
-    """An epoch's batches moved by residual poses; keeps the length and batch kinds."""
-
-    def __init__(self, batches, config: ResidualConfig, seed: int, epoch: int) -> None:
-        self.batches, self.config, self.seed, self.epoch = batches, config, seed, epoch
-
-    def __len__(self) -> int:
-        return len(self.batches)
-
-    def __iter__(self) -> Iterator[Pairs]:
-        for i, batch in enumerate(self.batches):
-            gen = torch.Generator().manual_seed(derive_seed(self.seed, self.epoch, 0x2E5, i))
-            yield type(batch)(*residual_pairs(batch, self.config, gen))
 
 
 @dataclass
@@ -63,15 +47,18 @@ class RefineMaskTask(TwoSidedTask):
         return RefineMaskNet(**self.model_config)
 
     def train_batches(self, points: np.ndarray, batch_size: int, seed: int, epoch: int):
-        return _Residual(
-            super().train_batches(points, batch_size, seed, epoch), self.residual, seed, epoch
+        return MappedEpoch(
+            super().train_batches(points, batch_size, seed, epoch), self._move, seed, epoch, 0x2E5
         )
 
     def val_batches(
         self, points: np.ndarray, num_pairs: int, batch_size: int, seed: int
     ) -> list[Pairs]:
         batches = super().val_batches(points, num_pairs, batch_size, seed)
-        return list(_Residual(batches, self.residual, seed + 104729, 0xBA1))
+        return list(MappedEpoch(batches, self._move, seed + 104729, 0xBA1, 0x2E5))
+
+    def _move(self, batch: Pairs, generator: torch.Generator) -> Pairs:
+        return residual_pairs(batch, self.residual, generator)
 
     def step(
         self, model: nn.Module, batch: Pairs, device: torch.device

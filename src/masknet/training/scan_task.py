@@ -16,7 +16,7 @@ Validation holds out whole scans (a fixed list of names) and ModelNet40 training
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -33,7 +33,7 @@ from masknet.data.scans import (
 from masknet.data.views import ViewConfig, make_view_pairs, normalize_cloud
 from masknet.training.masknet_task import MaskNetTask
 
-__all__ = ["ScanMaskNetTask", "ScanPairs", "ViewPairs"]
+__all__ = ["MappedEpoch", "ScanMaskNetTask", "ScanPairs", "ViewPairs"]
 
 
 class ScanPairs(Pairs):
@@ -59,6 +59,31 @@ class _Epoch:
     def __iter__(self) -> Iterator[Pairs]:
         for kind in self.kinds:
             yield next(self.makers[kind])
+
+
+class MappedEpoch:
+    """An epoch's batches, each passed through ``change(batch, generator)`` with its own
+    seeded generator (seed, epoch, ``tag``, batch index); keeps the length and the batch
+    kinds (:class:`ScanPairs`, :class:`ViewPairs`)."""
+
+    def __init__(
+        self,
+        batches,
+        change: Callable[[Pairs, torch.Generator], Pairs],
+        seed: int,
+        epoch: int,
+        tag: int,
+    ) -> None:
+        self.batches, self.change = batches, change
+        self.seed, self.epoch, self.tag = seed, epoch, tag
+
+    def __len__(self) -> int:
+        return len(self.batches)
+
+    def __iter__(self) -> Iterator[Pairs]:
+        for i, batch in enumerate(self.batches):
+            gen = torch.Generator().manual_seed(derive_seed(self.seed, self.epoch, self.tag, i))
+            yield type(batch)(*self.change(batch, gen))
 
 
 @dataclass

@@ -14,7 +14,6 @@ top-k precision with k = M, as at inference (``template_precision``).
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -22,29 +21,14 @@ import torch
 from torch import Tensor, nn
 
 from masknet.data.corruption import CorruptionConfig, corrupt_source
-from masknet.data.pairs import Pairs, derive_seed
-from masknet.evaluation.metrics import mask_metrics
+from masknet.data.pairs import Pairs
+from masknet.metrics import mask_metrics
 from masknet.models.masknet import MaskNet, select_mask
 from masknet.models.two_sided import TwoSidedMaskNet
 from masknet.models.weights import read_metadata
-from masknet.training.scan_task import KIND_OF, ScanMaskNetTask
+from masknet.training.scan_task import KIND_OF, MappedEpoch, ScanMaskNetTask
 
 __all__ = ["TwoSidedTask"]
-
-
-class _Corrupted:
-    """An epoch's batches with their sources corrupted; keeps the length and batch kinds."""
-
-    def __init__(self, batches, config: CorruptionConfig, seed: int, epoch: int) -> None:
-        self.batches, self.config, self.seed, self.epoch = batches, config, seed, epoch
-
-    def __len__(self) -> int:
-        return len(self.batches)
-
-    def __iter__(self) -> Iterator[Pairs]:
-        for i, batch in enumerate(self.batches):
-            gen = torch.Generator().manual_seed(derive_seed(self.seed, self.epoch, 0xC0, i))
-            yield corrupt_source(batch, self.config, gen)
 
 
 @dataclass
@@ -82,15 +66,18 @@ class TwoSidedTask(ScanMaskNetTask):
         return TwoSidedMaskNet.from_masknet(masknet, **self.model_config)
 
     def train_batches(self, points: np.ndarray, batch_size: int, seed: int, epoch: int):
-        return _Corrupted(
-            super().train_batches(points, batch_size, seed, epoch), self.corruption, seed, epoch
+        return MappedEpoch(
+            super().train_batches(points, batch_size, seed, epoch), self._corrupt, seed, epoch, 0xC0
         )
 
     def val_batches(
         self, points: np.ndarray, num_pairs: int, batch_size: int, seed: int
     ) -> list[Pairs]:
         batches = super().val_batches(points, num_pairs, batch_size, seed)
-        return list(_Corrupted(batches, self.corruption, seed + 7919, 0xBA1))
+        return list(MappedEpoch(batches, self._corrupt, seed + 7919, 0xBA1, 0xC0))
+
+    def _corrupt(self, batch: Pairs, generator: torch.Generator) -> Pairs:
+        return corrupt_source(batch, self.corruption, generator)
 
     def step(
         self, model: nn.Module, batch: Pairs, device: torch.device

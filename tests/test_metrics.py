@@ -1,11 +1,11 @@
-"""Tests for masknet.evaluation.metrics on hand-made masks."""
+"""Tests for masknet.metrics on hand-made masks."""
 
 from __future__ import annotations
 
 import pytest
 import torch
 
-from masknet.evaluation.metrics import MaskMetrics, mask_metrics
+from masknet.metrics import MaskMetrics, mask_metrics
 
 
 def _mask(bits: str) -> torch.Tensor:
