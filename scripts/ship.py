@@ -125,6 +125,7 @@ def ship_refine(args: argparse.Namespace, previous: dict | None) -> None:
     ModelNet40 test pairs (clean, noise, outliers, sensor-like views) and pairs
     cut from ``--eval-scans`` (with and without shared points)."""
     import os
+    import tempfile
 
     from masknet.experiments.context import BenchmarkContext
     from masknet.experiments.rounds import refiner_table
@@ -135,7 +136,10 @@ def ship_refine(args: argparse.Namespace, previous: dict | None) -> None:
     model = RefineMaskNet.from_file(args.run / "best.safetensors")
     if args.eval_scans:
         os.environ["MASKNET_SCANS"] = args.eval_scans
-    ctx = BenchmarkContext(data=args.data, pairs=args.pairs, seed=args.seed, progress=False)
+    out = Path(tempfile.mkdtemp())  # the row cache of the shared experiment code
+    ctx = BenchmarkContext(
+        data=args.data, pairs=args.pairs, seed=args.seed, progress=False, out=out
+    )
     refiners = {"rule": NearestNeighbourMasks(), "learned": model}
     rows = refiner_table(ctx, refiners, args.pairs, args.pairs_per_scan)
     for row in rows:

@@ -61,6 +61,6 @@ def test_readme_python_example_runs(index, small_masknet, one_thread):
         assert len(loop.rounds) == 3 and loop.source_mask.shape == (len(source),)
         truth = pair.mask[0].numpy()
         assert (loop.mask & truth).sum() / loop.mask.sum() >= 0.9
-        assert len(namespace["learned"].rounds) == 3
+        assert len(namespace["rule"].rounds) == 3
     if "kept" in namespace:
         assert namespace["kept"].mask.shape == (len(namespace["noisy_scan"]),)

@@ -126,6 +126,9 @@ def denoise(
     if len(y_np) > NETWORK_POINTS:
         sampled = farthest_point_sample(y_np, NETWORK_POINTS).indices
         y = y[:, sampled]
+    if method == "refined" and x.shape[1] > NETWORK_POINTS:
+        # the network compares the two clouds' spacings: sample both alike
+        x = x[:, farthest_point_sample(x[0].numpy(), NETWORK_POINTS).indices]
     if isinstance(model, TwoSidedMaskNet | RefineMaskNet):
         # predict's normalize scales both clouds by the template's radius.
         scores = model.predict(x.numpy(), y.numpy(), precision=precision)[1][0]

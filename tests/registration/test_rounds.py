@@ -7,7 +7,6 @@ import pytest
 
 from masknet import register
 from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
-from masknet.registration import rounds as rounds_module
 from masknet.registration.backends import BACKENDS, BackendRun
 from masknet.registration.refinement import NearestNeighbourMasks
 from masknet.registration.rounds import keep_source_points
@@ -116,7 +115,18 @@ def test_refiner_masks_are_used_from_round_two(monkeypatch, pairs):
     assert len(calls) == 3
     last = result.rounds[-1]
     np.testing.assert_allclose(calls[-1][0], source @ last[:3, :3].T + last[:3, 3], atol=1e-12)
-    assert (
-        rounds_module.mask_and_register.__doc__
-        and "refiner" in rounds_module.mask_and_register.__doc__
-    )
+
+
+def test_a_large_pair_loops_on_samples_and_masks_every_point():
+    shape = load_modelnet40(bundled_sample_path()).points[0].astype(np.float64)
+    rng = np.random.default_rng(0)
+    # 3,072 points of one shape (three jittered copies), sampled to 512 for the network
+    template = np.concatenate([shape + rng.normal(0, 0.004, shape.shape) for _ in range(3)])
+    source = template[template[:, 0] > -0.2] + np.array([0.05, 0.0, 0.0])
+    result = register(template, source, iterations=3, max_points=512)
+    assert result.sampled == (512, result.sampled[1]) and result.sampled[1] <= 512
+    assert result.mask.shape == (len(template),) and result.source_mask.shape == (len(source),)
+    # the source lies on the template: nearly every source point is kept, and the mask
+    # covers mostly the part the source was cut from
+    assert result.source_mask.mean() > 0.95
+    assert (template[result.mask][:, 0] > -0.3).mean() > 0.9

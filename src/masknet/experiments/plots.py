@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["bar_plot", "error_bars", "line_plot", "series_by"]
+__all__ = ["bar_plot", "error_bars", "line_plot", "panel_plot", "series_by"]
 
 
 def _pyplot():
@@ -45,6 +45,41 @@ def line_plot(
     ax.grid(alpha=0.3)
     ax.legend(fontsize="small", ncol=2 if len(lines) > 6 else 1)
     fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def panel_plot(
+    path: Path,
+    x: list[float],
+    panels: dict[str, dict[str, list[float]]],
+    xlabel: str,
+    ylabel: str,
+    title: str,
+) -> None:
+    """Small multiples: one panel per entry of ``panels`` (title -> lines over ``x``), the
+    same lines in the same colours in every panel, one legend."""
+    plt = _pyplot()
+    cols = min(len(panels), 3)
+    rows = -(-len(panels) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.4 * cols, 2.8 * rows + 0.6), dpi=110)
+    axes = np.atleast_1d(axes).ravel()
+    palette = plt.get_cmap("tab10")
+    names = list(dict.fromkeys(n for lines in panels.values() for n in lines))
+    for ax, (panel, lines) in zip(axes, panels.items(), strict=False):
+        for name, ys in lines.items():
+            ax.plot(x[: len(ys)], ys, marker="o", markersize=4, color=palette(names.index(name)))
+        ax.set_title(panel, fontsize="medium")
+        ax.set_xticks(x)
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel)
+        ax.grid(alpha=0.3)
+    for ax in axes[len(panels) :]:
+        ax.axis("off")
+    handles = [plt.Line2D([], [], color=palette(i), marker="o") for i in range(len(names))]
+    fig.legend(handles, names, loc="lower center", ncol=len(names), fontsize="small")
+    fig.suptitle(title)
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
     fig.savefig(path)
     plt.close(fig)
 

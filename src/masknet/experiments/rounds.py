@@ -23,7 +23,7 @@ from masknet.data.views import ViewConfig
 from masknet.errors import MaskNetError
 from masknet.evaluation.registration import pair_arrays, pose_errors
 from masknet.experiments.context import BenchmarkContext, ExperimentResult
-from masknet.experiments.plots import line_plot
+from masknet.experiments.plots import panel_plot
 from masknet.experiments.scans import scans_folder
 from masknet.geometry.se3 import make_transform, so3_exp, transform_points
 from masknet.models.masknet import MaskNet
@@ -157,14 +157,19 @@ def masks_per_round(ctx: BenchmarkContext) -> ExperimentResult:
             rows += [{"set": set_name, "pipeline": name, **row} for row in kept["rounds"]]
 
     def plot(path: Path) -> None:
-        sets = list(dict.fromkeys(r["set"] for r in rows))
-        lines = {
-            f"{s}: {p}": [r["precision"] for r in rows if r["set"] == s and r["pipeline"] == p]
-            for s in sets
-            for p in PIPELINES
-            if p.startswith("Mask")
+        loops = [p for p in PIPELINES if p.startswith("Mask-ICP")]
+        panels = {
+            s: {
+                p.removeprefix("Mask-ICP, "): [
+                    r["precision"] for r in rows if r["set"] == s and r["pipeline"] == p
+                ]
+                for p in loops
+            }
+            for s in dict.fromkeys(r["set"] for r in rows)
         }
-        line_plot(path, [1, 2, 3], lines, "round", "template mask precision", "Masks per round")
+        panel_plot(
+            path, [1, 2, 3], panels, "round", "mask precision", "Mask-ICP: template mask per round"
+        )
 
     summary = (
         f"{modelnet_pairs} ModelNet40 test pairs per set (paper protocol) and {per_scan} pairs "
@@ -174,8 +179,10 @@ def masks_per_round(ctx: BenchmarkContext) -> ExperimentResult:
         "refine_masks set: the two-sided network in round 1, then both masks taken on the pair "
         "as the last round left it, and the returned masks those of the pose returned. Plain "
         "ICP gets the 30 iterations of three Mask-ICP rounds; PointNetLK three rounds. "
-        "Precision and recall are of the template mask, source_* of the source points kept "
-        "(all of them where no source mask exists); errors in degrees."
+        "Round r's precision and recall are of the template mask that register(..., "
+        "iterations=r) returns (the refined loops': the refiner's, at the pose round r "
+        "reached; round 1 and the paper's loop: the mask that round used), source_* of the "
+        "source points kept (all of them where no source mask exists); errors in degrees."
     )
     return ExperimentResult(rows, summary, plot)
 

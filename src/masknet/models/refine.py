@@ -200,6 +200,11 @@ class RefineMaskNet(SafetensorsWeights, nn.Module):
         (MaskNet's top-k rule), or the scores >= ``threshold`` when that is given."""
         t_scores, s_scores = self.predict(template, source, precision, normalize)
         source_mask = s_scores >= source_threshold
+        # As the rule does: a pair with under 3 kept points keeps them all.
+        few = np.atleast_2d(source_mask).sum(-1) < 3
+        if few.any():
+            source_mask = np.where(few[:, None], True, np.atleast_2d(source_mask))
+            source_mask = source_mask.reshape(s_scores.shape)
         if k is None and threshold is None:
             k = torch.from_numpy(np.atleast_1d(source_mask.sum(-1)).clip(3))
         scores = torch.from_numpy(t_scores)

@@ -7,8 +7,10 @@ template points the partial source sees, and only those take part in X. With
 One round is: (optionally) predict the mask for the source as it stands, move the
 source by the initialisation (``init="centroid"``: its centroid onto the centroid
 of the template points in use), run the method, compose. ``iterations=n`` repeats
-rounds on the moved source (the paper's iterative scheme); ``refine_iterations``
-ends with plain ICP against the whole template from the estimate reached.
+rounds on the moved source: rounds >= 2 take their masks from a refiner that sees the
+pair in one frame and start from the pose reached (``refine_masks="network"``: the
+paper's loop, its MaskNet in every round); ``refine_iterations`` ends with plain ICP
+against the whole template from the estimate reached.
 
 Clouds larger than ``max_points`` (single pairs) are brought to the network's
 size by farthest point sampling, the source at the template's spacing (see
@@ -78,8 +80,10 @@ class RegistrationResult:
         R: (3, 3) or (B, 3, 3) rotation.
         t: (3,) or (B, 3) translation, in the input's units.
         transform: (4, 4) or (B, 4, 4), ``[[R, t], [0, 1]]``.
-        mask: (N,) or (B, N) bool over the input template, the inliers used in the
-            last round; None without a mask.
+        mask: (N,) or (B, N) bool over the input template: the inliers used in the
+            last round, or with a refiner (``iterations`` > 1) its mask at the pose the
+            rounds reached (before ``refine_iterations``, a scene search's polish or the
+            robust pipeline's inlier ICP move it further); None without a mask.
         times: seconds per stage, summed over rounds: ``"sample"`` (subsampling large
             clouds), ``"mask"`` (MaskNet), ``"register"`` (the method), ``"refine"``,
             ``"search"`` (with a scene search) and ``"total"`` (the whole call).
@@ -95,9 +99,9 @@ class RegistrationResult:
             points the network did not see (sampled away for its input size) are False;
             None for other methods.
         source_mask: (M,) or (B, M) bool over the source: the points a two-sided MaskNet
-            kept in the last round (for a large single pair, each point takes the label
-            of its nearest sampled point); None for the paper's MaskNet and without a
-            mask.
+            kept in the last round, or a refiner's at the pose the rounds reached (for a
+            large single pair, each point takes the label of its nearest sampled point);
+            None for one round of the paper's MaskNet and without a mask.
     """
 
     R: np.ndarray
@@ -269,13 +273,15 @@ def register(
             ``fitness`` and ``inlier_rmse`` are still the method's, before the polish.
         refine_masks: the masks of rounds >= 2 (``iterations`` > 1, with a mask), taken
             on the pair as the previous round left it, in one frame
-            (:mod:`masknet.registration.refinement`): ``"nearest"`` (default, the
-            nearest-neighbour rule), ``"learned"`` (the shipped
-            :class:`~masknet.models.refine.RefineMaskNet`), an object with
+            (:mod:`masknet.registration.refinement`): ``"learned"`` (default, the
+            shipped :class:`~masknet.models.refine.RefineMaskNet`), ``"nearest"`` (the
+            nearest-neighbour rule, about twice as fast), an object with
             ``predict_masks(template, source)``, or ``"network"`` / None: ``model``
             again in every round, each cloud centred on its own centroid (the paper's
             loop). Refined rounds mask the source too (``source_mask``) and start from
-            the pose reached.
+            the pose reached. A refiner's template mask is the top k points with k the
+            number of source points it keeps, and the learned one runs in fp32: ``k``,
+            ``threshold`` and ``precision`` apply to round 1.
         **options: for the method. ``"robust"``: the fields of
             :class:`~masknet.registration.options.RobustOptions` (it ignores
             ``iterations``, ``init``, ``k`` and ``threshold``). ``"icp"``: ``max_iterations`` (default 10),
@@ -323,7 +329,8 @@ def register(
         # by the refined rounds (docs/RESULTS.md, masks per round).
         loop = method == "robust" or iterations > 1
         model = _default_two_sided() if loop else _default_model()
-    refiner = resolve_refiner(refine_masks, model if use_mask else None)
+    looping = method == "robust" or iterations > 1  # only then are there rounds to refine
+    refiner = resolve_refiner(refine_masks, model if use_mask and looping else None)
     if method in NETWORK_METHODS and options.get("network") is None:
         options["network"] = _default_network(method)
 

@@ -57,9 +57,10 @@ def mask_and_register(
     starts from (identity by default). ``refiner`` (see
     :mod:`masknet.registration.refinement`) masks both clouds in rounds >= 2, on the pair
     as the previous round left it, and those rounds start from that pose (no centroid
-    shift); None runs ``model`` in every round (the paper's loop, each round starting with
-    ``init``). Without a model (plain X), rounds >= 2 start from the pose reached. Seconds spent are added
-    to ``times["mask"]`` and ``times["register"]``.
+    shift); after the last round it masks the pair once more, at the pose reached. None
+    runs ``model`` in every round (the paper's loop, each round starting with ``init``).
+    Without a model (plain X), rounds >= 2 start from the pose reached. Seconds spent are
+    added to ``times["mask"]`` and ``times["register"]``.
     """
     b = template.shape[0]
     total = np.broadcast_to(np.eye(4), (b, 4, 4)).copy() if start is None else start.copy()
