@@ -129,3 +129,26 @@ def test_fuzzed_truncated_and_bit_flipped_files_fail_cleanly(tmp_path, kind):
             assert str(path) in str(exc) and "\n" not in str(exc)
         else:
             assert points.ndim == 2 and points.shape[1] == 3 and np.isfinite(points).all()
+
+
+@pytest.mark.parametrize("command", ["register", "mask", "denoise"])
+@pytest.mark.parametrize("through_link", [False, True])
+def test_an_output_that_is_an_input_is_refused_before_any_work(
+    tmp_path, capsys, command, through_link
+):
+    template, source = tmp_path / "template.xyz", tmp_path / "source.xyz"
+    write_points(template, GOOD)
+    write_points(source, GOOD[:200] + 0.01)
+    before = {p: p.read_bytes() for p in (template, source)}
+    target = source
+    if through_link:
+        target = tmp_path / "alias.xyz"
+        target.symlink_to(source)
+    first, second = (source, template) if command == "denoise" else (template, source)
+    code = main([command, str(first), str(second), "-o", str(target)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1
+    assert "is the input" in err[0] and "never overwrites an input" in err[0]
+    assert {p: p.read_bytes() for p in (template, source)} == before
+    made = sorted(p.name for p in tmp_path.iterdir())
+    assert made == sorted(["template.xyz", "source.xyz"] + (["alias.xyz"] if through_link else []))

@@ -282,12 +282,25 @@ def file_rows(mask: np.ndarray, rows: np.ndarray) -> np.ndarray:
     return full
 
 
-def check_outputs(paths: list[Path], text: tuple[str, ...] = (".txt", ".html", ".png")) -> None:
+def check_outputs(
+    paths: list[Path],
+    text: tuple[str, ...] = (".txt", ".html", ".png"),
+    inputs: list[str | Path] = (),
+) -> None:
     """Refuse, before any computing, outputs that cannot be written: an unsupported
     extension (point files; ``text`` suffixes are always fine), a path that is a
-    directory, or a parent that is not a writable directory (missing ones are made)."""
+    directory, a parent that is not a writable directory (missing ones are made), or a
+    path that is one of the ``inputs`` (the same file, through a link too): a run never
+    overwrites what it reads."""
     from masknet.io import SUPPORTED_WRITE
 
+    for path in paths:
+        for given in inputs:
+            if _same_file(path, Path(given)):
+                raise MaskNetError(
+                    f"{path}: is the input {given}; an output never overwrites an input, "
+                    "give it another name"
+                )
     seen: dict[Path, Path] = {}
     for path in paths:
         key = path.resolve()
@@ -305,6 +318,17 @@ def check_outputs(paths: list[Path], text: tuple[str, ...] = (".txt", ".html", "
         parent = next((p for p in [path.parent, *path.parent.parents] if p.exists()), Path("."))
         if not parent.is_dir() or not _can_create_in(parent):
             raise MaskNetError(f"{path}: cannot write into {parent} (not a writable directory)")
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    """Whether two paths name one file: by inode where both exist (hard and symbolic
+    links), else by resolved path."""
+    try:
+        if a.exists() and b.exists():
+            return os.path.samefile(a, b)
+    except OSError:
+        pass
+    return a.resolve() == b.resolve()
 
 
 def _can_create_in(folder: Path) -> bool:

@@ -73,7 +73,10 @@ def run(args: argparse.Namespace) -> None:
     if not 0 <= args.threshold <= 1:
         raise MaskNetError(f"--threshold must be in [0, 1], got {args.threshold}")
     out = Path(args.output)
-    check_outputs([out, out.with_name(out.stem + "_mask.txt")] + check_html(args.html))
+    check_outputs(
+        [out, out.with_name(out.stem + "_mask.txt")] + check_html(args.html),
+        inputs=[args.noisy, args.template],
+    )
     noisy, noisy_rows = read_points(
         args.noisy, drop_nonfinite=args.drop_nonfinite, return_rows=True
     )

@@ -54,7 +54,10 @@ def run(args: argparse.Namespace) -> None:
     if args.threshold is not None and not 0 <= args.threshold <= 1:
         raise MaskNetError(f"--threshold must be in [0, 1] (scores are), got {args.threshold}")
     out = Path(args.output)
-    check_outputs([out, out.with_name(out.stem + "_mask.txt")] + check_html(args.html))
+    check_outputs(
+        [out, out.with_name(out.stem + "_mask.txt")] + check_html(args.html),
+        inputs=[args.template, args.source],
+    )
     template, template_rows = read_points(
         args.template, drop_nonfinite=args.drop_nonfinite, return_rows=True
     )

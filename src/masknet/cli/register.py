@@ -179,7 +179,7 @@ def run(args: argparse.Namespace) -> None:
         derived.append(out.with_name(out.stem + "_inliers" + out.suffix))
     # Written when the result masks the source (two-sided MaskNet, robust, scene search).
     derived.append(out.with_name(out.stem + "_source_mask.txt"))
-    check_outputs([out, *derived] + check_html(args.html))
+    check_outputs([out, *derived] + check_html(args.html), inputs=[args.template, args.source])
     with progress(f"reading {args.template}"):
         template = read_points(args.template, drop_nonfinite=args.drop_nonfinite)
     with progress(f"reading {args.source}"):
@@ -269,8 +269,15 @@ def run(args: argparse.Namespace) -> None:
     sampled = "" if (n, m) == (len(template), len(source)) else f" (sampled to {n} and {m})"
     dropped = len(source_rows) - len(source)
     dropped_text = f", {dropped:,} non-finite rows dropped" if dropped else ""
+    loop = ""
+    if args.iterations > 1 and not args.no_mask:
+        from masknet.registration.refinement import DEFAULT_REFINER
+
+        refine = args.refine_masks or DEFAULT_REFINER
+        loop = f"; {args.iterations} rounds, masks of rounds >= 2: {refine}"
     print(
         f"{name}: template {len(template):,} points, source {len(source):,}{sampled}{dropped_text}"
+        f"{loop}"
     )
     if result.mask is not None:
         print(f"inliers: {int(result.mask.sum()):,} of {len(template):,} template points")

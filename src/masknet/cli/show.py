@@ -24,7 +24,7 @@ def run(args: argparse.Namespace) -> None:
     """One layer per file, named by its stem (primed where two stems agree)."""
     from masknet.io import read_points
 
-    check_outputs(check_html(args.output))
+    check_outputs(check_html(args.output), inputs=args.clouds)
     layers: dict = {}
     for file in args.clouds:
         name = Path(file).stem
