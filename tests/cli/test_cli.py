@@ -456,6 +456,12 @@ def test_write_all_is_all_or_nothing_and_keeps_earlier_files(tmp_path):
     write_all([(a, lambda p: p.write_text("NEW")), (b, lambda p: p.write_text("B"))])
     assert a.read_text() == "NEW" and b.read_text() == "B"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt", "b.txt"]
+    # A side file this run owns but does not write goes with a successful run only.
+    with pytest.raises(MaskNetError, match="disk full"):
+        write_all([(a, fail)], stale=[b])
+    assert b.read_text() == "B"
+    assert write_all([(a, lambda p: p.write_text("NEWER"))], stale=[a, b]) == [b]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt"] and a.read_text() == "NEWER"
 
 
 def test_progress_speaks_only_for_slow_steps(capsys):

@@ -152,3 +152,24 @@ def test_an_output_that_is_an_input_is_refused_before_any_work(
     assert {p: p.read_bytes() for p in (template, source)} == before
     made = sorted(p.name for p in tmp_path.iterdir())
     assert made == sorted(["template.xyz", "source.xyz"] + (["alias.xyz"] if through_link else []))
+
+
+def test_a_run_removes_the_side_files_of_an_earlier_run_that_it_did_not_write(tmp_path, capsys):
+    template, source = tmp_path / "template.xyz", tmp_path / "source.xyz"
+    write_points(template, GOOD)
+    write_points(source, GOOD[GOOD[:, 0] > 0.3] + 0.01)
+    out = tmp_path / "out.xyz"
+    base = ["register", str(template), str(source), "-o", str(out)]
+    assert main([*base, "--iterations", "2"]) == 0  # a loop masks the source
+    side = tmp_path / "out_source_mask.txt"
+    inliers = tmp_path / "out_inliers.xyz"
+    assert side.exists() and inliers.exists()
+    capsys.readouterr()
+    assert main([*base, "--no-mask"]) == 0  # neither a source mask nor inliers now
+    printed = capsys.readouterr().out
+    assert not side.exists() and not inliers.exists()
+    assert "removed" in printed and "out_source_mask.txt" in printed
+    assert (tmp_path / "out_transform.txt").exists() and out.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        ["template.xyz", "source.xyz", "out.xyz", "out_transform.txt"]
+    )

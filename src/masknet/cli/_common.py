@@ -354,15 +354,20 @@ def check_html(path: str | None) -> list[Path]:
     return [html, html.with_suffix(".png")]
 
 
-def write_all(writers: list[tuple[Path, Callable[[Path], None]]]) -> None:
+def write_all(
+    writers: list[tuple[Path, Callable[[Path], None]]], stale: list[Path] = ()
+) -> list[Path]:
     """Write every output or none, and never lose a file that was there before.
 
     Each output is written to a temporary file beside its target; only when all have
     been written are they moved into place, each earlier file kept aside until every
-    move has succeeded, and put back if one fails.
+    move has succeeded, and put back if one fails. ``stale``: side files this run owns but
+    did not write this time (an earlier run's); those that exist are removed in the same
+    transaction, so no earlier output looks like part of this one. Returns them.
     """
     staged: list[tuple[str, Path]] = []
     kept: list[tuple[str, Path]] = []  # (earlier file moved aside, its path)
+    removed: list[Path] = []
     placed: list[Path] = []
     try:
         for path, write in writers:
@@ -385,6 +390,13 @@ def write_all(writers: list[tuple[Path, Callable[[Path], None]]]) -> None:
                 kept.append((aside, path))
             os.replace(tmp, path)
             placed.append(path)
+        written = {path.resolve() for path, _ in writers}
+        for path in stale:
+            if path.exists() and path.resolve() not in written:
+                aside = f"{path.parent / ('.' + path.name)}.stale"
+                os.replace(path, aside)
+                kept.append((aside, path))
+                removed.append(path)
     except BaseException as exc:
         for path in placed:
             with contextlib.suppress(OSError):
@@ -403,3 +415,4 @@ def write_all(writers: list[tuple[Path, Callable[[Path], None]]]) -> None:
     for aside, _ in kept:
         with contextlib.suppress(OSError):
             os.unlink(aside)
+    return removed

@@ -174,11 +174,15 @@ def run(args: argparse.Namespace) -> None:
     if args.refine < 0:
         raise MaskNetError(f"--refine must be >= 0, got {args.refine}")
     out = Path(args.output)
-    derived = [out.with_name(out.stem + "_transform.txt")]
-    if not args.no_mask:
-        derived.append(out.with_name(out.stem + "_inliers" + out.suffix))
-    # Written when the result masks the source (two-sided MaskNet, robust, scene search).
-    derived.append(out.with_name(out.stem + "_source_mask.txt"))
+    # The side files a run owns: the transform always, the inliers with a mask, the source
+    # mask when the result masks the source (a loop, two-sided MaskNet, robust, scene
+    # search). Those a run does not write are removed with its outputs, so that an earlier
+    # run's never look like part of this one.
+    derived = [
+        out.with_name(out.stem + "_transform.txt"),
+        out.with_name(out.stem + "_inliers" + out.suffix),
+        out.with_name(out.stem + "_source_mask.txt"),
+    ]
     check_outputs([out, *derived] + check_html(args.html), inputs=[args.template, args.source])
     with progress(f"reading {args.template}"):
         template = read_points(args.template, drop_nonfinite=args.drop_nonfinite)
@@ -263,7 +267,7 @@ def run(args: argparse.Namespace) -> None:
         title = f"{name}: {Path(args.source).name} -> {Path(args.template).name}"
         writers += view_writers(args.html, layers, title)
     with progress("writing the outputs"):
-        write_all(writers)
+        removed = write_all(writers, stale=derived)
 
     n, m = result.sampled
     sampled = "" if (n, m) == (len(template), len(source)) else f" (sampled to {n} and {m})"
@@ -328,3 +332,5 @@ def run(args: argparse.Namespace) -> None:
             file=sys.stderr,
         )
     print(f"wrote {', '.join(str(p) for p, _ in writers)}")
+    if removed:
+        print(f"removed {', '.join(map(str, removed))} (an earlier run's; this run wrote none)")
