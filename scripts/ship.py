@@ -150,6 +150,8 @@ def ship_refine(args: argparse.Namespace, previous: dict | None) -> None:
     card = cards.base_card(args.name, run, log, model.config, best, test, previous)
     card["parameters"] = sum(p.numel() for p in model.parameters())
     card["version"] = args.version
+    if args.note:
+        card["note"] = args.note
     install(args.run, f"refinemask_{args.name}.safetensors", card, cards.render_refine_card(card))
 
 
@@ -208,6 +210,7 @@ def main() -> None:
         p.add_argument("--eval-scans", help="masknet, refine: a folder of scans never trained on")
         p.add_argument("--pairs-per-scan", type=int, default=100)
         p.add_argument("--version", default="1.0", help="refine: the version on the card")
+        p.add_argument("--note", help="refine: a line for the card that the run cannot tell")
         p.add_argument(
             "--previous-run",
             type=Path,

@@ -92,4 +92,4 @@ $M train --model refine --scans ../shared/data/scans_train --out runs/refinemask
 $M train --model refine --scans ../shared/data/scans_train --out runs/refinemask_scans --epochs 8 \
     --lr 1e-3 --lr-schedule cosine --threads 1 --val-pairs 256 --precision fp32 --scan-points 512 --resume
 # python scripts/ship.py refine runs/refinemask_scans scans --data $MASKNET_DATA \
-#     --eval-scans ../shared/data/scans --pairs 300 --pairs-per-scan 15
+#     --eval-scans ../shared/data/scans --pairs 300 --pairs-per-scan 15 --note "..."  (the resumed schedule)

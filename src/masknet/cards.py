@@ -341,7 +341,7 @@ refine_masks="learned")`.
 - Loss: BCE on both masks. Adam, lr {train["lr"]} ({train["lr_schedule"]}), batch {train["batch_size"]},
   {train["precision"]}, seed {train["seed"]}.
 - Epochs: {epochs_text(card)} (best validation score at epoch {card["best_epoch"]}, shipped),
-  {card["training_minutes"]:.0f} minutes on {card["machine"]}.
+  {card["training_minutes"]:.0f} minutes on {card["machine"]}.{_note(card)}
 {previous_text(card)}
 ## Against the nearest-neighbour rule
 {test["pairs"]} seeded ModelNet40 **test** pairs per ModelNet40 set and {test["pairs_per_scan"]} pairs per scan of
@@ -367,6 +367,11 @@ Trained on pairs within about 45° of each other; on a pair far from aligned it 
 more than the clouds' local shapes do. It is a refinement stage: round 1 of the loop still
 needs another mask (MaskNet or the two-sided network).
 """
+
+
+def _note(card: dict) -> str:
+    """The card's ``note`` (what the run folder cannot tell, e.g. a resumed schedule)."""
+    return f"\n- {card['note']}" if card.get("note") else ""
 
 
 def _maybe(value: float) -> str:
