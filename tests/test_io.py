@@ -130,8 +130,11 @@ def test_require_open3d_message(monkeypatch):
     assert "`pip install open3d`" in msg and "`apt-get install libusb-1.0-0`" in msg
 
 
-def test_require_open3d_returns_module():
-    assert require_open3d("test").io.read_point_cloud is not None
+def test_require_open3d_returns_module(tmp_path):
+    points = np.random.default_rng(0).random((20, 3))
+    np.savetxt(tmp_path / "cloud.xyz", points)
+    cloud = require_open3d("test").io.read_point_cloud(str(tmp_path / "cloud.xyz"))
+    np.testing.assert_allclose(np.asarray(cloud.points), points, atol=1e-12)
 
 
 # ------------------------------------------------------------------ bad input

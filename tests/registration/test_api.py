@@ -294,8 +294,9 @@ def test_pointnetlk_recovers_a_known_transform(full_pairs, lk_network):
     result = register(
         template, source, method="pointnetlk", use_mask=False, network=lk_network, max_iterations=20
     )
-    assert _angle(result.R, truth[:, :3, :3]).max() < 0.2
-    np.testing.assert_allclose(result.t, truth[:, :3, 3], atol=5e-3)
+    # the pairs are turned by 0.04-0.08 rad; the network recovers them to about 1e-6 rad
+    assert _angle(result.R, truth[:, :3, :3]).max() < 1e-3
+    np.testing.assert_allclose(result.t, truth[:, :3, 3], atol=1e-4)
     assert set(result.info) == {"converged", "iterations", "feature_residual"}
 
 
@@ -381,8 +382,9 @@ def test_open3d_global_methods_recover_a_clean_pair(full_pairs, method):
     template, source = full_pairs.template[0].numpy(), full_pairs.source[0].numpy()
     truth = full_pairs.transform[0].double().numpy()
     result = register(template, source, method=method, use_mask=False)
-    assert _angle(result.R, truth[:3, :3]) < 1.0
-    np.testing.assert_allclose(result.t, truth[:3, 3], atol=0.02)
+    # a clean full pair turned by 0.08 rad: recovered to about 1e-4 rad (FGR), 4e-8 (RANSAC)
+    assert _angle(result.R, truth[:3, :3]) < 1e-3
+    np.testing.assert_allclose(result.t, truth[:3, 3], atol=1e-3)
     assert result.info["fitness"] > 0.5
 
 

@@ -141,7 +141,14 @@ def test_kill_mid_training_loses_at_most_one_epoch(tmp_path):
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     rows = (out / "log.csv").read_text().splitlines()[1:]
     assert [int(r.split(",")[0]) for r in rows] == list(range(1, done + 2))
-    assert MaskNet.from_file(out / "best.safetensors") is not None
+    # the best weights are one of the epochs' (the best validation precision in the log)
+    best = MaskNet.from_file(out / "best.safetensors")
+    last = MaskNet.from_file(out / "last.safetensors")
+    header = (out / "log.csv").read_text().splitlines()[0].split(",")
+    precision = [float(r.split(",")[header.index("val_precision")]) for r in rows]
+    pairs = zip(best.state_dict().values(), last.state_dict().values(), strict=True)
+    same = all(torch.equal(a, b) for a, b in pairs)
+    assert same == (precision[-1] >= max(precision))
 
 
 @pytest.mark.parametrize(
