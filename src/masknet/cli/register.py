@@ -202,14 +202,10 @@ def run(args: argparse.Namespace) -> None:
         raise MaskNetError("--two-sided and --no-mask exclude each other")
     if args.method == "robust" and not args.no_mask:
         args.two_sided = True  # the robust pipeline's default mask
-    if (
-        args.iterations > 1
-        and not args.no_mask
-        and args.weights is None
-        and args.pretrained is None
-    ):
-        args.two_sided = True  # the loop's default first round, as register() chooses
-    model = None if args.no_mask else load_model(args, two_sided=args.two_sided)
+    # Nothing named: register() picks the shipped default itself (the paper's MaskNet for
+    # one round, the two-sided network for a loop).
+    named = args.two_sided or args.weights or args.pretrained
+    model = load_model(args, two_sided=args.two_sided) if named and not args.no_mask else None
     options = {}
     if args.max_iterations is not None and args.method not in GLOBAL_METHODS:
         options["max_iterations"] = args.max_iterations

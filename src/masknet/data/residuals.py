@@ -21,7 +21,7 @@ from torch import Tensor
 from masknet.data.pairs import Pairs
 from masknet.geometry.se3 import invert_transform, make_transform, so3_exp, transform_points
 
-__all__ = ["ResidualConfig", "residual_pairs"]
+__all__ = ["ResidualConfig", "residual_pairs", "turned_pairs"]
 
 
 @dataclass(frozen=True)
@@ -84,19 +84,39 @@ def residual_pairs(pairs: Pairs, config: ResidualConfig, generator: torch.Genera
         unchanged.
     """
     b = pairs.source.shape[0]
-    aligned = transform_points(pairs.transform.double(), pairs.source.double())
-    axis = torch.randn(b, 3, generator=generator, dtype=torch.float64)
-    axis = axis / axis.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    # (the order of the draws is the shipped refinemask_scans training's)
+    axis = _unit(b, generator)
     angle = _angles_deg(b, config, generator)
     rotation = so3_exp(axis * torch.deg2rad(angle)[:, None])
-    direction = torch.randn(b, 3, generator=generator, dtype=torch.float64)
-    direction = direction / direction.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    direction = _unit(b, generator)
     scale = config.translation + config.translation_per_deg * angle
     length = (torch.randn(b, generator=generator, dtype=torch.float64).abs() * scale).clamp(
         max=config.max_translation
     )
+    return _moved_off(pairs, rotation, direction * length[:, None])
+
+
+def turned_pairs(pairs: Pairs, angle_deg: float, generator: torch.Generator) -> Pairs:
+    """``pairs`` with each source moved onto its template by the true pose, then turned by
+    exactly ``angle_deg`` about a random axis through its centroid (no translation); the
+    fixed residuals of the refinement-mask experiments. Fields as :func:`residual_pairs`."""
+    b = pairs.source.shape[0]
+    rotation = so3_exp(_unit(b, generator) * torch.deg2rad(torch.tensor(float(angle_deg))))
+    return _moved_off(pairs, rotation, torch.zeros(b, 3, dtype=torch.float64))
+
+
+def _unit(b: int, generator: torch.Generator) -> Tensor:
+    """(B, 3) uniform random unit vectors."""
+    v = torch.randn(b, 3, generator=generator, dtype=torch.float64)
+    return v / v.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+
+
+def _moved_off(pairs: Pairs, rotation: Tensor, offset: Tensor) -> Pairs:
+    """The sources aligned by the true pose, then turned by ``rotation`` (B, 3, 3) about
+    their centroids and shifted by ``offset`` (B, 3); the transform left to find."""
+    aligned = transform_points(pairs.transform.double(), pairs.source.double())
     centre = aligned.mean(dim=1)  # (B, 3): turn about the source's own centroid
-    shift = centre - (rotation @ centre[..., None])[..., 0] + direction * length[:, None]
+    shift = centre - (rotation @ centre[..., None])[..., 0] + offset
     residual = make_transform(rotation, shift)
     moved = transform_points(residual, aligned)
     return Pairs(

@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from masknet.data.pairs import PairConfig, Pairs, derive_seed
+from masknet.data.residuals import turned_pairs
 from masknet.data.scans import Scan, load_scans, make_scan_test_pairs
 from masknet.data.views import ViewConfig
 from masknet.errors import MaskNetError
@@ -25,7 +26,6 @@ from masknet.evaluation.registration import pair_arrays, pose_errors
 from masknet.experiments.context import BenchmarkContext, ExperimentResult
 from masknet.experiments.plots import panel_plot
 from masknet.experiments.scans import scans_folder
-from masknet.geometry.se3 import make_transform, so3_exp, transform_points
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
 from masknet.registration.api import register
@@ -194,14 +194,8 @@ RESIDUALS_DEG = (0.0, 2.0, 5.0, 10.0, 20.0)
 def residual_moved(pairs: Pairs, angle_deg: float, seed: int) -> np.ndarray:
     """The sources (P, M, 3) moved onto their templates by the true pose, then turned by
     ``angle_deg`` about a random axis through their centroid."""
-    aligned = transform_points(pairs.transform.double(), pairs.source.double())
     gen = torch.Generator().manual_seed(derive_seed(seed, int(angle_deg * 1000)))
-    axis = torch.randn(len(aligned), 3, generator=gen, dtype=torch.float64)
-    axis = axis / axis.norm(dim=-1, keepdim=True)
-    rotation = so3_exp(axis * np.deg2rad(angle_deg))
-    centre = aligned.mean(1)
-    shift = centre - (rotation @ centre[..., None])[..., 0]
-    return transform_points(make_transform(rotation, shift), aligned).numpy()
+    return turned_pairs(pairs, angle_deg, gen).source.double().numpy()
 
 
 def _conditions(ctx: BenchmarkContext, count: int, per_scan: int) -> dict[str, Pairs]:

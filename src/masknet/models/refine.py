@@ -59,12 +59,17 @@ def kth_spacing(points: Tensor, k: int) -> tuple[Tensor, Tensor]:
     return d.median(dim=1).values.clamp_min(1e-9), found.idx[:, :, 1:]
 
 
-def _mlp_pool(layers: nn.ModuleList, x: Tensor) -> Tensor:
-    """A shared MLP over (B, P, k, C) neighbour features, max-pooled over k -> (B, P, C')."""
+def _mlp(layers: nn.ModuleList, x: Tensor) -> Tensor:
+    """Linear layers with ReLU between them (none after the last): (..., C) -> (..., C')."""
     for i, layer in enumerate(layers):
         x = layer(x)
         x = torch.relu(x) if i < len(layers) - 1 else x
-    return torch.relu(x.amax(dim=2))
+    return x
+
+
+def _mlp_pool(layers: nn.ModuleList, x: Tensor) -> Tensor:
+    """A shared MLP over (B, P, k, C) neighbour features, max-pooled over k -> (B, P, C')."""
+    return torch.relu(_mlp(layers, x).amax(dim=2))
 
 
 def cross_offsets(
@@ -147,10 +152,7 @@ class RefineMaskNet(SafetensorsWeights, nn.Module):
     def _head(layers: nn.ModuleList, x: Tensor, g_own: Tensor, g_other: Tensor) -> Tensor:
         b, p, _ = x.shape
         x = torch.cat([x, g_own[:, None].expand(b, p, -1), g_other[:, None].expand(b, p, -1)], -1)
-        for i, layer in enumerate(layers):
-            x = layer(x)
-            x = torch.relu(x) if i < len(layers) - 1 else x
-        return x.squeeze(-1)
+        return _mlp(layers, x).squeeze(-1)
 
     def forward(
         self, template: Tensor, source: Tensor, logits: bool = False

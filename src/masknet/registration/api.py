@@ -323,13 +323,12 @@ def register(
         init = "identity"  # the search placed them: a centroid shift would undo that
     if method not in GLOBAL_METHODS:
         options.setdefault("max_iterations", DEFAULT_ITERATIONS[method])
+    looping = method == "robust" or iterations > 1  # only then are there rounds to refine
     if use_mask and model is None:
         # One round is the paper's Mask-X. A loop starts from the two-sided network, which
         # also rejects source outliers; its clean-pair cost after one round is recovered
         # by the refined rounds (docs/RESULTS.md, masks per round).
-        loop = method == "robust" or iterations > 1
-        model = _default_two_sided() if loop else _default_model()
-    looping = method == "robust" or iterations > 1  # only then are there rounds to refine
+        model = _default_two_sided() if looping else _default_model()
     refiner = resolve_refiner(refine_masks, model if use_mask and looping else None)
     if method in NETWORK_METHODS and options.get("network") is None:
         options["network"] = _default_network(method)

@@ -111,19 +111,21 @@ def _shipped_refiner() -> Any:
 def resolve_refiner(spec: Any, first_round_model: Any) -> Refiner | None:
     """The refiner that ``refine_masks=spec`` names; None means the first round's network
     again (``"network"``, the paper's loop) or no mask at all (no first-round model)."""
-    if first_round_model is None:
-        return None
-    if spec is None or (isinstance(spec, str) and spec == "network"):
-        return None
-    if isinstance(spec, str):
-        if spec == "nearest":
-            return NearestNeighbourMasks()
-        if spec == "learned":
-            return _shipped_refiner()
+    if isinstance(spec, str) and spec not in REFINERS:
         raise MaskNetError(f"unknown refine_masks {spec!r}; choose from {REFINERS}")
-    if not callable(getattr(spec, "predict_masks", None)):
+    if (
+        spec is not None
+        and not isinstance(spec, str)
+        and not callable(getattr(spec, "predict_masks", None))
+    ):
         raise MaskNetError(
             "refine_masks must be one of "
             f"{REFINERS} or an object with predict_masks(template, source)"
         )
+    if first_round_model is None or spec is None or spec == "network":
+        return None
+    if spec == "nearest":
+        return NearestNeighbourMasks()
+    if spec == "learned":
+        return _shipped_refiner()
     return spec

@@ -73,7 +73,6 @@ def mask_and_register(
         if refining:
             tic = time.perf_counter()
             mask, source_mask = refiner.predict_masks(template, moved)
-            moved = keep_source_points(moved, source_mask)
             times["mask"] += time.perf_counter() - tic
         elif model is not None:
             tic = time.perf_counter()
@@ -81,12 +80,13 @@ def mask_and_register(
                 mask, source_mask = model.predict_masks(
                     template, moved, k=k, threshold=threshold, precision=precision
                 )
-                moved = keep_source_points(moved, source_mask)
             else:
                 mask = model.predict_mask(
                     template, moved, k=k, threshold=threshold, precision=precision
                 )
             times["mask"] += time.perf_counter() - tic
+        if source_mask is not None:  # the back-end sees the kept source points only
+            moved = keep_source_points(moved, source_mask)
         tic = time.perf_counter()
         # Later rounds start where the last one ended; only the paper's loop (the
         # network again in every round) re-centres, as it always did.
