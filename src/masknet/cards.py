@@ -336,8 +336,8 @@ refine_masks="learned")`.
   pose** (`masknet.data.residuals.ResidualConfig`): {residual["near_fraction"]:.0%} of pairs turned by up to
   {residual["near_deg"]}°, {residual["wide_fraction"]:.0%} by up to {residual["max_deg"]}°, the rest half-normal with
   scale {residual["scale_deg"]}°; translations half-normal with scale {residual["translation"]} +
-  {residual["translation_per_deg"]} per degree of radius. This is wider than what one round of
-  Mask-ICP leaves (10/50/90th percentiles 0.1/2.0/17.9° on ModelNet40, 2.2/7.0/20.8° on scans).
+  {residual["translation_per_deg"]} per degree of radius: wider than what one round of Mask-ICP
+  leaves (round 1 of "Masks per round" in docs/RESULTS.md).
 - Loss: BCE on both masks. Adam, lr {train["lr"]} ({train["lr_schedule"]}), batch {train["batch_size"]},
   {train["precision"]}, seed {train["seed"]}.
 - Epochs: {epochs_text(card)} (best validation score at epoch {card["best_epoch"]}, shipped),
