@@ -12,9 +12,10 @@ __all__ = ["GLOBAL_METHODS", "METHODS", "METHOD_TITLES", "NETWORK_METHODS"]
 NETWORK_METHODS = ("pointnetlk", "dcp", "prnet", "pcrnet", "rpmnet")
 # Open3D's global registration on FPFH features: no iteration budget, no init.
 GLOBAL_METHODS = ("open3d-ransac", "open3d-fgr")
-METHODS = ("icp", "robust", "open3d-icp", *NETWORK_METHODS, *GLOBAL_METHODS)
+METHODS = ("auto", "icp", "robust", "open3d-icp", *NETWORK_METHODS, *GLOBAL_METHODS)
 # Each method's display name (X of "Mask-X").
 METHOD_TITLES = {
+    "auto": "ICP (auto)",
     "icp": "ICP",
     "robust": "ICP (robust)",
     "open3d-icp": "Open3D-ICP",

@@ -76,7 +76,7 @@ def test_plain_icp_recovers_pair_transform(full_pairs):
 
 def test_single_pair_shapes(pairs, small_masknet):
     template, source = pairs.template[0].numpy(), pairs.source[0].numpy()
-    result = register(template, source, model=small_masknet)
+    result = register(template, source, method="icp", model=small_masknet)
     assert isinstance(result, RegistrationResult)
     assert result.R.shape == (3, 3) and result.t.shape == (3,) and result.transform.shape == (4, 4)
     assert result.transform.dtype == np.float64
@@ -122,7 +122,9 @@ def test_rounds_are_cumulative(pairs, small_masknet, iterations):
 
 
 def test_times_keys(pairs, small_masknet):
-    result = register(pairs.template[0].numpy(), pairs.source[0].numpy(), model=small_masknet)
+    result = register(
+        pairs.template[0].numpy(), pairs.source[0].numpy(), method="icp", model=small_masknet
+    )
     assert set(result.times) == {"sample", "mask", "register", "refine", "total"}
     assert all(v >= 0 for v in result.times.values())
     assert result.times["total"] >= result.times["mask"] + result.times["register"]
@@ -132,7 +134,7 @@ def test_times_keys(pairs, small_masknet):
 
 def test_mask_is_top_k_with_k_equal_m(pairs, small_masknet):
     template, source = pairs.template.numpy(), pairs.source.numpy()
-    result = register(template, source, model=small_masknet)
+    result = register(template, source, method="icp", model=small_masknet)
     assert (result.mask.sum(-1) == source.shape[1]).all()
     np.testing.assert_array_equal(result.mask, small_masknet.predict_mask(template, source))
     k = register(template, source, model=small_masknet, k=100)
@@ -492,7 +494,7 @@ def test_result_carries_open3d_names_and_converged_is_none_where_not_reported(on
     shapes = load_modelnet40(bundled_sample_path(), "test").points[:1]
     pair = make_test_pairs(shapes, 1, PairConfig(), seed=2)
     template, source = pair.template[0].double().numpy(), pair.source[0].double().numpy()
-    icp = register(template, source, use_mask=False)
+    icp = register(template, source, method="icp", use_mask=False)
     assert icp.transformation is icp.transform
     assert isinstance(icp.converged, bool)
     assert 0 <= float(icp.fitness) <= 1 and float(icp.inlier_rmse) >= 0

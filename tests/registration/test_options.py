@@ -34,8 +34,8 @@ def test_typed_and_keyword_options_cannot_both_be_given(pair, small_masknet):
     template, source = pair
     with pytest.raises(MaskNetError, match="give iterations= or Rounds, not both"):
         register(template, source, model=small_masknet, iterations=3, rounds=Rounds(2))
-    with pytest.raises(MaskNetError, match="for method='robust'"):
-        register(template, source, robust=RobustOptions(hypotheses=4))
+    with pytest.raises(MaskNetError, match="for method='auto' or 'robust', not 'icp'"):
+        register(template, source, method="icp", robust=RobustOptions(hypotheses=4))
     with pytest.raises(MaskNetError, match="for method='icp'"):
         register(template, source, method="robust", criteria=ICPCriteria())
 

@@ -1,4 +1,4 @@
-"""masknet.registration.robust: rotation hypotheses, scoring, and the unit-free result."""
+"""masknet.registration.robust and .auto: the coarse-to-fine pipeline and the default."""
 
 from __future__ import annotations
 
@@ -9,21 +9,32 @@ from scipy.spatial.transform import Rotation
 from masknet import MaskNetError, register
 from masknet.data import bundled_sample_path, load_modelnet40
 from masknet.evaluation.registration import pose_errors
+from masknet.registration.methods import resolve_method
 from masknet.registration.robust import hypothesis_rotations
 
 
-@pytest.fixture(scope="module")
-def far_pair():
-    """A 70% view of a sample shape, turned by 150 degrees and moved, with 8% outliers."""
-    shape = load_modelnet40(bundled_sample_path(), "test").points[3].astype(np.float64)
+def _pair(shape: np.ndarray, degrees: float, outliers: int, seed: int = 0):
+    """A 70% view of ``shape``, turned by ``degrees`` and moved, with uniform outliers;
+    returns template, source and the true source -> template transform."""
     part = shape[np.argsort(shape @ np.array([0.3, 0.8, 0.5]))[: int(0.7 * len(shape))]]
-    rot = Rotation.from_rotvec(np.radians(150) * np.array([0.0, 0.6, 0.8])).as_matrix()
+    rot = Rotation.from_rotvec(np.radians(degrees) * np.array([0.0, 0.6, 0.8])).as_matrix()
     shift = np.array([0.4, -0.2, 0.3])
-    outliers = np.random.default_rng(0).uniform(-1, 1, size=(60, 3))
-    source = np.concatenate([part, outliers]) @ rot.T + shift
-    truth = np.eye(4)  # source -> template
+    noise = np.random.default_rng(seed).uniform(-1, 1, size=(outliers, 3))
+    source = np.concatenate([part, noise]) @ rot.T + shift
+    truth = np.eye(4)
     truth[:3, :3], truth[:3, 3] = rot.T, -rot.T @ shift
     return shape, source, truth
+
+
+@pytest.fixture(scope="module")
+def shapes():
+    return load_modelnet40(bundled_sample_path(), "test").points.astype(np.float64)
+
+
+@pytest.fixture(scope="module")
+def far_pair(shapes):
+    """A 70% view of a sample shape, turned by 150 degrees and moved, with 8% outliers."""
+    return _pair(shapes[3], 150.0, 60)
 
 
 def test_hypotheses_are_distinct_rotations_identity_first():
@@ -36,19 +47,62 @@ def test_hypotheses_are_distinct_rotations_identity_first():
     assert hypothesis_rotations(30).shape == (30, 3, 3)
 
 
-def test_robust_recovers_a_far_rotation_where_icp_stops_short(far_pair):
+@pytest.mark.parametrize("method", ["robust", "auto"])
+def test_a_far_rotation_with_outliers_where_icp_stops_short(far_pair, method):
     template, source, truth = far_pair
-    icp_rot, _ = pose_errors(register(template, source).transform[None], truth[None])
-    result = register(template, source, method="robust")
+    icp = register(template, source, method="icp")
+    icp_rot, _ = pose_errors(icp.transform[None], truth[None])
+    result = register(template, source, method=method)
     rot, trans = pose_errors(result.transform[None], truth[None])
-    assert icp_rot[0] > 20 and rot[0] < 2 and trans[0] < 0.05
-    assert result.source_mask is not None and result.source_mask[-60:].mean() < 0.5
-    assert {"hypothesis", "score", "fitness", "inlier_rmse"} <= set(result.info)
+    assert icp_rot[0] > 20 and rot[0] < 0.5 and trans[0] < 0.01
+    assert str(result.info["path"]) != "fast"  # Mask-ICP alone cannot get there
+    assert result.info["fitness"] > 0.97 and not result.info["ambiguous"]
+
+
+def test_the_default_is_auto_and_takes_the_fast_path_on_an_easy_pair(shapes):
+    template, source, truth = _pair(shapes[3], 10.0, 0)
+    result = register(template, source)
+    rot, trans = pose_errors(result.transform[None], truth[None])
+    assert rot[0] < 0.01 and trans[0] < 1e-3
+    assert str(result.info["path"]) == "fast" and np.isnan(result.info["escalated_fitness"])
+
+
+def test_escalation_says_why(far_pair):
+    template, source, _ = far_pair
+    result = register(template, source)
+    assert str(result.info["path"]).startswith("robust/")
+    assert result.info["escalated_fitness"] < 0.99 <= result.info["fitness"] + 0.02
+
+
+def _box_surface(seed: int, count: int) -> np.ndarray:
+    """``count`` points on the surface of a 2 x 1 x 1 box (square cross-section)."""
+    half = np.array([1.0, 0.5, 0.5])
+    points = np.random.default_rng(seed).uniform(-1, 1, (count, 3)) * half
+    face = np.abs(points / half).argmax(1)  # pushed out to its nearest face
+    points[np.arange(count), face] = np.sign(points[np.arange(count), face]) * half[face]
+    return points
+
+
+def test_a_symmetric_flip_is_reported_as_ambiguous():
+    """Two independent samples of a box with a square cross-section, one turned by 90
+    degrees about the long axis: every quarter turn fits as well, so the result must say
+    the answer is ambiguous and give a runner-up that fits as well."""
+    template = _box_surface(0, 1024)
+    turn = Rotation.from_euler("x", 90, degrees=True).as_matrix()
+    source = _box_surface(1, 700) @ turn.T
+    for method in ("robust", None):
+        result = register(template, source, method=method)
+        assert result.info["ambiguous"]
+        runner_up = result.info["runner_up"]
+        assert np.isfinite(runner_up).all()
+        angle = np.degrees(Rotation.from_matrix(runner_up[:3, :3] @ result.R.T).magnitude())
+        assert angle > 45  # another answer, not the same one twice
+        assert result.info["runner_up_fitness"] >= result.info["fitness"] - 0.02
 
 
 def test_millimetres_and_metres_give_the_same_transform(far_pair):
     template, source, _ = far_pair
-    for kwargs in ({"method": "robust"}, {"method": "icp", "max_iterations": 40}):
+    for kwargs in ({"method": "robust"}, {}, {"method": "icp", "max_iterations": 40}):
         metres = register(template, source, precision="fp32", **kwargs)
         millimetres = register(1000 * template, 1000 * source, precision="fp32", **kwargs)
         np.testing.assert_allclose(millimetres.R, metres.R, atol=1e-5)
@@ -59,17 +113,23 @@ def test_robust_options_are_checked(far_pair):
     template, source, _ = far_pair
     with pytest.raises(MaskNetError, match="candidates"):
         register(template, source, method="robust", candidates=0)
-    with pytest.raises(MaskNetError, match="trim"):
-        register(template, source, method="robust", trim=1.5)
-    with pytest.raises(MaskNetError, match="unknown option|not an option|option"):
+    with pytest.raises(MaskNetError, match="accept_fitness"):
+        register(template, source, method="robust", accept_fitness=1.5)
+    with pytest.raises(MaskNetError, match="unknown option"):
         register(template, source, method="robust", voxel_size=0.05)
+
+
+def test_options_of_mask_icp_choose_mask_icp():
+    assert resolve_method(None, {"iterations": False, "k": False}) == "auto"
+    assert resolve_method(None, {"iterations": True, "k": False}) == "icp"
+    assert resolve_method("robust", {"iterations": True}) == "robust"
 
 
 def test_robust_option_names_match_the_options_table():
     from masknet.registration import RobustOptions
     from masknet.registration.methods import OPTIONS
 
-    assert set(OPTIONS["robust"]) == set(RobustOptions._fields)
+    assert set(OPTIONS["robust"]) == set(RobustOptions._fields) == set(OPTIONS["auto"])
 
 
 def test_trimmed_mean_over_valid_entries():

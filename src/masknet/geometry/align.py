@@ -12,7 +12,13 @@ from torch import Tensor
 
 from masknet.geometry.se3 import make_transform
 
-__all__ = ["centroid", "centroid_alignment", "rigid_align", "rigid_transform_numpy"]
+__all__ = [
+    "centroid",
+    "centroid_alignment",
+    "rigid_align",
+    "rigid_transform_numpy",
+    "rigid_transforms_numpy",
+]
 
 
 def centroid(points: Tensor, valid: Tensor | None = None) -> Tensor:
@@ -105,4 +111,30 @@ def rigid_transform_numpy(source: np.ndarray, target: np.ndarray) -> np.ndarray:
         rot = vh.T @ u.T
     out = np.eye(4)
     out[:3, :3], out[:3, 3] = rot, y_mean - rot @ s_mean
+    return out
+
+
+def rigid_transforms_numpy(
+    source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None
+) -> np.ndarray:
+    """:func:`rigid_align` for many small problems at once in numpy float64: transforms
+    (B, 4, 4) taking source (B, K, 3) onto target (B, K, 3), with optional (B, K)
+    weights (rows of weight 0 take no part; a problem without weight gets the identity).
+    For RANSAC's minimal samples and ICP from many starts, where one batched 3x3 SVD
+    replaces a Python loop."""
+    w = np.ones(source.shape[:2]) if weights is None else weights
+    total = w.sum(1)
+    norm = np.maximum(total, 1e-300)[:, None, None]
+    s_mean = (w[..., None] * source).sum(1, keepdims=True) / norm
+    y_mean = (w[..., None] * target).sum(1, keepdims=True) / norm
+    cov = ((source - s_mean) * w[..., None]).transpose(0, 2, 1) @ (target - y_mean)
+    u, _, vh = np.linalg.svd(cov)
+    v, ut = vh.transpose(0, 2, 1), u.transpose(0, 2, 1)
+    fix = np.ones((len(cov), 3))
+    fix[:, 2] = np.where(np.linalg.det(v @ ut) < 0, -1.0, 1.0)
+    rot = (v * fix[:, None, :]) @ ut
+    rot[total <= 0] = np.eye(3)
+    out = np.tile(np.eye(4), (len(cov), 1, 1))
+    out[:, :3, :3] = rot
+    out[:, :3, 3] = y_mean[:, 0] - np.einsum("bij,bj->bi", rot, s_mean[:, 0])
     return out

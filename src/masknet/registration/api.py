@@ -34,6 +34,7 @@ from masknet.geometry.clouds import MIN_POINTS
 from masknet.models import REGISTRATION_NETWORKS
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
+from masknet.registration.auto import auto_register
 from masknet.registration.backends import run_icp
 from masknet.registration.methods import (
     DEFAULT_ITERATIONS,
@@ -42,6 +43,9 @@ from masknet.registration.methods import (
     METHOD_TITLES,
     METHODS,
     NETWORK_METHODS,
+    OPTIONS,
+    PIPELINES,
+    resolve_method,
 )
 from masknet.registration.options import (
     ICPCriteria,
@@ -203,7 +207,7 @@ def _default_network(method: str) -> torch.nn.Module:
 def register(
     template: np.ndarray,
     source: np.ndarray,
-    method: str = "icp",
+    method: str | None = None,
     use_mask: bool = True,
     iterations: int = 1,
     model: MaskNet | TwoSidedMaskNet | None = None,
@@ -305,6 +309,18 @@ def register(
             ``"open3d-icp"``) no Open3D.
     """
     start = time.perf_counter()
+    method = resolve_method(
+        method,
+        {
+            "iterations": iterations != 1,
+            "k": k is not None,
+            "threshold": threshold is not None,
+            "refine_iterations": refine_iterations != 0,
+            "init": init != "centroid",
+            "icp options": any(key in OPTIONS["icp"] for key in options),
+            "typed": any(x is not None for x in (criteria, selection, rounds)),
+        },
+    )
     if any(x is not None for x in (criteria, selection, rounds, robust)):
         given = {"iterations": iterations, "refine_iterations": refine_iterations}
         given |= {"k": k, "threshold": threshold, **options}
@@ -321,13 +337,19 @@ def register(
         scene_source = src_full[0]
         src_full = apply_transform(found.transform[None], scene_source[found.source_mask][None])
         init = "identity"  # the search placed them: a centroid shift would undo that
-    if method not in GLOBAL_METHODS:
+        if method == "auto":  # the search is the global stage: Mask-ICP from its pose
+            method = "icp"
+            options = {"max_iterations": options.get("max_iterations", DEFAULT_ITERATIONS["icp"])}
+    if method not in GLOBAL_METHODS and method not in PIPELINES:
         options.setdefault("max_iterations", DEFAULT_ITERATIONS[method])
     looping = method == "robust" or iterations > 1  # only then are there rounds to refine
+    search_model = None  # auto's escalation: the two-sided network masks both clouds
+    if use_mask and method == "auto":
+        search_model = model if isinstance(model, TwoSidedMaskNet) else _default_two_sided()
     if use_mask and model is None:
-        # One round is the paper's Mask-X. A loop starts from the two-sided network, which
-        # also rejects source outliers; its clean-pair cost after one round is recovered
-        # by the refined rounds (docs/RESULTS.md, masks per round).
+        # One round is the paper's Mask-X (auto's fast path too). A loop starts from the
+        # two-sided network, which also rejects source outliers; its clean-pair cost after
+        # one round is recovered by the refined rounds (docs/RESULTS.md, masks per round).
         model = _default_two_sided() if looping else _default_model()
     refiner = resolve_refiner(refine_masks, model if use_mask and looping else None)
     if method in NETWORK_METHODS and options.get("network") is None:
@@ -338,17 +360,28 @@ def register(
     tpl, src, template_index, source_index = fit_to_network(tpl_full, src_full, single, max_points)
     times["sample"] = time.perf_counter() - tic
 
-    if method == "robust":
-        robust = robust_register(
-            tpl,
-            src,
-            model if use_mask else None,
-            RobustOptions(**options),
-            times,
-            precision,
-            refiner,
-        )
-        total, mask, source_mask, info = robust
+    if method in PIPELINES:
+        if method == "robust":
+            two_sided = model if isinstance(model, TwoSidedMaskNet) else _default_two_sided()
+            run = robust_register(
+                tpl,
+                src,
+                two_sided if use_mask else None,
+                RobustOptions(**options),
+                times,
+                precision,
+            )
+        else:
+            run = auto_register(
+                tpl,
+                src,
+                model if use_mask else None,
+                search_model,
+                RobustOptions(**options),
+                times,
+                precision,
+            )
+        total, mask, source_mask, info = run
         inliers, rounds = None, [total[0] if single else total]
     else:
         state = mask_and_register(

@@ -14,11 +14,14 @@ __all__ = [
     "METHOD_TITLES",
     "NETWORK_METHODS",
     "OPTIONS",
+    "PIPELINES",
+    "resolve_method",
 ]
 
 # The options (``**options`` of register) each method accepts.
 OPTIONS = {
     "icp": ("max_iterations", "tolerance", "max_correspondence_distance"),
+    "auto": RobustOptions._fields,
     "robust": RobustOptions._fields,
     "open3d-icp": (
         "max_iterations",
@@ -38,3 +41,15 @@ DEFAULT_ITERATIONS = {
     **{name: cls.default_iterations for name, cls in REGISTRATION_NETWORKS.items()},
 }
 INITS = ("centroid", "identity")
+# Methods that run the coarse-to-fine pipeline and ignore the round options.
+PIPELINES = ("auto", "robust")
+
+
+def resolve_method(method: str | None, round_options: dict) -> str:
+    """``method``, or for None the default: ``"auto"``, unless ``round_options`` (the
+    arguments only Mask-ICP's rounds take: ``iterations`` other than 1, ``k``,
+    ``threshold``, ``refine_iterations``, ``init="identity"``, ICP's options) ask for
+    Mask-ICP itself, which is then what runs."""
+    if method is not None:
+        return method
+    return "icp" if any(round_options.values()) else "auto"

@@ -48,46 +48,56 @@ class Rounds(NamedTuple):
 
 
 class RobustOptions(NamedTuple):
-    """The options of ``method="robust"`` (``register(..., method="robust", **options)``).
+    """The options of ``method="robust"`` (``register(..., method="robust", **options)``),
+    the coarse-to-fine pipeline of :mod:`masknet.registration.coarse`.
 
-    hypotheses: starting rotations per pair (1-24 take the 24 cube rotations nearest
-        the identity first; more add seeded random rotations).
-    hypothesis_points: points per cloud in the hypothesis stage.
-    candidates: best-scoring hypotheses per pair taken on to full resolution.
-    identity_margin: a turned hypothesis wins over the unturned start only if its score
-        is below this fraction of the start's (1: plain best score; 0: never turn).
-    hypothesis_mask: use the mask in the hypothesis stage too (False: plain ICP there,
-        faster; the mask then enters at full resolution).
-    mask_rounds: Mask-ICP rounds per hypothesis, and again at full resolution.
-    max_iterations: ICP iterations per round.
-    trim: fraction of points whose distances make the score.
-    inlier_iterations: iterations of the final geometric-inlier ICP (0 skips it).
-    inlier_distance: its pair cut-off, in template radii.
+    feature_points: template points left by the FPFH voxel grid (it sets the voxel, so the
+        unit does not matter).
+    ransac_trials: minimal samples of 3 matches per RANSAC run.
+    correspondence_hypotheses: distinct poses each RANSAC run returns.
+    accept_fitness: stop after the correspondence hypotheses when the best one's fitness
+        (at 1.5 template spacings) reaches this; 1.01 never stops early.
+    hypotheses: starting rotations of the learned side (the 24 rotations of the cube,
+        nearest the identity first; 0 skips them).
+    hypothesis_points: points per cloud in the rotation hypotheses' ICP.
+    max_iterations: ICP iterations per hypothesis.
+    candidates: best-scoring distinct hypotheses refined at full resolution.
+    inlier_iterations: ICP iterations of that refinement.
+    inlier_distance: its pair cut-off, in template spacings.
+    distinct_deg: poses at least this far apart are different answers.
+    ambiguity_margin: a different answer whose fitness is within this of the best makes
+        the result ``ambiguous``.
     """
 
+    feature_points: int = 300
+    ransac_trials: int = 3000
+    correspondence_hypotheses: int = 8
+    accept_fitness: float = 0.99
     hypotheses: int = 24
     hypothesis_points: int = 256
-    candidates: int = 6
-    hypothesis_mask: bool = False
-    identity_margin: float = 0.5
-    mask_rounds: int = 2
     max_iterations: int = 10
-    trim: float = 0.8
+    candidates: int = 3
     inlier_iterations: int = 30
-    inlier_distance: float = 0.05
+    inlier_distance: float = 3.0
+    distinct_deg: float = 10.0
+    ambiguity_margin: float = 0.02
 
     def check(self) -> None:
         """Raise MaskNetError for an option out of range."""
-        if self.hypotheses < 1 or self.hypothesis_points < 16 or self.mask_rounds < 1:
-            raise MaskNetError("robust: hypotheses >= 1, hypothesis_points >= 16, mask_rounds >= 1")
-        if self.candidates < 1:
-            raise MaskNetError("robust: candidates >= 1")
-        if self.max_iterations < 1 or self.inlier_iterations < 0:
-            raise MaskNetError("robust: max_iterations >= 1 and inlier_iterations >= 0")
-        if not 0 <= self.identity_margin <= 1:
-            raise MaskNetError("robust: identity_margin must be in [0, 1]")
-        if not 0 < self.trim <= 1 or not self.inlier_distance > 0:
-            raise MaskNetError("robust: trim must be in (0, 1] and inlier_distance positive")
+        if self.feature_points < 16 or self.hypothesis_points < 16:
+            raise MaskNetError("robust: feature_points and hypothesis_points must be >= 16")
+        if self.ransac_trials < 1 or self.correspondence_hypotheses < 0:
+            raise MaskNetError("robust: ransac_trials >= 1, correspondence_hypotheses >= 0")
+        if not 0 <= self.hypotheses <= 24:
+            raise MaskNetError("robust: hypotheses must be in [0, 24]")
+        if self.candidates < 1 or self.max_iterations < 1 or self.inlier_iterations < 0:
+            raise MaskNetError(
+                "robust: candidates >= 1, max_iterations >= 1 and inlier_iterations >= 0"
+            )
+        if not 0 <= self.accept_fitness <= 1.01 or not 0 <= self.ambiguity_margin <= 1:
+            raise MaskNetError("robust: accept_fitness in [0, 1.01], ambiguity_margin in [0, 1]")
+        if not self.inlier_distance > 0 or not 0 < self.distinct_deg <= 180:
+            raise MaskNetError("robust: inlier_distance > 0 and distinct_deg in (0, 180]")
 
 
 def resolve_options(
@@ -129,7 +139,9 @@ def resolve_options(
             raise MaskNetError(f"criteria= (ICPCriteria) is for method='icp', not {method!r}")
         merge(criteria, {f: f for f in ICPCriteria._fields}, {})
     if robust is not None:
-        if method != "robust":
-            raise MaskNetError(f"robust= (RobustOptions) is for method='robust', not {method!r}")
+        if method not in ("auto", "robust"):
+            raise MaskNetError(
+                f"robust= (RobustOptions) is for method='auto' or 'robust', not {method!r}"
+            )
         merge(robust, {f: f for f in RobustOptions._fields}, {})
     return out

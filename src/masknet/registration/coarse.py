@@ -1,0 +1,332 @@
+"""``method="robust"``: coarse-to-fine registration of one pair from two kinds of hypotheses.
+
+ICP, masked or not, stops in the nearest local minimum, so the pose it starts from decides
+the result. This pipeline gathers starting poses from two sources that fail in different
+places, scores them all with one fit, and refines only the best:
+
+1. **Correspondences** (:mod:`masknet.registration.correspondences`). FPFH features on a
+   voxel grid that leaves about ``feature_points`` template points (so the unit does not
+   matter), nearest-neighbour matches both ways, and a batched RANSAC that returns the
+   ``correspondence_hypotheses`` best distinct poses. Each gets a short ICP with a pair
+   cut-off of two voxels. Strong on dense clouds and real scans, whatever the rotation.
+2. **Early exit.** When the best of those fits as a correct result does (``fitness`` of at
+   least ``accept_fitness`` at 1.5 template spacings, the measure of
+   :func:`~masknet.registration.evaluate_registration`), the search stops there. No
+   network runs.
+3. **The learned side**, otherwise. The two-sided MaskNet masks both clouds once (the
+   template's overlap, the source's outliers). Matches that touch a rejected point are
+   dropped and RANSAC runs again on the rest; and the kept source, centred on the masked
+   template's centroid, starts from each of ``hypotheses`` rotations (the 24 rotations of
+   the cube) through ``max_iterations`` of ICP at ``hypothesis_points`` points. This is
+   where sparse or re-sampled objects, whose FPFH features say little, are found.
+4. **One score** for every hypothesis: the fitness of the kept source points against the
+   whole template, from one KD-tree built once, ties broken by the inlier RMSE.
+5. **Refinement of the best ``candidates``**: ``inlier_iterations`` of ICP on the kept
+   source with pairs cut at ``inlier_distance`` template spacings; rescored, the best wins.
+6. **Ambiguity.** When a pose at least ``distinct_deg`` away fits within
+   ``ambiguity_margin`` of the best (a symmetric shape), the result says so
+   (``info["ambiguous"]``, with the runner-up's transform and fitness).
+
+Everything runs on one pair in numpy and KD-trees; stage times go to ``times``
+(``features``, ``ransac``, ``mask``, ``hypotheses``, ``refine``).
+
+Example::
+
+    result = register(template, source, method="robust")
+    result.info["path"], result.info["ambiguous"]
+"""
+
+from __future__ import annotations
+
+import functools
+import time
+from typing import NamedTuple
+
+import numpy as np
+from pykdtree.kdtree import KDTree
+from scipy.spatial.transform import Rotation
+
+from masknet.models.two_sided import TwoSidedMaskNet
+from masknet.registration.correspondences import (
+    feature_cloud,
+    mutual_matches,
+    ransac_poses,
+    voxel_for,
+)
+from masknet.registration.icp_tree import icp_from_starts, icp_single
+from masknet.registration.options import RobustOptions
+
+__all__ = [
+    "CoarseRun",
+    "coarse_to_fine",
+    "hypothesis_rotations",
+    "isolated_free",
+    "nonzero_spacing",
+    "pose_fit",
+]
+
+# The inlier distance of the score, in template spacings: evaluate_registration's default.
+FIT_SPACINGS = 1.5
+# A source point with no other source point within this many template spacings is
+# isolated: it takes no part in the score.
+SURFACE_SPACINGS = 3.0
+
+
+class CoarseRun(NamedTuple):
+    """transform: (4, 4) source -> template. mask: (N,) bool template points within the
+    inlier distance of the moved kept source, or None. source_mask: (M,) bool source points
+    kept, or None without a two-sided network. info: ``path`` (``"correspondences"``: the
+    early exit; ``"search"``: the learned side ran), ``source`` of the winning hypothesis
+    (``"fpfh"``, ``"fpfh-masked"``, ``"rotation"``), ``fitness`` and ``inlier_rmse`` (the
+    score's, input units), ``ambiguous`` (bool), ``runner_up`` ((4, 4) or None) and
+    ``runner_up_fitness``, ``hypotheses`` (how many were scored)."""
+
+    transform: np.ndarray
+    mask: np.ndarray | None
+    source_mask: np.ndarray | None
+    info: dict
+
+
+def nonzero_spacing(tree: KDTree, points: np.ndarray) -> float:
+    """Median distance from a point of ``points`` (P, 3) to its nearest *distinct*
+    neighbour: exact duplicates (common in merged scans) say nothing of the spacing."""
+    k = min(len(points), 4)
+    d, _ = tree.query(points, k=k)
+    d = np.asarray(d).reshape(len(points), k)[:, 1:]
+    positive = d[d > 0]
+    return float(np.median(positive)) if len(positive) else 1.0
+
+
+def isolated_free(points: np.ndarray, radius: float) -> np.ndarray:
+    """(P,) bool: points of ``points`` (P, 3) with another point within ``radius``. All
+    True where that would keep under half of them (a cloud sparser than the radius)."""
+    tree = KDTree(points)
+    d, _ = tree.query(points, k=min(len(points), 2))
+    d = np.asarray(d).reshape(len(points), -1)
+    keep = d[:, -1] <= radius
+    return keep if keep.sum() >= max(3, len(points) // 2) else np.ones(len(points), bool)
+
+
+@functools.cache
+def hypothesis_rotations(count: int) -> np.ndarray:
+    """(count, 3, 3) starting rotations: the 24 rotations of the cube, nearest the
+    identity first, then seeded random rotations."""
+    cube = Rotation.create_group("O").as_matrix()
+    angles = np.arccos(np.clip((np.trace(cube, axis1=1, axis2=2) - 1) / 2, -1, 1))
+    cube = cube[np.argsort(angles, kind="stable")]
+    if count <= len(cube):
+        return cube[:count]
+    extra = Rotation.random(count - len(cube), random_state=0).as_matrix()
+    return np.concatenate([cube, extra])
+
+
+class PoseFit(NamedTuple):
+    """fitness: fraction of points within the distance. rmse: their RMS distance."""
+
+    fitness: float
+    rmse: float
+
+
+def pose_fit(tree: KDTree, points: np.ndarray, transform: np.ndarray, limit: float) -> PoseFit:
+    """Fit of ``points`` (P, 3) moved by ``transform`` (4, 4) against the cloud in ``tree``."""
+    moved = points @ transform[:3, :3].T + transform[:3, 3]
+    d2, _ = tree.query(moved, k=1, sqr_dists=True)
+    inlier = d2 <= limit**2
+    count = int(inlier.sum())
+    return PoseFit(count / len(points), float(np.sqrt(d2[inlier].sum() / max(count, 1))))
+
+
+def _rotation_deg(a: np.ndarray, b: np.ndarray) -> float:
+    cos = (np.trace(a[:3, :3].T @ b[:3, :3]) - 1) / 2
+    return float(np.degrees(np.arccos(np.clip(cos, -1, 1))))
+
+
+def _subsample(points: np.ndarray, count: int, seed: int = 0) -> np.ndarray:
+    if len(points) <= count:
+        return points
+    return points[np.random.default_rng(seed).choice(len(points), count, replace=False)]
+
+
+def coarse_to_fine(
+    template: np.ndarray,
+    source: np.ndarray,
+    model: TwoSidedMaskNet | None,
+    options: RobustOptions,
+    times: dict[str, float],
+    precision: str = "auto",
+) -> CoarseRun:
+    """The pipeline of the module docstring for template (N, 3) and source (M, 3), float64
+    numpy. ``model`` None searches without masks."""
+    options.check()
+
+    def clock(stage: str, since: float) -> float:
+        now = time.perf_counter()
+        times[stage] = times.get(stage, 0.0) + now - since
+        return now
+
+    tic = time.perf_counter()
+    tree = KDTree(template)
+    spacing = nonzero_spacing(tree, template)
+    limit = FIT_SPACINGS * spacing
+    radius = float(np.linalg.norm(template - template.mean(0), axis=1).max())
+    # Isolated source points (uniform outliers, stray returns) would cap every pose's
+    # fitness below what a correct pose reaches: the score counts the rest.
+    surface = isolated_free(source, SURFACE_SPACINGS * spacing)
+    probe = _subsample(source[surface], options.hypothesis_points * 2)
+    scored: list[Scored] = []
+    support: list[float] = []  # share of the matches the best pose of each RANSAC explains
+
+    def refine(pose: np.ndarray, points: np.ndarray, kind: str) -> Scored:
+        """ICP with the pair cut-off from ``pose``, scored on ``points``."""
+        sol = icp_single(
+            template,
+            points,
+            pose,
+            options.inlier_iterations,
+            max_correspondence_distance=options.inlier_distance * spacing,
+            template_tree=tree,
+        )
+        tf = sol.transform[0].numpy()
+        return Scored(*pose_fit(tree, points, tf, limit), tf, kind)
+
+    # 1. Correspondence hypotheses, scored as RANSAC left them; the best one refined.
+    features = None
+    if _has_open3d():
+        voxel = max(voxel_for(template, options.feature_points, radius), spacing)
+        features = (feature_cloud(source, voxel), feature_cloud(template, voxel))
+        matches = mutual_matches(features[0].features, features[1].features)
+    tic = clock("features", tic)
+
+    def correspondence_poses(pairs: np.ndarray, kind: str, points: np.ndarray) -> None:
+        found = ransac_poses(
+            features[0].points[pairs[:, 0]],
+            features[1].points[pairs[:, 1]],
+            1.5 * features[0].voxel,
+            trials=options.ransac_trials,
+            keep=options.correspondence_hypotheses,
+        )
+        support.append(float(found.inliers[0]) / len(pairs) if len(found.inliers) else 0.0)
+        scored.extend(Scored(*pose_fit(tree, points, p, limit), p, kind) for p in found.transform)
+
+    early: list[Scored] | None = None
+    kept_source = source[surface]
+    if features is not None and options.correspondence_hypotheses:
+        correspondence_poses(matches, "fpfh", probe)
+        if scored:
+            # The two best distinct poses, refined: a symmetric shape's flip can lead
+            # RANSAC's ranking, and a close second makes the answer ambiguous.
+            tops = _distinct(sorted(scored, key=_rank, reverse=True), 2, limit)
+            early = [refine(s.pose, kept_source, "fpfh") for s in tops]
+            if max(f.fitness for f in early) < options.accept_fitness:
+                early = None
+        tic = clock("ransac", tic)
+    mask = source_mask = None
+    if early is not None:
+        finals = early
+    else:
+        # 2. The learned side: both masks once, then masked matches and rotations.
+        if model is not None:
+            mask, source_mask = model.predict_masks(template, source, precision=precision)
+            if (source_mask & surface).sum() >= 3:
+                kept_source = source[source_mask & surface]
+            else:
+                source_mask = np.ones(len(source), bool)
+            tic = clock("mask", tic)
+            if features is not None and options.correspondence_hypotheses:
+                keep_s = _voxel_labels(features[0].points, source, source_mask)
+                keep_t = _voxel_labels(features[1].points, template, mask)
+                masked = matches[keep_s[matches[:, 0]] & keep_t[matches[:, 1]]]
+                if len(masked) >= 3:
+                    correspondence_poses(masked, "fpfh-masked", probe)
+                tic = clock("ransac", tic)
+        # Every hypothesis scored on the same kept points.
+        points = _subsample(kept_source, options.hypothesis_points * 2)
+        scored[:] = [Scored(*pose_fit(tree, points, s.pose, limit), s.pose, s.kind) for s in scored]
+        target = template if mask is None or mask.sum() < 3 else template[mask]
+        target_small = _subsample(target, options.hypothesis_points)
+        small_tree = KDTree(target_small)
+        src_small = _subsample(kept_source, options.hypothesis_points)
+        src_centre, tgt_centre = src_small.mean(0), target.mean(0)
+        rotations = hypothesis_rotations(24)[: options.hypotheses]
+        if len(rotations):
+            starts = np.tile(np.eye(4), (len(rotations), 1, 1))
+            starts[:, :3, :3] = rotations
+            starts[:, :3, 3] = tgt_centre - rotations @ src_centre
+            poses = icp_from_starts(
+                small_tree, target_small, src_small, starts, options.max_iterations
+            )
+            scored.extend(
+                Scored(*pose_fit(tree, points, pose, limit), pose, "rotation") for pose in poses
+            )
+        tic = clock("hypotheses", tic)
+        # 3. The best few, refined with the pair cut-off, rescored on all kept points.
+        scored.sort(key=_rank, reverse=True)
+        best_few = _distinct(scored, options.candidates, limit)
+        finals = [refine(s.pose, kept_source, s.kind) for s in best_few]
+        tic = clock("refine", tic)
+    if not finals:  # no hypothesis at all (too few points for features): the identity
+        finals = [Scored(*pose_fit(tree, kept_source, np.eye(4), limit), np.eye(4), "identity")]
+    finals.sort(key=_rank, reverse=True)
+    winner = finals[0]
+    rival = next(
+        (f for f in finals[1:] if _rotation_deg(f.pose, winner.pose) >= options.distinct_deg), None
+    )
+    ambiguous = rival is not None and rival.fitness >= winner.fitness - options.ambiguity_margin
+    transform = winner.pose
+    if mask is not None:  # the template points the moved kept source covers
+        moved = kept_source @ transform[:3, :3].T + transform[:3, 3]
+        mask = KDTree(moved).query(template, k=1)[0] <= limit
+    info = {
+        "path": "correspondences" if early is not None else "search",
+        "source": winner.kind,
+        "fitness": winner.fitness,
+        "inlier_rmse": winner.rmse,
+        "ambiguous": bool(ambiguous),
+        "runner_up": None if rival is None else rival.pose,
+        "runner_up_fitness": float("nan") if rival is None else rival.fitness,
+        "hypotheses": len(scored),
+        "support": support[0] if support else 0.0,
+    }
+    return CoarseRun(transform, mask, source_mask, info)
+
+
+class Scored(NamedTuple):
+    """A hypothesis: its fitness and inlier RMSE, pose (4, 4), and where it came from."""
+
+    fitness: float
+    rmse: float
+    pose: np.ndarray
+    kind: str
+
+
+def _rank(entry: Scored) -> tuple[float, float]:
+    """Higher fitness first, then lower RMSE."""
+    return entry.fitness, -entry.rmse
+
+
+def _has_open3d() -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec("open3d") is not None
+
+
+def _voxel_labels(voxels: np.ndarray, points: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """(V,) bool: whether the input point nearest each voxel centre (V, 3) is kept."""
+    _, nearest = KDTree(points).query(voxels, k=1)
+    return keep[nearest.astype(np.int64)]
+
+
+def _distinct(scored: list, count: int, limit: float) -> list:
+    """The first ``count`` entries of ``scored`` (best first) whose poses differ from every
+    earlier one kept by 2 degrees or ``limit`` of translation: the same basin once."""
+    out: list = []
+    for entry in scored:
+        if len(out) == count:
+            break
+        if all(
+            _rotation_deg(entry.pose, other.pose) >= 2.0
+            or np.linalg.norm(entry.pose[:3, 3] - other.pose[:3, 3]) >= limit
+            for other in out
+        ):
+            out.append(entry)
+    return out

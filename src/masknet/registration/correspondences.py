@@ -1,0 +1,154 @@
+"""Pose hypotheses from FPFH correspondences: features, mutual matches, a batched RANSAC.
+
+The classical half of the coarse-to-fine pipeline (:mod:`masknet.registration.coarse`).
+Open3D computes the FPFH features on a voxel grid; everything after that is numpy on a
+few hundred points:
+
+1. :func:`feature_cloud`: voxel down-sampling, normals within 2 voxels and FPFH within
+   5 voxels (Open3D's global-registration tutorial), for one cloud.
+2. :func:`mutual_matches`: index pairs whose features are each other's nearest neighbour
+   (33-D KD-trees).
+3. :func:`ransac_poses`: minimal samples of 3 matches, all solved at once by a batched
+   Kabsch, pruned by edge-length consistency, scored by the matches they explain; the
+   best few distinct poses, each refitted on its inliers.
+
+The voxel follows the clouds, not their unit: :func:`voxel_for` picks the size that
+leaves about ``target`` template points, so the features see the same structure in
+millimetres and in metres.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from masknet.geometry.align import rigid_transforms_numpy
+from masknet.io import require_open3d
+
+__all__ = ["FeatureCloud", "feature_cloud", "mutual_matches", "ransac_poses", "voxel_for"]
+
+
+class FeatureCloud(NamedTuple):
+    """points: (P, 3) voxel centres, float64. features: (P, 33) FPFH, float64.
+    voxel: the grid's edge, in the cloud's units."""
+
+    points: np.ndarray
+    features: np.ndarray
+    voxel: float
+
+
+def _o3d_cloud(o3d, points: np.ndarray):
+    return o3d.geometry.PointCloud(
+        o3d.utility.Vector3dVector(np.ascontiguousarray(points, dtype=np.float64))
+    )
+
+
+def voxel_for(points: np.ndarray, target: int, radius: float) -> float:
+    """A voxel edge that leaves about ``target`` of ``points`` (P, 3): a first try at
+    ``radius / 20``, corrected twice for the area the cloud covers (count ~ 1 / voxel^2)."""
+    o3d = require_open3d("FPFH features")
+    cloud = _o3d_cloud(o3d, points)
+    voxel = radius / 20
+    for _ in range(2):
+        count = len(cloud.voxel_down_sample(voxel).points)
+        if count == 0 or abs(count - target) < 0.1 * target:
+            break
+        voxel *= np.sqrt(count / target)
+    return float(voxel)
+
+
+def feature_cloud(points: np.ndarray, voxel: float) -> FeatureCloud:
+    """FPFH of ``points`` (P, 3) down-sampled on a grid of edge ``voxel``."""
+    o3d = require_open3d("FPFH features")
+    down = _o3d_cloud(o3d, points).voxel_down_sample(voxel)
+    search = o3d.geometry.KDTreeSearchParamHybrid
+    down.estimate_normals(search(radius=2 * voxel, max_nn=30))
+    fpfh = o3d.pipelines.registration.compute_fpfh_feature(
+        down, search(radius=5 * voxel, max_nn=100)
+    )
+    return FeatureCloud(np.asarray(down.points), np.asarray(fpfh.data).T.copy(), voxel)
+
+
+def mutual_matches(source: np.ndarray, template: np.ndarray) -> np.ndarray:
+    """(K, 2) index pairs (source row, template row) of features (S, D) and (T, D) that are
+    each other's nearest neighbour; all of the source's nearest where fewer than 3 are."""
+    if len(source) == 0 or len(template) == 0:
+        return np.empty((0, 2), np.int64)
+    # A few hundred features each: one distance matrix beats two 33-D KD-trees.
+    d2 = (source**2).sum(1)[:, None] - 2 * source @ template.T + (template**2).sum(1)[None]
+    to_template = d2.argmin(1)
+    to_source = d2.argmin(0)
+    rows = np.arange(len(source))
+    mutual = to_source[to_template] == rows
+    if mutual.sum() < 3:
+        mutual[:] = True
+    return np.stack([rows[mutual], to_template[mutual]], axis=1)
+
+
+class PoseHypotheses(NamedTuple):
+    """transform: (H, 4, 4) source -> template, best first. inliers: (H,) matches each
+    explains within the threshold."""
+
+    transform: np.ndarray
+    inliers: np.ndarray
+
+
+def ransac_poses(
+    source: np.ndarray,
+    template: np.ndarray,
+    threshold: float,
+    trials: int = 1000,
+    keep: int = 3,
+    seed: int = 0,
+    distinct_deg: float = 10.0,
+) -> PoseHypotheses:
+    """The ``keep`` best distinct poses that put matched points source (K, 3) onto
+    template (K, 3) within ``threshold``.
+
+    ``trials`` samples of 3 matches are solved in one batch; samples whose edge lengths
+    disagree by over 10% (a rigid motion keeps them) are dropped first. Poses closer than
+    ``distinct_deg`` degrees and one threshold of translation to a better one are
+    duplicates. Each kept pose is refitted on its inliers.
+    """
+    k = len(source)
+    if k < 3:
+        return PoseHypotheses(np.empty((0, 4, 4)), np.empty(0, np.int64))
+    rng = np.random.default_rng(seed)
+    picks = (
+        np.stack([rng.choice(k, 3, replace=False) for _ in range(trials)])
+        if k < 8
+        else (rng.integers(0, k, (trials, 3)))
+    )
+    picks = picks[
+        (picks[:, 0] != picks[:, 1]) & (picks[:, 1] != picks[:, 2]) & (picks[:, 0] != picks[:, 2])
+    ]
+    s, t = source[picks], template[picks]  # (T, 3, 3)
+    edges_s = np.linalg.norm(s - np.roll(s, 1, axis=1), axis=-1)
+    edges_t = np.linalg.norm(t - np.roll(t, 1, axis=1), axis=-1)
+    consistent = (np.minimum(edges_s, edges_t) >= 0.9 * np.maximum(edges_s, edges_t)).all(1)
+    consistent &= edges_s.min(1) > threshold  # a degenerate sample fixes no rotation
+    s, t = s[consistent], t[consistent]
+    if len(s) == 0:
+        return PoseHypotheses(np.empty((0, 4, 4)), np.empty(0, np.int64))
+    poses = rigid_transforms_numpy(s, t)
+    moved = source @ poses[:, :3, :3].transpose(0, 2, 1) + poses[:, None, :3, 3]
+    near = ((moved - template) ** 2).sum(-1) <= threshold**2  # (H, K)
+    counts = near.sum(1)
+    # Greedy: the best pose, then the best of those not within distinct_deg and three
+    # thresholds of translation of one already chosen (vectorised over all poses).
+    open_ = np.ones(len(poses), bool)
+    chosen: list[int] = []
+    cos_limit = np.cos(np.radians(distinct_deg))
+    while len(chosen) < keep and open_.any():
+        i = int(np.flatnonzero(open_)[np.argmax(counts[open_])])
+        chosen.append(i)
+        cos = (np.einsum("hij,ij->h", poses[:, :3, :3], poses[i, :3, :3]) - 1) / 2
+        near_pose = np.linalg.norm(poses[:, :3, 3] - poses[i, :3, 3], axis=1) < 3 * threshold
+        open_ &= ~((cos > cos_limit) & near_pose)
+    refit = rigid_transforms_numpy(
+        np.broadcast_to(source, (len(chosen), k, 3)),
+        np.broadcast_to(template, (len(chosen), k, 3)),
+        near[chosen].astype(np.float64),
+    )
+    return PoseHypotheses(refit, counts[chosen])
