@@ -20,6 +20,7 @@ from masknet.experiments import (
     noise,
     outliers,
     precision_vs_missing,
+    real_pairs,
     registration,
     robust,
     rotation_sweep,
@@ -49,6 +50,7 @@ EXPERIMENTS: dict[str, Callable[[BenchmarkContext], ExperimentResult]] = {
     "outliers": outliers.run,
     "scans": scans.run,
     "robust": robust.run,
+    "real-pairs": real_pairs.run,
 }
 
 

@@ -360,10 +360,12 @@ def register(
     tpl, src, template_index, source_index = fit_to_network(tpl_full, src_full, single, max_points)
     times["sample"] = time.perf_counter() - tic
 
-    if method in PIPELINES:
+    if method in PIPELINES:  # full resolution; the networks see the sampled clouds
         if method == "robust":
             two_sided = model if isinstance(model, TwoSidedMaskNet) else _default_two_sided()
             run = robust_register(
+                tpl_full,
+                src_full,
                 tpl,
                 src,
                 two_sided if use_mask else None,
@@ -373,6 +375,8 @@ def register(
             )
         else:
             run = auto_register(
+                tpl_full,
+                src_full,
                 tpl,
                 src,
                 model if use_mask else None,
@@ -381,6 +385,7 @@ def register(
                 times,
                 precision,
             )
+        template_index = source_index = None  # its masks cover the full clouds already
         total, mask, source_mask, info = run
         inliers, rounds = None, [total[0] if single else total]
     else:

@@ -1,7 +1,7 @@
 """``method="auto"``, the default: a fast path, checked, escalated to ``robust`` when needed.
 
 1. **Fast path.** One round of the paper's Mask-ICP (MaskNet's template mask, the source
-   centroid onto the masked template's centroid, ``max_iterations`` of ICP), then ICP with
+   centroid onto the masked template's centroid, 10 iterations of ICP), then ICP with
    pairs cut at ``inlier_distance`` template spacings: a geometric inlier mask, once the
    clouds are close (the nearest-neighbour refinement rule).
 2. **Check.** The fit of the result: the share of the source's non-isolated points within
@@ -28,12 +28,15 @@ from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
 from masknet.registration.coarse import (
     FIT_SPACINGS,
+    REFINE_TOLERANCE,
     SURFACE_SPACINGS,
+    PoseFit,
     isolated_free,
     nonzero_spacing,
     pose_fit,
 )
 from masknet.registration.icp_tree import icp_single
+from masknet.registration.methods import DEFAULT_MAX_ITERATIONS
 from masknet.registration.options import RobustOptions
 from masknet.registration.robust import RobustRun, robust_register
 from masknet.registration.rounds import mask_and_register
@@ -44,6 +47,8 @@ __all__ = ["auto_register"]
 def auto_register(
     template: np.ndarray,
     source: np.ndarray,
+    template_net: np.ndarray,
+    source_net: np.ndarray,
     model: MaskNet | TwoSidedMaskNet | None,
     search_model: TwoSidedMaskNet | None,
     options: RobustOptions,
@@ -51,13 +56,17 @@ def auto_register(
     precision: str = "auto",
 ) -> RobustRun:
     """The pipeline of the module docstring for template (B, N, 3) and source (B, M, 3),
-    float64, pair by pair. ``model`` masks the fast path (None: plain ICP), ``search_model``
-    the escalation (None: no mask)."""
+    float64, pair by pair, at full resolution; the networks see template_net (B, n, 3) and
+    source_net (B, m, 3), the clouds sampled to their size. ``model`` masks the fast path
+    (None: plain ICP), ``search_model`` the escalation (None: no mask). Masks are over the
+    full clouds."""
     options.check()
-    runs = [
-        _one(template[b : b + 1], source[b : b + 1], model, search_model, options, times, precision)
-        for b in range(template.shape[0])
-    ]
+    runs = []
+    for b in range(template.shape[0]):
+        nets = (template_net[b : b + 1], source_net[b : b + 1])
+        runs.append(
+            _one(template[b], source[b], nets, model, search_model, options, times, precision)
+        )
     info = {key: np.concatenate([r.info[key] for r in runs]) for key in runs[0].info}
 
     def stacked(parts: list) -> np.ndarray | None:
@@ -74,31 +83,36 @@ def auto_register(
 def _one(
     template: np.ndarray,
     source: np.ndarray,
+    nets: tuple[np.ndarray, np.ndarray],
     model: MaskNet | TwoSidedMaskNet | None,
     search_model: TwoSidedMaskNet | None,
     options: RobustOptions,
     times: dict[str, float],
     precision: str,
 ) -> RobustRun:
-    """One pair (B = 1)."""
+    """One pair: template (N, 3), source (M, 3); ``nets`` the (1, n, 3) and (1, m, 3)
+    clouds the networks see."""
+    icp_options = {"max_iterations": DEFAULT_MAX_ITERATIONS}  # the paper's Mask-ICP
+    fast = mask_and_register(*nets, "icp", model, 1, icp_options, times, precision=precision)
     tic = time.perf_counter()
-    tpl, src = template[0], source[0]
-    tree = KDTree(tpl)
-    spacing = nonzero_spacing(tree, tpl)
-    surface = isolated_free(src, SURFACE_SPACINGS * spacing)
-    icp_options = {"max_iterations": options.max_iterations}
-    fast = mask_and_register(
-        template, source, "icp", model, 1, icp_options, times, precision=precision
-    )
-    tic = time.perf_counter()
-    kept = src[surface]
-    if fast.source_mask is not None and (fast.source_mask[0] & surface).sum() >= 3:
-        kept = src[fast.source_mask[0] & surface]
+    tree = KDTree(template)
+    spacing = nonzero_spacing(tree, _subsample(template, 4096))
+    fine = _subsample(source, options.fine_points)
+    surface = isolated_free(fine, SURFACE_SPACINGS * spacing)
+    source_mask = None
+    if fast.source_mask is not None:  # a two-sided network: its kept points, spread
+        near_net = KDTree(nets[1][0]).query(source, k=1)[1].astype(np.int64)
+        source_mask = fast.source_mask[0][near_net]
+        near_fine = KDTree(nets[1][0]).query(fine, k=1)[1].astype(np.int64)
+        kept_fine = fast.source_mask[0][near_fine] & surface
+        surface = kept_fine if kept_fine.sum() >= 3 else surface
+    kept = fine[surface]
     sol = icp_single(
-        tpl,
+        template,
         kept,
         fast.transform[0],
         options.inlier_iterations,
+        REFINE_TOLERANCE,
         max_correspondence_distance=options.inlier_distance * spacing,
         template_tree=tree,
     )
@@ -106,31 +120,43 @@ def _one(
     fit = pose_fit(tree, kept, transform, FIT_SPACINGS * spacing)
     times["fast"] = times.get("fast", 0.0) + time.perf_counter() - tic
     if fit.fitness >= options.accept_fitness:
-        moved = kept @ transform[:3, :3].T + transform[:3, 3]
         mask = None
         if model is not None:  # the template points the moved source covers
-            mask = (KDTree(moved).query(tpl, k=1)[0] <= FIT_SPACINGS * spacing)[None]
-        info = _info("fast", fit.fitness, fit.rmse, np.nan)
-        return RobustRun(transform[None], mask, fast.source_mask, info)
-    run = robust_register(template, source, search_model, options, times, precision)
-    if run.info["fitness"][0] < fit.fitness:  # the fast path's pose fits better after all
-        info = _info("fast", fit.fitness, fit.rmse, fit.fitness)
+            moved = kept @ transform[:3, :3].T + transform[:3, 3]
+            mask = (KDTree(moved).query(template, k=1)[0] <= FIT_SPACINGS * spacing)[None]
+        info = _info("fast", fit, np.nan)
+        return RobustRun(
+            transform[None], mask, None if source_mask is None else source_mask[None], info
+        )
+    run = robust_register(
+        template[None], source[None], *nets, search_model, options, times, precision
+    )
+    if run.info["score"][0] < fit.score:  # the fast path's pose fits better after all
+        info = _info("fast", fit, fit.fitness)
         return RobustRun(transform[None], run.mask, run.source_mask, info)
-    info = {key: value for key, value in run.info.items()}
+    info = dict(run.info)
     info["path"] = np.array([f"robust/{run.info['path'][0]}"])
     info["escalated_fitness"] = np.array([fit.fitness])
     return RobustRun(run.transform, run.mask, run.source_mask, info)
 
 
-def _info(path: str, fitness: float, rmse: float, escalated: float) -> dict[str, np.ndarray]:
+def _subsample(points: np.ndarray, count: int, seed: int = 0) -> np.ndarray:
+    if len(points) <= count:
+        return points
+    return points[np.random.default_rng(seed).choice(len(points), count, replace=False)]
+
+
+def _info(path: str, fit: PoseFit, escalated: float) -> dict[str, np.ndarray]:
     """The info of a fast-path result, with the keys of the robust pipeline's."""
     return {
         "path": np.array([path]),
         "source": np.array(["fast"]),
-        "fitness": np.array([fitness]),
-        "inlier_rmse": np.array([rmse]),
+        "fitness": np.array([fit.fitness]),
+        "inlier_rmse": np.array([fit.rmse]),
         "ambiguous": np.array([False]),
         "runner_up_fitness": np.array([np.nan]),
+        "score": np.array([fit.score]),
+        "runner_up_score": np.array([np.nan]),
         "hypotheses": np.array([1]),
         "runner_up": np.full((1, 4, 4), np.nan),
         "escalated_fitness": np.array([escalated]),

@@ -40,13 +40,13 @@ from __future__ import annotations
 
 import functools
 import time
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
 from pykdtree.kdtree import KDTree
 from scipy.spatial.transform import Rotation
 
-from masknet.models.two_sided import TwoSidedMaskNet
 from masknet.registration.correspondences import (
     feature_cloud,
     mutual_matches,
@@ -69,7 +69,10 @@ __all__ = [
 FIT_SPACINGS = 1.5
 # A source point with no other source point within this many template spacings is
 # isolated: it takes no part in the score.
-SURFACE_SPACINGS = 3.0
+SURFACE_SPACINGS = 2.0
+# The refinement's ICP stops once its mean squared error changes by less than this
+# fraction: finer steps move a pose by far less than its error.
+REFINE_TOLERANCE = 1e-5
 
 
 class CoarseRun(NamedTuple):
@@ -89,7 +92,8 @@ class CoarseRun(NamedTuple):
 
 def nonzero_spacing(tree: KDTree, points: np.ndarray) -> float:
     """Median distance from a point of ``points`` (P, 3) to its nearest *distinct*
-    neighbour: exact duplicates (common in merged scans) say nothing of the spacing."""
+    neighbour in ``tree`` (a KD-tree of a cloud that holds them, or a subset of them):
+    exact duplicates (common in merged scans) say nothing of the spacing."""
     k = min(len(points), 4)
     d, _ = tree.query(points, k=k)
     d = np.asarray(d).reshape(len(points), k)[:, 1:]
@@ -121,19 +125,38 @@ def hypothesis_rotations(count: int) -> np.ndarray:
 
 
 class PoseFit(NamedTuple):
-    """fitness: fraction of points within the distance. rmse: their RMS distance."""
+    """fitness: fraction of points within the distance. rmse: their RMS distance.
+    score: the mean of the fractions within 1, 2 and 4 times the distance: a flat
+    surface that slides (a floor, a wall) fits a wrong pose at one radius, seldom at all."""
 
     fitness: float
     rmse: float
+    score: float
+
+
+SCORE_SCALES = (1.0, 2.0, 4.0)
 
 
 def pose_fit(tree: KDTree, points: np.ndarray, transform: np.ndarray, limit: float) -> PoseFit:
     """Fit of ``points`` (P, 3) moved by ``transform`` (4, 4) against the cloud in ``tree``."""
-    moved = points @ transform[:3, :3].T + transform[:3, 3]
-    d2, _ = tree.query(moved, k=1, sqr_dists=True)
+    return pose_fits(tree, points, transform[None], limit)[0]
+
+
+def pose_fits(tree: KDTree, points: np.ndarray, transforms: np.ndarray, limit: float) -> list:
+    """:func:`pose_fit` for each of ``transforms`` (H, 4, 4), with one KD-tree query."""
+    h, p = len(transforms), len(points)
+    if h == 0:
+        return []
+    moved = points @ transforms[:, :3, :3].transpose(0, 2, 1) + transforms[:, None, :3, 3]
+    d2, _ = tree.query(moved.reshape(h * p, 3), k=1, sqr_dists=True)
+    d2 = d2.reshape(h, p)
     inlier = d2 <= limit**2
-    count = int(inlier.sum())
-    return PoseFit(count / len(points), float(np.sqrt(d2[inlier].sum() / max(count, 1))))
+    count = inlier.sum(1)
+    rmse = np.sqrt(np.where(inlier, d2, 0.0).sum(1) / np.maximum(count, 1))
+    score = np.mean([(d2 <= (k * limit) ** 2).mean(1) for k in SCORE_SCALES], axis=0)
+    return [
+        PoseFit(c / p, float(r), float(sc)) for c, r, sc in zip(count, rmse, score, strict=True)
+    ]
 
 
 def _rotation_deg(a: np.ndarray, b: np.ndarray) -> float:
@@ -147,17 +170,26 @@ def _subsample(points: np.ndarray, count: int, seed: int = 0) -> np.ndarray:
     return points[np.random.default_rng(seed).choice(len(points), count, replace=False)]
 
 
+MaskFunction = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
 def coarse_to_fine(
     template: np.ndarray,
     source: np.ndarray,
-    model: TwoSidedMaskNet | None,
+    predict_masks: MaskFunction | None,
     options: RobustOptions,
     times: dict[str, float],
-    precision: str = "auto",
 ) -> CoarseRun:
     """The pipeline of the module docstring for template (N, 3) and source (M, 3), float64
-    numpy. ``model`` None searches without masks."""
+    numpy, at any size: the features see the whole clouds, the fit and ICP at most
+    ``options.fine_points`` source points (a seeded random subset).
+
+    ``predict_masks(template, source)`` gives the network's masks over the clouds it is
+    given ((N,) and (M,) bool: the template's overlap, the source's kept points); None
+    searches without masks."""
     options.check()
+    full_source = source
+    source = _subsample(full_source, options.fine_points)
 
     def clock(stage: str, since: float) -> float:
         now = time.perf_counter()
@@ -166,7 +198,7 @@ def coarse_to_fine(
 
     tic = time.perf_counter()
     tree = KDTree(template)
-    spacing = nonzero_spacing(tree, template)
+    spacing = nonzero_spacing(tree, _subsample(template, 4096))
     limit = FIT_SPACINGS * spacing
     radius = float(np.linalg.norm(template - template.mean(0), axis=1).max())
     # Isolated source points (uniform outliers, stray returns) would cap every pose's
@@ -183,6 +215,7 @@ def coarse_to_fine(
             points,
             pose,
             options.inlier_iterations,
+            REFINE_TOLERANCE,
             max_correspondence_distance=options.inlier_distance * spacing,
             template_tree=tree,
         )
@@ -192,8 +225,11 @@ def coarse_to_fine(
     # 1. Correspondence hypotheses, scored as RANSAC left them; the best one refined.
     features = None
     if _has_open3d():
-        voxel = max(voxel_for(template, options.feature_points, radius), spacing)
-        features = (feature_cloud(source, voxel), feature_cloud(template, voxel))
+        # A larger template gets a finer grid: features of a room at an object's
+        # resolution would see walls and little else.
+        count = options.feature_points * float(np.clip(np.sqrt(len(template) / 1024), 1, 8))
+        voxel = max(voxel_for(template, int(count), radius), spacing)
+        features = (feature_cloud(full_source, voxel), feature_cloud(template, voxel))
         matches = mutual_matches(features[0].features, features[1].features)
     tic = clock("features", tic)
 
@@ -206,7 +242,8 @@ def coarse_to_fine(
             keep=options.correspondence_hypotheses,
         )
         support.append(float(found.inliers[0]) / len(pairs) if len(found.inliers) else 0.0)
-        scored.extend(Scored(*pose_fit(tree, points, p, limit), p, kind) for p in found.transform)
+        fits = pose_fits(tree, points, found.transform, limit)
+        scored.extend(Scored(*f, p, kind) for f, p in zip(fits, found.transform, strict=True))
 
     early: list[Scored] | None = None
     kept_source = source[surface]
@@ -225,8 +262,8 @@ def coarse_to_fine(
         finals = early
     else:
         # 2. The learned side: both masks once, then masked matches and rotations.
-        if model is not None:
-            mask, source_mask = model.predict_masks(template, source, precision=precision)
+        if predict_masks is not None:
+            mask, source_mask = predict_masks(template, source)
             if (source_mask & surface).sum() >= 3:
                 kept_source = source[source_mask & surface]
             else:
@@ -239,13 +276,35 @@ def coarse_to_fine(
                 if len(masked) >= 3:
                     correspondence_poses(masked, "fpfh-masked", probe)
                 tic = clock("ransac", tic)
-        # Every hypothesis scored on the same kept points.
+        # Every hypothesis through a short ICP at hypothesis resolution (the
+        # correspondence poses against the whole template, the rotations against the
+        # masked part), then scored on the same kept points.
         points = _subsample(kept_source, options.hypothesis_points * 2)
-        scored[:] = [Scored(*pose_fit(tree, points, s.pose, limit), s.pose, s.kind) for s in scored]
+        src_small = _subsample(kept_source, options.hypothesis_points)
+        whole_small = _subsample(template, options.hypothesis_points)
+        if scored:
+            poses = icp_from_starts(
+                KDTree(whole_small),
+                whole_small,
+                src_small,
+                np.stack([s.pose for s in scored]),
+                options.max_iterations,
+            )
+            # Both as found and after the short ICP: on a large scene the ICP at
+            # hypothesis resolution can move a good pose off.
+            both = np.concatenate([np.stack([s.pose for s in scored]), poses])
+            kinds = [s.kind for s in scored] * 2
+            fits = pose_fits(tree, points, both, limit)
+            scored[:] = [Scored(*f, p, k) for f, p, k in zip(fits, both, kinds, strict=True)]
+        # The clouds as they are: consecutive scans often start close.
+        as_given = icp_from_starts(
+            KDTree(whole_small), whole_small, src_small, np.eye(4)[None], options.max_iterations
+        )
+        both = np.concatenate([np.eye(4)[None], as_given])
+        fits = pose_fits(tree, points, both, limit)
+        scored.extend(Scored(*f, p, "as given") for f, p in zip(fits, both, strict=True))
         target = template if mask is None or mask.sum() < 3 else template[mask]
         target_small = _subsample(target, options.hypothesis_points)
-        small_tree = KDTree(target_small)
-        src_small = _subsample(kept_source, options.hypothesis_points)
         src_centre, tgt_centre = src_small.mean(0), target.mean(0)
         rotations = hypothesis_rotations(24)[: options.hypotheses]
         if len(rotations):
@@ -253,11 +312,10 @@ def coarse_to_fine(
             starts[:, :3, :3] = rotations
             starts[:, :3, 3] = tgt_centre - rotations @ src_centre
             poses = icp_from_starts(
-                small_tree, target_small, src_small, starts, options.max_iterations
+                KDTree(target_small), target_small, src_small, starts, options.max_iterations
             )
-            scored.extend(
-                Scored(*pose_fit(tree, points, pose, limit), pose, "rotation") for pose in poses
-            )
+            fits = pose_fits(tree, points, poses, limit)
+            scored.extend(Scored(*f, p, "rotation") for f, p in zip(fits, poses, strict=True))
         tic = clock("hypotheses", tic)
         # 3. The best few, refined with the pair cut-off, rescored on all kept points.
         scored.sort(key=_rank, reverse=True)
@@ -271,19 +329,25 @@ def coarse_to_fine(
     rival = next(
         (f for f in finals[1:] if _rotation_deg(f.pose, winner.pose) >= options.distinct_deg), None
     )
-    ambiguous = rival is not None and rival.fitness >= winner.fitness - options.ambiguity_margin
+    ambiguous = rival is not None and rival.score >= winner.score - options.ambiguity_margin
     transform = winner.pose
     if mask is not None:  # the template points the moved kept source covers
         moved = kept_source @ transform[:3, :3].T + transform[:3, 3]
         mask = KDTree(moved).query(template, k=1)[0] <= limit
+    if source_mask is not None and len(source) < len(full_source):
+        # Each point of the whole source takes the label of its nearest subset point.
+        _, nearest = KDTree(source).query(full_source, k=1)
+        source_mask = source_mask[nearest.astype(np.int64)]
     info = {
         "path": "correspondences" if early is not None else "search",
         "source": winner.kind,
         "fitness": winner.fitness,
         "inlier_rmse": winner.rmse,
+        "score": winner.score,
         "ambiguous": bool(ambiguous),
         "runner_up": None if rival is None else rival.pose,
         "runner_up_fitness": float("nan") if rival is None else rival.fitness,
+        "runner_up_score": float("nan") if rival is None else rival.score,
         "hypotheses": len(scored),
         "support": support[0] if support else 0.0,
     }
@@ -291,17 +355,18 @@ def coarse_to_fine(
 
 
 class Scored(NamedTuple):
-    """A hypothesis: its fitness and inlier RMSE, pose (4, 4), and where it came from."""
+    """A hypothesis: its fit (:class:`PoseFit`), pose (4, 4), and where it came from."""
 
     fitness: float
     rmse: float
+    score: float
     pose: np.ndarray
     kind: str
 
 
-def _rank(entry: Scored) -> tuple[float, float]:
-    """Higher fitness first, then lower RMSE."""
-    return entry.fitness, -entry.rmse
+def _rank(entry: Scored) -> tuple[float, float, float]:
+    """Higher score first, then fitness, then lower RMSE."""
+    return entry.score, entry.fitness, -entry.rmse
 
 
 def _has_open3d() -> bool:

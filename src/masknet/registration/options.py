@@ -64,6 +64,8 @@ class RobustOptions(NamedTuple):
     candidates: best-scoring distinct hypotheses refined at full resolution.
     inlier_iterations: ICP iterations of that refinement.
     inlier_distance: its pair cut-off, in template spacings.
+    fine_points: source points (a seeded random subset of larger clouds) in the fit and
+        the ICP refinement; the features see every point.
     distinct_deg: poses at least this far apart are different answers.
     ambiguity_margin: a different answer whose fitness is within this of the best makes
         the result ``ambiguous``.
@@ -74,18 +76,21 @@ class RobustOptions(NamedTuple):
     correspondence_hypotheses: int = 8
     accept_fitness: float = 0.99
     hypotheses: int = 24
-    hypothesis_points: int = 256
-    max_iterations: int = 10
+    hypothesis_points: int = 128
+    max_iterations: int = 8
     candidates: int = 3
-    inlier_iterations: int = 30
-    inlier_distance: float = 3.0
+    inlier_iterations: int = 60
+    inlier_distance: float = 1.5
+    fine_points: int = 4096
     distinct_deg: float = 10.0
     ambiguity_margin: float = 0.02
 
     def check(self) -> None:
         """Raise MaskNetError for an option out of range."""
-        if self.feature_points < 16 or self.hypothesis_points < 16:
-            raise MaskNetError("robust: feature_points and hypothesis_points must be >= 16")
+        if min(self.feature_points, self.hypothesis_points, self.fine_points) < 16:
+            raise MaskNetError(
+                "robust: feature_points, hypothesis_points and fine_points must be >= 16"
+            )
         if self.ransac_trials < 1 or self.correspondence_hypotheses < 0:
             raise MaskNetError("robust: ransac_trials >= 1, correspondence_hypotheses >= 0")
         if not 0 <= self.hypotheses <= 24:

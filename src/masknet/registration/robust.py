@@ -17,14 +17,17 @@ from typing import NamedTuple
 
 import numpy as np
 import torch
+from pykdtree.kdtree import KDTree
 
 from masknet.geometry.knn import knn_points
+from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
-from masknet.registration.coarse import coarse_to_fine, hypothesis_rotations
+from masknet.registration.coarse import MaskFunction, coarse_to_fine, hypothesis_rotations
 from masknet.registration.options import RobustOptions
 
 __all__ = [
     "hypothesis_rotations",
+    "network_masks",
     "robust_register",
     "trimmed_fit",
     "trimmed_mean",
@@ -78,22 +81,51 @@ def trimmed_fit(query: np.ndarray, reference: np.ndarray, trim: float) -> np.nda
     return trimmed_mean(d2.numpy(), trim)
 
 
+def network_masks(
+    model: MaskNet | TwoSidedMaskNet,
+    template_net: np.ndarray,
+    source_net: np.ndarray,
+    precision: str = "auto",
+) -> MaskFunction:
+    """A mask function for :func:`~masknet.registration.coarse.coarse_to_fine`: the
+    network runs once on the clouds sampled to its size, template_net (n, 3) and
+    source_net (m, 3), and every point of the clouds it is asked about takes the label of
+    its nearest sampled point. A one-sided MaskNet keeps every source point."""
+
+    def predict(template: np.ndarray, source: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        if isinstance(model, TwoSidedMaskNet):
+            t_mask, s_mask = model.predict_masks(template_net, source_net, precision=precision)
+        else:
+            t_mask = model.predict_mask(template_net, source_net, precision=precision)
+            s_mask = np.ones(len(source_net), bool)
+        t_near = KDTree(template_net).query(template, k=1)[1].astype(np.int64)
+        s_near = KDTree(source_net).query(source, k=1)[1].astype(np.int64)
+        return t_mask[t_near], s_mask[s_near]
+
+    return predict
+
+
 def robust_register(
     template: np.ndarray,
     source: np.ndarray,
-    model: TwoSidedMaskNet | None,
+    template_net: np.ndarray,
+    source_net: np.ndarray,
+    model: MaskNet | TwoSidedMaskNet | None,
     options: RobustOptions,
     times: dict[str, float],
     precision: str = "auto",
 ) -> RobustRun:
     """The coarse-to-fine pipeline for template (B, N, 3) and source (B, M, 3), float64,
-    one pair at a time; ``model`` None searches without masks. Stage times are summed
-    into ``times``."""
+    one pair at a time, at full resolution; the network (``model``, None: no masks) sees
+    template_net (B, n, 3) and source_net (B, m, 3), the clouds sampled to its size.
+    Masks are over the full clouds. Stage times are summed into ``times``."""
     options.check()
-    runs = [
-        coarse_to_fine(template[b], source[b], model, options, times, precision)
-        for b in range(template.shape[0])
-    ]
+    runs = []
+    for b in range(template.shape[0]):
+        masks = None
+        if model is not None:
+            masks = network_masks(model, template_net[b], source_net[b], precision)
+        runs.append(coarse_to_fine(template[b], source[b], masks, options, times))
     masks = [r.mask for r in runs]
     source_masks = [r.source_mask for r in runs]
     info: dict[str, np.ndarray] = {
@@ -105,6 +137,8 @@ def robust_register(
             "inlier_rmse",
             "ambiguous",
             "runner_up_fitness",
+            "score",
+            "runner_up_score",
             "hypotheses",
         )
     }
