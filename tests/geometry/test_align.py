@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from scipy.spatial.transform import Rotation
 
 from masknet.geometry import (
     centroid,
@@ -13,6 +14,7 @@ from masknet.geometry import (
     rigid_align,
     transform_points,
 )
+from masknet.geometry.align import rigid_transform_numpy, rigid_transforms_numpy
 from masknet.geometry.se3 import make_transform, so3_exp
 
 
@@ -136,3 +138,30 @@ def test_numpy_rigid_transform_matches_rigid_align_and_never_reflects():
     np.testing.assert_allclose(transform[:3, 3], trans[0].numpy(), atol=1e-10)
     mirrored = source * [1, 1, -1]  # the best orthogonal map is a reflection
     assert np.linalg.det(rigid_transform_numpy(source, mirrored)[:3, :3]) > 0
+
+
+def test_batched_solve_equals_the_single_solve_and_recovers_the_motion():
+    rng = np.random.default_rng(0)
+    source = rng.normal(size=(5, 40, 3))
+    rot = Rotation.random(5, random_state=1).as_matrix()
+    target = source @ rot.transpose(0, 2, 1) + rng.normal(size=(5, 1, 3))
+    batched = rigid_transforms_numpy(source, target)
+    for b in range(5):
+        np.testing.assert_allclose(
+            batched[b], rigid_transform_numpy(source[b], target[b]), atol=1e-10
+        )
+        np.testing.assert_allclose(batched[b, :3, :3], rot[b], atol=1e-10)
+
+
+def test_weights_drop_rows_and_no_weight_gives_the_identity():
+    rng = np.random.default_rng(2)
+    source = rng.normal(size=(2, 30, 3))
+    rot = Rotation.from_euler("z", 40, degrees=True).as_matrix()
+    target = source @ rot.T
+    target[0, :10] += 5.0  # outliers, weighted out
+    weights = np.ones((2, 30))
+    weights[0, :10] = 0
+    weights[1] = 0
+    out = rigid_transforms_numpy(source, target, weights)
+    np.testing.assert_allclose(out[0, :3, :3], rot, atol=1e-10)
+    np.testing.assert_allclose(out[1], np.eye(4), atol=1e-12)

@@ -56,11 +56,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--method",
         choices=list(METHODS),
-        default="icp",
-        help="icp (default); robust: two-sided Mask-ICP from 24 rotation hypotheses, "
-        "scored and refined (any rotation, outliers; about 20x slower); a learned network "
-        "(pointnetlk, dcp, prnet, pcrnet, rpmnet; shipped weights unless --network-weights); "
-        "or Open3D's icp / RANSAC / FGR on FPFH",
+        default=None,
+        help="auto (the default; icp when --iterations, --refine, --init identity or "
+        "--max-iterations is given): one round of Mask-ICP, its fit checked, and robust "
+        "where the fit says it may be wrong; robust: the coarse-to-fine pipeline (FPFH "
+        "correspondence hypotheses, then the two-sided mask and rotation hypotheses; any "
+        "rotation, outliers); icp: the paper's Mask-ICP; a learned network (pointnetlk, dcp, "
+        "prnet, pcrnet, rpmnet; shipped weights unless --network-weights); or Open3D's icp / "
+        "RANSAC / FGR on FPFH",
     )
     p.add_argument(
         "--network-weights",
@@ -200,8 +203,12 @@ def run(args: argparse.Namespace) -> None:
         )
     if args.two_sided and args.no_mask:
         raise MaskNetError("--two-sided and --no-mask exclude each other")
-    if args.method == "robust" and not args.no_mask:
-        args.two_sided = True  # the robust pipeline's default mask
+    from masknet.registration.methods import default_method
+
+    given = {"max_iterations": args.max_iterations} if args.max_iterations is not None else {}
+    args.method = default_method(
+        args.method, args.iterations, refine_iterations=args.refine, init=args.init, options=given
+    )
     # Nothing named: register() picks the shipped default itself (the paper's MaskNet for
     # one round, the two-sided network for a loop).
     named = args.two_sided or args.weights or args.pretrained
@@ -302,9 +309,9 @@ def run(args: argparse.Namespace) -> None:
         f"rotation {angle:.2f} deg, translation {np.linalg.norm(result.t):.4g} "
         f"(input units); {1e3 * result.times['total']:.1f} ms"
     )
-    print(
-        "reported: " + ", ".join(f"{k} {np.asarray(v).item():.4g}" for k, v in result.info.items())
-    )
+    report_path(result.info, result.R)
+    numbers = {k: v for k, v in result.info.items() if np.ndim(v) == 0 and _is_number(v)}
+    print("reported: " + ", ".join(f"{k} {np.asarray(v).item():.4g}" for k, v in numbers.items()))
     on_object = source if result.source_mask is None else source[result.source_mask]
     quality = evaluate_registration(template, on_object, result.transform)
     print(
@@ -330,3 +337,36 @@ def run(args: argparse.Namespace) -> None:
     print(f"wrote {', '.join(str(p) for p, _ in writers)}")
     if removed:
         print(f"removed {', '.join(map(str, removed))} (an earlier run's; this run wrote none)")
+
+
+def _is_number(value: object) -> bool:
+    return np.issubdtype(np.asarray(value).dtype, np.number) or np.asarray(value).dtype == bool
+
+
+def report_path(info: dict, rotation: np.ndarray) -> None:
+    """Say which path of ``auto`` / ``robust`` ran and why, and warn of an ambiguous answer
+    (``rotation``: the result's (3, 3))."""
+    if "path" not in info:
+        return
+    path = str(info["path"])
+    escalated = float(info.get("escalated_fitness", np.nan))
+    if path == "fast" and np.isnan(escalated):
+        why = "the fit of Mask-ICP passed"
+    elif path == "fast":
+        why = f"escalated (fit {escalated:.3f}), but the fast path's pose fitted best"
+    elif np.isfinite(escalated):
+        why = f"escalated: the fit of Mask-ICP was {escalated:.3f}"
+    else:
+        why = "method robust"
+    print(f"path: {path} ({why}); best hypothesis from {info['source']}")
+    if bool(info.get("ambiguous", False)):
+        runner = np.asarray(info["runner_up"])
+        cos = (np.trace(runner[:3, :3].T @ rotation) - 1) / 2
+        print(
+            "masknet: warning: the answer is ambiguous: another pose fits as well (score "
+            f"{float(info['runner_up_score']):.3f} against {float(info['score']):.3f}; its "
+            f"rotation is {np.degrees(np.arccos(np.clip(cos, -1, 1))):.1f} deg from this one); the "
+            "shape "
+            "may be symmetric",
+            file=sys.stderr,
+        )

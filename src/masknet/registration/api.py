@@ -43,9 +43,8 @@ from masknet.registration.methods import (
     METHOD_TITLES,
     METHODS,
     NETWORK_METHODS,
-    OPTIONS,
     PIPELINES,
-    resolve_method,
+    default_method,
 )
 from masknet.registration.options import (
     ICPCriteria,
@@ -309,17 +308,9 @@ def register(
             ``"open3d-icp"``) no Open3D.
     """
     start = time.perf_counter()
-    method = resolve_method(
-        method,
-        {
-            "iterations": iterations != 1,
-            "k": k is not None,
-            "threshold": threshold is not None,
-            "refine_iterations": refine_iterations != 0,
-            "init": init != "centroid",
-            "icp options": any(key in OPTIONS["icp"] for key in options),
-            "typed": any(x is not None for x in (criteria, selection, rounds)),
-        },
+    typed = any(x is not None for x in (criteria, selection, rounds))
+    method = default_method(
+        method, iterations, k, threshold, refine_iterations, init, options, typed
     )
     if any(x is not None for x in (criteria, selection, rounds, robust)):
         given = {"iterations": iterations, "refine_iterations": refine_iterations}

@@ -133,6 +133,25 @@ def _one(
     )
     if run.info["score"][0] < fit.score:  # the fast path's pose fits better after all
         info = _info("fast", fit, fit.fitness)
+        # The search's answers that fit as well and lie elsewhere make this one ambiguous.
+        others = [(run.transform[0], run.info["fitness"][0], run.info["score"][0])]
+        if np.isfinite(run.info["runner_up"][0]).all():
+            others.append(
+                (
+                    run.info["runner_up"][0],
+                    run.info["runner_up_fitness"][0],
+                    run.info["runner_up_score"][0],
+                )
+            )
+        for other, other_fitness, other_score in others:
+            cos = (np.trace(other[:3, :3].T @ transform[:3, :3]) - 1) / 2
+            apart = np.degrees(np.arccos(np.clip(cos, -1, 1))) >= options.distinct_deg
+            if apart and other_score >= fit.score - options.ambiguity_margin:
+                info["ambiguous"] = np.array([True])
+                info["runner_up"] = other[None].copy()
+                info["runner_up_fitness"] = np.array([other_fitness])
+                info["runner_up_score"] = np.array([other_score])
+                break
         return RobustRun(transform[None], run.mask, run.source_mask, info)
     info = dict(run.info)
     info["path"] = np.array([f"robust/{run.info['path'][0]}"])

@@ -48,6 +48,7 @@ from pykdtree.kdtree import KDTree
 from scipy.spatial.transform import Rotation
 
 from masknet.registration.correspondences import (
+    FeatureCloud,
     feature_cloud,
     mutual_matches,
     ransac_poses,
@@ -73,6 +74,7 @@ SURFACE_SPACINGS = 2.0
 # The refinement's ICP stops once its mean squared error changes by less than this
 # fraction: finer steps move a pose by far less than its error.
 REFINE_TOLERANCE = 1e-5
+REFINE_CUTOFFS = (1.0,)
 
 
 class CoarseRun(NamedTuple):
@@ -126,15 +128,18 @@ def hypothesis_rotations(count: int) -> np.ndarray:
 
 class PoseFit(NamedTuple):
     """fitness: fraction of points within the distance. rmse: their RMS distance.
-    score: the mean of the fractions within 1, 2 and 4 times the distance: a flat
-    surface that slides (a floor, a wall) fits a wrong pose at one radius, seldom at all."""
+    score: 1 - the mean of the squared distances capped at 3 times the distance, over that
+    cap squared (a truncated least-squares fit, as TEASER++ scores): 1 for a perfect fit,
+    0 when no point is near. Unlike a count within one radius it still ranks poses whose
+    points all fall within it (sparse clouds sampled apart), and a sliding surface (a
+    floor, a wall) that fits a wrong pose at one radius seldom fits at all."""
 
     fitness: float
     rmse: float
     score: float
 
 
-SCORE_SCALES = (1.0, 2.0, 4.0)
+SCORE_TRUNCATION = 3.0  # the score's cap, in units of the inlier distance
 
 
 def pose_fit(tree: KDTree, points: np.ndarray, transform: np.ndarray, limit: float) -> PoseFit:
@@ -153,7 +158,10 @@ def pose_fits(tree: KDTree, points: np.ndarray, transforms: np.ndarray, limit: f
     inlier = d2 <= limit**2
     count = inlier.sum(1)
     rmse = np.sqrt(np.where(inlier, d2, 0.0).sum(1) / np.maximum(count, 1))
-    score = np.mean([(d2 <= (k * limit) ** 2).mean(1) for k in SCORE_SCALES], axis=0)
+    # Truncated least squares: each point's squared distance, capped, so that points with
+    # no counterpart (outliers, the part the other cloud does not see) weigh alike.
+    cap = (SCORE_TRUNCATION * limit) ** 2
+    score = 1.0 - np.minimum(d2, cap).mean(1) / cap
     return [
         PoseFit(c / p, float(r), float(sc)) for c, r, sc in zip(count, rmse, score, strict=True)
     ]
@@ -209,35 +217,32 @@ def coarse_to_fine(
     support: list[float] = []  # share of the matches the best pose of each RANSAC explains
 
     def refine(pose: np.ndarray, points: np.ndarray, kind: str) -> Scored:
-        """ICP with the pair cut-off from ``pose``, scored on ``points``."""
-        sol = icp_single(
-            template,
-            points,
-            pose,
-            options.inlier_iterations,
-            REFINE_TOLERANCE,
-            max_correspondence_distance=options.inlier_distance * spacing,
-            template_tree=tree,
-        )
-        tf = sol.transform[0].numpy()
+        """ICP from ``pose`` with the pair cut-off at twice ``inlier_distance``, then at
+        it (a close cut-off alone stalls where the clouds were sampled apart), scored on
+        ``points``."""
+        tf = pose
+        for factor in REFINE_CUTOFFS:
+            sol = icp_single(
+                template,
+                points,
+                tf,
+                options.inlier_iterations,
+                REFINE_TOLERANCE,
+                max_correspondence_distance=factor * options.inlier_distance * spacing,
+                template_tree=tree,
+            )
+            tf = sol.transform[0].numpy()
         return Scored(*pose_fit(tree, points, tf, limit), tf, kind)
 
-    # 1. Correspondence hypotheses, scored as RANSAC left them; the best one refined.
-    features = None
-    if _has_open3d():
-        # A larger template gets a finer grid: features of a room at an object's
-        # resolution would see walls and little else.
-        count = options.feature_points * float(np.clip(np.sqrt(len(template) / 1024), 1, 8))
-        voxel = max(voxel_for(template, int(count), radius), spacing)
-        features = (feature_cloud(full_source, voxel), feature_cloud(template, voxel))
-        matches = mutual_matches(features[0].features, features[1].features)
-    tic = clock("features", tic)
+    # 1. Correspondence hypotheses at each grid, fine first, scored as RANSAC left them;
+    # the best two refined, and the search ends at the first grid whose best fits.
+    grids: list[tuple[FeatureCloud, FeatureCloud, np.ndarray]] = []  # source, template, matches
 
-    def correspondence_poses(pairs: np.ndarray, kind: str, points: np.ndarray) -> None:
+    def correspondence_poses(grid: tuple, pairs: np.ndarray, kind: str, points: np.ndarray):
         found = ransac_poses(
-            features[0].points[pairs[:, 0]],
-            features[1].points[pairs[:, 1]],
-            1.5 * features[0].voxel,
+            grid[0].points[pairs[:, 0]],
+            grid[1].points[pairs[:, 1]],
+            1.5 * grid[0].voxel,
             trials=options.ransac_trials,
             keep=options.correspondence_hypotheses,
         )
@@ -247,16 +252,31 @@ def coarse_to_fine(
 
     early: list[Scored] | None = None
     kept_source = source[surface]
-    if features is not None and options.correspondence_hypotheses:
-        correspondence_poses(matches, "fpfh", probe)
-        if scored:
-            # The two best distinct poses, refined: a symmetric shape's flip can lead
-            # RANSAC's ranking, and a close second makes the answer ambiguous.
-            tops = _distinct(sorted(scored, key=_rank, reverse=True), 2, limit)
-            early = [refine(s.pose, kept_source, "fpfh") for s in tops]
-            if max(f.fitness for f in early) < options.accept_fitness:
-                early = None
-        tic = clock("ransac", tic)
+    if _has_open3d() and options.correspondence_hypotheses:
+        # A larger template gets finer grids: features of a room at an object's
+        # resolution would see walls and little else.
+        growth = float(np.clip(np.sqrt(len(template) / 1024), 1, 8))
+        voxels = [
+            max(voxel_for(template, int(count * growth), radius), spacing)
+            for count in options.feature_points
+        ]
+        for voxel in dict.fromkeys(voxels):  # two grids may come out alike on small clouds
+            grid_s, grid_t = feature_cloud(full_source, voxel), feature_cloud(template, voxel)
+            grid = (grid_s, grid_t, mutual_matches(grid_s.features, grid_t.features))
+            grids.append(grid)
+            tic = clock("features", tic)
+            before = len(scored)
+            correspondence_poses(grid, grid[2], "fpfh", probe)
+            if len(scored) > before:
+                # The two best distinct poses, refined: a symmetric shape's flip can lead
+                # RANSAC's ranking, and a close second makes the answer ambiguous.
+                tops = _distinct(sorted(scored, key=_rank, reverse=True), 2, limit)
+                refined = [refine(s.pose, kept_source, "fpfh") for s in tops]
+                if max(f.fitness for f in refined) >= options.accept_fitness:
+                    early = refined
+            tic = clock("ransac", tic)
+            if early is not None:
+                break
     mask = source_mask = None
     if early is not None:
         finals = early
@@ -269,12 +289,12 @@ def coarse_to_fine(
             else:
                 source_mask = np.ones(len(source), bool)
             tic = clock("mask", tic)
-            if features is not None and options.correspondence_hypotheses:
-                keep_s = _voxel_labels(features[0].points, source, source_mask)
-                keep_t = _voxel_labels(features[1].points, template, mask)
-                masked = matches[keep_s[matches[:, 0]] & keep_t[matches[:, 1]]]
+            for grid in grids:  # the matches that touch no rejected point, again
+                keep_s = _voxel_labels(grid[0].points, source, source_mask)
+                keep_t = _voxel_labels(grid[1].points, template, mask)
+                masked = grid[2][keep_s[grid[2][:, 0]] & keep_t[grid[2][:, 1]]]
                 if len(masked) >= 3:
-                    correspondence_poses(masked, "fpfh-masked", probe)
+                    correspondence_poses(grid, masked, "fpfh-masked", probe)
                 tic = clock("ransac", tic)
         # Every hypothesis through a short ICP at hypothesis resolution (the
         # correspondence poses against the whole template, the rotations against the
@@ -325,9 +345,18 @@ def coarse_to_fine(
     if not finals:  # no hypothesis at all (too few points for features): the identity
         finals = [Scored(*pose_fit(tree, kept_source, np.eye(4), limit), np.eye(4), "identity")]
     finals.sort(key=_rank, reverse=True)
-    winner = finals[0]
+    # Among answers that fit alike (within the margin), the least rotation from the pose
+    # as given wins: the data cannot choose, and the input is the only other evidence. The
+    # result says so (ambiguous, with the runner-up).
+    alike = [f for f in finals if f.score >= finals[0].score - options.ambiguity_margin]
+    winner = min(alike, key=lambda f: _rotation_deg(f.pose, np.eye(4)))
     rival = next(
-        (f for f in finals[1:] if _rotation_deg(f.pose, winner.pose) >= options.distinct_deg), None
+        (
+            f
+            for f in finals
+            if f is not winner and _rotation_deg(f.pose, winner.pose) >= options.distinct_deg
+        ),
+        None,
     )
     ambiguous = rival is not None and rival.score >= winner.score - options.ambiguity_margin
     transform = winner.pose

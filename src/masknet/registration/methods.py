@@ -15,6 +15,7 @@ __all__ = [
     "NETWORK_METHODS",
     "OPTIONS",
     "PIPELINES",
+    "default_method",
     "resolve_method",
 ]
 
@@ -43,6 +44,32 @@ DEFAULT_ITERATIONS = {
 INITS = ("centroid", "identity")
 # Methods that run the coarse-to-fine pipeline and ignore the round options.
 PIPELINES = ("auto", "robust")
+
+
+def default_method(
+    method: str | None,
+    iterations: int = 1,
+    k: int | None = None,
+    threshold: float | None = None,
+    refine_iterations: int = 0,
+    init: str = "centroid",
+    options: dict | None = None,
+    typed: bool = False,
+) -> str:
+    """:func:`resolve_method` from register's own arguments (``typed``: an ICPCriteria,
+    Selection or Rounds was given); the command line calls it too."""
+    return resolve_method(
+        method,
+        {
+            "iterations": iterations != 1,
+            "k": k is not None,
+            "threshold": threshold is not None,
+            "refine_iterations": refine_iterations != 0,
+            "init": init != "centroid",
+            "icp options": any(key in OPTIONS["icp"] for key in options or {}),
+            "typed": typed,
+        },
+    )
 
 
 def resolve_method(method: str | None, round_options: dict) -> str:

@@ -51,8 +51,10 @@ class RobustOptions(NamedTuple):
     """The options of ``method="robust"`` (``register(..., method="robust", **options)``),
     the coarse-to-fine pipeline of :mod:`masknet.registration.coarse`.
 
-    feature_points: template points left by the FPFH voxel grid (it sets the voxel, so the
-        unit does not matter).
+    feature_points: template points left by each FPFH voxel grid, finest first (the counts
+        set the voxels, so the unit does not matter; a template of N > 1,024 points gets
+        sqrt(N / 1,024) times as many, at most 8 times). A fine grid matches shared points
+        exactly; a coarse one is steadier where the clouds were sampled apart.
     ransac_trials: minimal samples of 3 matches per RANSAC run.
     correspondence_hypotheses: distinct poses each RANSAC run returns.
     accept_fitness: stop after the correspondence hypotheses when the best one's fitness
@@ -71,7 +73,7 @@ class RobustOptions(NamedTuple):
         the result ``ambiguous``.
     """
 
-    feature_points: int = 300
+    feature_points: tuple[int, ...] = (1000, 300)
     ransac_trials: int = 3000
     correspondence_hypotheses: int = 8
     accept_fitness: float = 0.99
@@ -87,7 +89,8 @@ class RobustOptions(NamedTuple):
 
     def check(self) -> None:
         """Raise MaskNetError for an option out of range."""
-        if min(self.feature_points, self.hypothesis_points, self.fine_points) < 16:
+        grids = tuple(self.feature_points)
+        if not grids or min(*grids, self.hypothesis_points, self.fine_points) < 16:
             raise MaskNetError(
                 "robust: feature_points, hypothesis_points and fine_points must be >= 16"
             )

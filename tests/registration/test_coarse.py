@@ -1,0 +1,50 @@
+"""masknet.registration.coarse: the pieces of the pipeline, and ICP from many starts."""
+
+from __future__ import annotations
+
+import numpy as np
+from pykdtree.kdtree import KDTree
+from scipy.spatial.transform import Rotation
+
+from masknet.registration.coarse import isolated_free, nonzero_spacing, pose_fit, pose_fits
+from masknet.registration.icp_tree import icp_from_starts, icp_single
+
+
+def test_spacing_ignores_exact_duplicates():
+    grid = np.stack(np.meshgrid(*[np.arange(10.0)] * 2, [0.0]), -1).reshape(-1, 3) * 0.5
+    doubled = np.concatenate([grid, grid])  # every point twice, as merged scans have
+    assert nonzero_spacing(KDTree(doubled), doubled) == 0.5
+
+
+def test_isolated_points_are_found_and_a_sparse_cloud_keeps_all():
+    rng = np.random.default_rng(0)
+    surface = np.c_[rng.uniform(0, 1, (500, 2)), np.zeros(500)]
+    stray = rng.uniform(5, 9, (20, 3))
+    keep = isolated_free(np.concatenate([surface, stray]), 0.2)
+    assert keep[:500].all() and not keep[500:].any()
+    assert isolated_free(rng.uniform(0, 100, (50, 3)), 0.01).all()
+
+
+def test_fit_counts_points_within_the_distance_and_batched_agrees():
+    template = np.c_[np.arange(10.0), np.zeros((10, 2))]
+    source = template[:4] + [0, 0.05, 0]
+    far = np.eye(4)
+    far[:3, 3] = [0, 1.0, 0]
+    fit = pose_fit(KDTree(template), source, np.eye(4), 0.1)
+    assert fit.fitness == 1.0 and abs(fit.rmse - 0.05) < 1e-12
+    fits = pose_fits(KDTree(template), source, np.stack([np.eye(4), far]), 0.1)
+    assert fits[0] == fit and fits[1].fitness == 0.0 and fits[1].score < fits[0].score
+
+
+def test_icp_from_starts_equals_one_icp_per_start():
+    rng = np.random.default_rng(1)
+    template = rng.normal(size=(300, 3)) * [3, 2, 1]
+    rot = Rotation.from_euler("xyz", [10, -20, 15], degrees=True).as_matrix()
+    source = (template[:200] - [0.2, 0.1, 0]) @ rot
+    starts = np.tile(np.eye(4), (3, 1, 1))
+    starts[1, :3, :3] = Rotation.from_euler("z", 30, degrees=True).as_matrix()
+    starts[2, :3, :3] = Rotation.from_euler("x", 150, degrees=True).as_matrix()
+    batched = icp_from_starts(KDTree(template), template, source, starts, 20)
+    for h in range(3):
+        one = icp_single(template, source, starts[h], 20, tolerance=0.0).transform[0].numpy()
+        np.testing.assert_allclose(batched[h], one, atol=1e-8)

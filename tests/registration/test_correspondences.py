@@ -1,0 +1,71 @@
+"""masknet.registration.correspondences and the batched solvers it uses."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from masknet.data import bundled_sample_path, load_modelnet40
+from masknet.evaluation.registration import pose_errors
+from masknet.registration.correspondences import (
+    feature_cloud,
+    mutual_matches,
+    ransac_poses,
+    voxel_for,
+)
+
+
+def _pose(degrees: float, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    out = np.eye(4)
+    out[:3, :3] = Rotation.from_rotvec(np.radians(degrees) * rng.normal(size=3) / 1.7).as_matrix()
+    out[:3, 3] = rng.normal(size=3)
+    return out
+
+
+def test_ransac_finds_the_pose_among_60_percent_wrong_matches():
+    rng = np.random.default_rng(0)
+    truth = _pose(120, 1)
+    source = rng.uniform(-1, 1, (200, 3))
+    template = source @ truth[:3, :3].T + truth[:3, 3]
+    wrong = rng.random(200) < 0.6
+    template[wrong] = rng.uniform(-2, 2, (int(wrong.sum()), 3))  # matches to nowhere
+    found = ransac_poses(source, template, threshold=0.01, trials=2000, keep=3)
+    rot, trans = pose_errors(found.transform[:1], truth[None])
+    assert rot[0] < 1e-6 and trans[0] < 1e-6
+    assert found.inliers[0] == int((~wrong).sum())  # exactly the right matches explain it
+    assert (np.diff(found.inliers) <= 0).all()
+
+
+def test_ransac_without_enough_matches_returns_nothing():
+    found = ransac_poses(np.zeros((2, 3)), np.zeros((2, 3)), 0.1)
+    assert found.transform.shape == (0, 4, 4) and found.inliers.shape == (0,)
+
+
+def test_mutual_matches_are_each_others_nearest():
+    features = np.eye(5)
+    shuffled = features[[3, 0, 4, 1, 2]] + 0.01
+    pairs = mutual_matches(features, shuffled)
+    assert sorted(map(tuple, pairs)) == [(0, 1), (1, 3), (2, 4), (3, 0), (4, 2)]
+
+
+@pytest.mark.parametrize("scale", [1.0, 1000.0])
+def test_voxel_follows_the_cloud_not_its_unit(scale):
+    shape = load_modelnet40(bundled_sample_path(), "test").points[0].astype(np.float64)
+    voxel = voxel_for(scale * shape, 300, scale * 1.0)
+    count = len(feature_cloud(scale * shape, voxel).points)
+    assert 200 <= count <= 400  # about the target
+    assert voxel == pytest.approx(scale * voxel_for(shape, 300, 1.0), rel=1e-6)
+
+
+def test_fpfh_of_a_moved_copy_matches_itself():
+    shape = load_modelnet40(bundled_sample_path(), "test").points[3].astype(np.float64)
+    truth = _pose(90, 2)
+    moved = (shape - truth[:3, 3]) @ truth[:3, :3]  # truth maps moved onto shape
+    voxel = voxel_for(shape, 1000, 1.0)  # about every point: copies get equal features
+    a, b = feature_cloud(moved, voxel), feature_cloud(shape, voxel)
+    pairs = mutual_matches(a.features, b.features)
+    found = ransac_poses(a.points[pairs[:, 0]], b.points[pairs[:, 1]], 1.5 * voxel, 3000, 1)
+    rot, _ = pose_errors(found.transform[:1], truth[None])
+    assert rot[0] < 1  # a coarse pose, which ICP then refines
