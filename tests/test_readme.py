@@ -53,8 +53,17 @@ def test_readme_python_example_runs(index, small_masknet, one_thread):
     if "result" in namespace:
         assert namespace["result"].transform.shape == (4, 4)
         assert np.isfinite(namespace["result"].transform).all()
-    if "quality" in namespace:  # a Mask-ICP result on a clean pair mostly lies on the template
-        assert 0.5 < namespace["quality"].fitness <= 1
+    if "paper" in namespace and "robust" in namespace:  # the registration block
+        from masknet.evaluation.registration import pose_errors
+
+        truth = pair.transform[0].double().numpy()[None]
+        for name in ("result", "robust"):
+            rot, trans = pose_errors(namespace[name].transform[None], truth)
+            assert rot[0] < 0.5 and trans[0] < 0.01, name  # a clean pair, rightly registered
+        assert str(namespace["result"].info["path"]) in ("fast", "robust/correspondences")
+        assert not namespace["result"].info["ambiguous"]
+    if "quality" in namespace:  # a correct result on a clean pair lies on the template
+        assert 0.95 < namespace["quality"].fitness <= 1
         assert namespace["quality"].inlier_rmse < namespace["quality"].max_distance
     if "covered" in namespace:  # the refined loop: three rounds, masks at the pose returned
         loop = namespace["result"]

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from masknet.errors import MaskNetError
-from masknet.geometry import MIN_POINTS, as_cloud_batch, unit_radius
+from masknet.geometry import MIN_POINTS, as_cloud_batch, median_spacing, unit_radius
 
 
 def test_unit_radius():
@@ -45,3 +45,10 @@ def test_as_cloud_batch_rejects_bad_clouds(template, source, match):
 def test_non_numeric_clouds_are_one_clear_error(bad):
     with pytest.raises(MaskNetError, match="template must hold numbers; got an array of dtype"):
         as_cloud_batch(bad, np.ones((10, 3)))
+
+
+def test_spacing_ignores_exact_duplicates():
+    grid = np.stack(np.meshgrid(*[np.arange(10.0)] * 2, [0.0]), -1).reshape(-1, 3) * 0.5
+    doubled = np.concatenate([grid, grid])  # every point twice, as merged scans have
+    assert median_spacing(doubled) == 0.5
+    assert median_spacing(np.zeros((5, 3))) == 0.0  # one repeated point

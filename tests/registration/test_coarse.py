@@ -6,14 +6,8 @@ import numpy as np
 from pykdtree.kdtree import KDTree
 from scipy.spatial.transform import Rotation
 
-from masknet.registration.coarse import isolated_free, nonzero_spacing, pose_fit, pose_fits
+from masknet.registration.coarse import isolated_free, pose_fit, pose_fits
 from masknet.registration.icp_tree import icp_from_starts, icp_single
-
-
-def test_spacing_ignores_exact_duplicates():
-    grid = np.stack(np.meshgrid(*[np.arange(10.0)] * 2, [0.0]), -1).reshape(-1, 3) * 0.5
-    doubled = np.concatenate([grid, grid])  # every point twice, as merged scans have
-    assert nonzero_spacing(KDTree(doubled), doubled) == 0.5
 
 
 def test_isolated_points_are_found_and_a_sparse_cloud_keeps_all():

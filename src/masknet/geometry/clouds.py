@@ -7,7 +7,6 @@ import torch
 from torch import Tensor
 
 from masknet.errors import MaskNetError
-from masknet.geometry.knn import knn_points
 
 __all__ = ["MIN_POINTS", "as_cloud_batch", "median_spacing", "unit_radius"]
 
@@ -56,8 +55,23 @@ def as_cloud_batch(template: np.ndarray, source: np.ndarray) -> tuple[Tensor, Te
     )
 
 
-def median_spacing(points: np.ndarray) -> float:
-    """Median distance from a point of ``points`` (P, 3) to its nearest neighbour, in
-    the cloud's units."""
-    cloud = torch.from_numpy(np.ascontiguousarray(points, dtype=np.float64))[None]
-    return float(knn_points(cloud, cloud, 2).dists[0, :, 1].sqrt().median())
+def median_spacing(
+    points: np.ndarray, tree: object | None = None, sample: int | None = None
+) -> float:
+    """Median distance from a point of ``points`` (P, 3) to its nearest *distinct*
+    neighbour, in the cloud's units. Exact duplicates (merged scans often hold every
+    point twice) say nothing of the spacing, so zero distances are skipped. ``tree``: a
+    pykdtree ``KDTree`` of ``points`` built by the caller; ``sample``: ask at most this
+    many points (a seeded random subset; None asks every point). A cloud of one repeated point has spacing 0."""
+    from pykdtree.kdtree import KDTree
+
+    cloud = np.ascontiguousarray(points, dtype=np.float64)
+    tree = KDTree(cloud) if tree is None else tree
+    queries = cloud
+    if sample is not None and len(cloud) > sample:
+        queries = cloud[np.random.default_rng(0).choice(len(cloud), sample, replace=False)]
+    k = min(len(cloud), 4)
+    d, _ = tree.query(queries, k=k)
+    d = np.asarray(d).reshape(len(queries), k)[:, 1:]
+    positive = d[d > 0]
+    return float(np.median(positive)) if len(positive) else 0.0

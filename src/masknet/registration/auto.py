@@ -24,6 +24,7 @@ import time
 import numpy as np
 from pykdtree.kdtree import KDTree
 
+from masknet.geometry.clouds import median_spacing
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
 from masknet.registration.coarse import (
@@ -32,7 +33,6 @@ from masknet.registration.coarse import (
     SURFACE_SPACINGS,
     PoseFit,
     isolated_free,
-    nonzero_spacing,
     pose_fit,
 )
 from masknet.registration.icp_tree import icp_single
@@ -96,7 +96,7 @@ def _one(
     fast = mask_and_register(*nets, "icp", model, 1, icp_options, times, precision=precision)
     tic = time.perf_counter()
     tree = KDTree(template)
-    spacing = nonzero_spacing(tree, _subsample(template, 4096))
+    spacing = median_spacing(template, tree, sample=4096) or 1.0
     fine = _subsample(source, options.fine_points)
     surface = isolated_free(fine, SURFACE_SPACINGS * spacing)
     source_mask = None

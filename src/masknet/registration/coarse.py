@@ -47,6 +47,7 @@ import numpy as np
 from pykdtree.kdtree import KDTree
 from scipy.spatial.transform import Rotation
 
+from masknet.geometry.clouds import median_spacing
 from masknet.registration.correspondences import (
     FeatureCloud,
     feature_cloud,
@@ -62,7 +63,6 @@ __all__ = [
     "coarse_to_fine",
     "hypothesis_rotations",
     "isolated_free",
-    "nonzero_spacing",
     "pose_fit",
 ]
 
@@ -90,17 +90,6 @@ class CoarseRun(NamedTuple):
     mask: np.ndarray | None
     source_mask: np.ndarray | None
     info: dict
-
-
-def nonzero_spacing(tree: KDTree, points: np.ndarray) -> float:
-    """Median distance from a point of ``points`` (P, 3) to its nearest *distinct*
-    neighbour in ``tree`` (a KD-tree of a cloud that holds them, or a subset of them):
-    exact duplicates (common in merged scans) say nothing of the spacing."""
-    k = min(len(points), 4)
-    d, _ = tree.query(points, k=k)
-    d = np.asarray(d).reshape(len(points), k)[:, 1:]
-    positive = d[d > 0]
-    return float(np.median(positive)) if len(positive) else 1.0
 
 
 def isolated_free(points: np.ndarray, radius: float) -> np.ndarray:
@@ -206,7 +195,7 @@ def coarse_to_fine(
 
     tic = time.perf_counter()
     tree = KDTree(template)
-    spacing = nonzero_spacing(tree, _subsample(template, 4096))
+    spacing = median_spacing(template, tree, sample=4096) or 1.0
     limit = FIT_SPACINGS * spacing
     radius = float(np.linalg.norm(template - template.mean(0), axis=1).max())
     # Isolated source points (uniform outliers, stray returns) would cap every pose's

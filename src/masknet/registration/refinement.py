@@ -30,6 +30,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from masknet.errors import MaskNetError
+from masknet.geometry.clouds import median_spacing
 
 __all__ = ["DEFAULT_REFINER", "REFINERS", "NearestNeighbourMasks", "Refiner", "resolve_refiner"]
 
@@ -45,12 +46,6 @@ class Refiner(Protocol):
     def predict_masks(
         self, template: np.ndarray, source: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]: ...
-
-
-def _nonzero_median(d: np.ndarray) -> float:
-    """Median of the positive entries of ``d`` (exact duplicates say nothing of spacing)."""
-    positive = d[d > 0]
-    return float(np.median(positive)) if len(positive) else 0.0
 
 
 class NearestNeighbourMasks:
@@ -87,7 +82,7 @@ class NearestNeighbourMasks:
         from pykdtree.kdtree import KDTree
 
         t_tree = KDTree(template)
-        t_spacing = _nonzero_median(t_tree.query(template, k=2)[0][:, 1])
+        t_spacing = median_spacing(template, t_tree)
         d_source = t_tree.query(source, k=1)[0]
         cut = max(self.source_spacings * t_spacing, self.source_median_factor * np.median(d_source))
         source_mask = d_source <= cut
