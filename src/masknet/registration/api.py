@@ -338,9 +338,11 @@ def register(
     if use_mask and method == "auto":
         search_model = model if isinstance(model, TwoSidedMaskNet) else _default_two_sided()
     if use_mask and model is None:
-        # One round is the paper's Mask-X (auto's fast path too). A loop starts from the
-        # two-sided network, which also rejects source outliers; its clean-pair cost after
-        # one round is recovered by the refined rounds (docs/RESULTS.md, masks per round).
+        # One round is the paper's Mask-X (auto's fast path too: with the two-sided
+        # network there, fewer clean pairs pass the check and it is slower; with it given
+        # as model=, the escalation reuses its masks). A loop starts from the two-sided
+        # network, which also rejects source outliers; its clean-pair cost after one round
+        # is recovered by the refined rounds (docs/RESULTS.md, masks per round).
         model = _default_two_sided() if looping else _default_model()
     refiner = resolve_refiner(refine_masks, model if use_mask and looping else None)
     if method in NETWORK_METHODS and options.get("network") is None:

@@ -128,8 +128,11 @@ def _one(
         return RobustRun(
             transform[None], mask, None if source_mask is None else source_mask[None], info
         )
+    known = None  # the fast path's network is the search's: its masks serve again
+    if search_model is not None and search_model is model and fast.mask is not None:
+        known = (fast.mask, fast.source_mask)
     run = robust_register(
-        template[None], source[None], *nets, search_model, options, times, precision
+        template[None], source[None], *nets, search_model, options, times, precision, known
     )
     if run.info["score"][0] < fit.score:  # the fast path's pose fits better after all
         info = _info("fast", fit, fit.fitness)

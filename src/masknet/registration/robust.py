@@ -82,18 +82,23 @@ def trimmed_fit(query: np.ndarray, reference: np.ndarray, trim: float) -> np.nda
 
 
 def network_masks(
-    model: MaskNet | TwoSidedMaskNet,
+    model: MaskNet | TwoSidedMaskNet | None,
     template_net: np.ndarray,
     source_net: np.ndarray,
     precision: str = "auto",
+    known: tuple[np.ndarray, np.ndarray | None] | None = None,
 ) -> MaskFunction:
     """A mask function for :func:`~masknet.registration.coarse.coarse_to_fine`: the
     network runs once on the clouds sampled to its size, template_net (n, 3) and
     source_net (m, 3), and every point of the clouds it is asked about takes the label of
-    its nearest sampled point. A one-sided MaskNet keeps every source point."""
+    its nearest sampled point. A one-sided MaskNet keeps every source point. ``known``:
+    the masks (n,) and (m,) (or None) of those clouds already predicted, reused instead."""
 
     def predict(template: np.ndarray, source: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        if isinstance(model, TwoSidedMaskNet):
+        if known is not None:
+            t_mask = known[0]
+            s_mask = np.ones(len(source_net), bool) if known[1] is None else known[1]
+        elif isinstance(model, TwoSidedMaskNet):
             t_mask, s_mask = model.predict_masks(template_net, source_net, precision=precision)
         else:
             t_mask = model.predict_mask(template_net, source_net, precision=precision)
@@ -114,17 +119,22 @@ def robust_register(
     options: RobustOptions,
     times: dict[str, float],
     precision: str = "auto",
+    known: tuple[np.ndarray, np.ndarray | None] | None = None,
 ) -> RobustRun:
     """The coarse-to-fine pipeline for template (B, N, 3) and source (B, M, 3), float64,
     one pair at a time, at full resolution; the network (``model``, None: no masks) sees
     template_net (B, n, 3) and source_net (B, m, 3), the clouds sampled to its size.
+    ``known``: its masks of those clouds, (B, n) and (B, m) or None, already predicted.
     Masks are over the full clouds. Stage times are summed into ``times``."""
     options.check()
     runs = []
     for b in range(template.shape[0]):
         masks = None
         if model is not None:
-            masks = network_masks(model, template_net[b], source_net[b], precision)
+            given = None
+            if known is not None:
+                given = (known[0][b], None if known[1] is None else known[1][b])
+            masks = network_masks(model, template_net[b], source_net[b], precision, given)
         runs.append(coarse_to_fine(template[b], source[b], masks, options, times))
     masks = [r.mask for r in runs]
     source_masks = [r.source_mask for r in runs]
