@@ -340,12 +340,16 @@ def run(args: argparse.Namespace) -> None:
 
 
 def _is_number(value: object) -> bool:
+    import numpy as np
+
     return np.issubdtype(np.asarray(value).dtype, np.number) or np.asarray(value).dtype == bool
 
 
 def report_path(info: dict, rotation: np.ndarray) -> None:
     """Say which path of ``auto`` / ``robust`` ran and why, and warn of an ambiguous answer
     (``rotation``: the result's (3, 3))."""
+    import numpy as np
+
     if "path" not in info:
         return
     path = str(info["path"])

@@ -79,7 +79,7 @@ REFINE_CUTOFFS = (1.0,)
 
 class CoarseRun(NamedTuple):
     """transform: (4, 4) source -> template. mask: (N,) bool template points within the
-    inlier distance of the moved kept source, or None. source_mask: (M,) bool source points
+    inlier distance of the moved kept source, or None without masks. source_mask: (M,) bool source points
     kept, or None without a two-sided network. info: ``path`` (``"correspondences"``: the
     early exit; ``"search"``: the learned side ran), ``source`` of the winning hypothesis
     (``"fpfh"``, ``"fpfh-masked"``, ``"rotation"``), ``fitness`` and ``inlier_rmse`` (the
@@ -349,7 +349,8 @@ def coarse_to_fine(
     )
     ambiguous = rival is not None and rival.score >= winner.score - options.ambiguity_margin
     transform = winner.pose
-    if mask is not None:  # the template points the moved kept source covers
+    if predict_masks is not None:  # the template points the moved kept source covers
+        # (also after an early exit, where the network never ran)
         moved = kept_source @ transform[:3, :3].T + transform[:3, 3]
         mask = KDTree(moved).query(template, k=1)[0] <= limit
     if source_mask is not None and len(source) < len(full_source):
