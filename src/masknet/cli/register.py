@@ -354,6 +354,9 @@ def report_path(info: dict, rotation: np.ndarray) -> None:
         return
     path = str(info["path"])
     escalated = float(info.get("escalated_fitness", np.nan))
+    if path == "scene search":
+        print("path: scene search (the template found in SOURCE, then Mask-ICP from there)")
+        return
     if path == "fast" and np.isnan(escalated):
         why = "the fit of Mask-ICP passed"
     elif path == "fast":

@@ -47,6 +47,8 @@ SCAN_PAIRS = [
 
 PIPELINES = SWEEP_PIPELINES | {
     "Mask-ICP + 30 ICP refine": {"method": "icp", "use_mask": True, "refine_iterations": 30},
+    "default (auto)": {},
+    "robust": {"method": "robust"},
 }
 
 

@@ -324,12 +324,13 @@ def register(
     )
     tpl_full, src_full, single = as_numpy_batch(template, source)
     found = _search_scene(tpl_full, src_full, single, scene)
+    auto_scene = False
     if found is not None:  # the method registers the object's points, from the pose found
         scene_source = src_full[0]
         src_full = apply_transform(found.transform[None], scene_source[found.source_mask][None])
         init = "identity"  # the search placed them: a centroid shift would undo that
         if method == "auto":  # the search is the global stage: Mask-ICP from its pose
-            method = "icp"
+            method, auto_scene = "icp", True
             options = {"max_iterations": options.get("max_iterations", DEFAULT_ITERATIONS["icp"])}
     if method not in GLOBAL_METHODS and method not in PIPELINES:
         options.setdefault("max_iterations", DEFAULT_ITERATIONS[method])
@@ -422,6 +423,8 @@ def register(
         info = {**info, "search_fitness": np.array([found.fitness])}
         info["search_regions"] = np.array([found.regions])
         info["search_spacing"] = np.array([found.spacing])
+        if auto_scene:
+            info["path"] = np.array(["scene search"])
         times["search"] = found.seconds
     if template_index is not None:
         if mask is not None:
