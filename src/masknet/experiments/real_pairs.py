@@ -59,38 +59,16 @@ def open3d_tutorial(
     template: np.ndarray, source: np.ndarray, voxel: float, unit: float = 1.0
 ) -> np.ndarray:
     """Open3D's global-registration tutorial on full clouds: (4, 4) source -> template.
-    ``voxel`` in the clouds' units; ``unit`` metres per input unit (for the ICP)."""
+    ``voxel`` in the clouds' units; ``unit`` metres per input unit (for the ICP). RANSAC on
+    FPFH is the project's wrapper (:func:`~masknet.registration.open3d_global.open3d_fpfh_ransac`,
+    the tutorial's radii, 100,000 iterations, all threads), then point-to-plane ICP."""
     from masknet.io import require_open3d
+    from masknet.registration.open3d_global import open3d_fpfh_ransac
 
     o3d = require_open3d("the Open3D tutorial pipeline")
-    reg = o3d.pipelines.registration
-    search = o3d.geometry.KDTreeSearchParamHybrid
-
-    def prepare(points):
-        down = _cloud(o3d, points).voxel_down_sample(voxel)
-        down.estimate_normals(search(radius=2 * voxel, max_nn=30))
-        return down, reg.compute_fpfh_feature(down, search(radius=5 * voxel, max_nn=100))
-
-    (tpl, tpl_f), (src, src_f) = prepare(template), prepare(source)
-    o3d.utility.random.seed(0)
-    distance = 1.5 * voxel
-    coarse = reg.registration_ransac_based_on_feature_matching(
-        src,
-        tpl,
-        src_f,
-        tpl_f,
-        True,
-        distance,
-        reg.TransformationEstimationPointToPoint(False),
-        3,
-        [
-            reg.CorrespondenceCheckerBasedOnEdgeLength(0.9),
-            reg.CorrespondenceCheckerBasedOnDistance(distance),
-        ],
-        reg.RANSACConvergenceCriteria(100_000, 0.999),
-    )
+    coarse, _, _ = open3d_fpfh_ransac(template, source, voxel, repeatable=False)
     full_t, full_s = _cloud(o3d, template), _cloud(o3d, source)
-    return _point_to_plane(o3d, full_t, full_s, np.asarray(coarse.transformation), unit)[0]
+    return _point_to_plane(o3d, full_t, full_s, coarse, unit)[0]
 
 
 def consensus_pose(template: np.ndarray, source: np.ndarray) -> tuple[np.ndarray, str]:
