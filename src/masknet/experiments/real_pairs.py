@@ -61,12 +61,13 @@ def open3d_tutorial(
     """Open3D's global-registration tutorial on full clouds: (4, 4) source -> template.
     ``voxel`` in the clouds' units; ``unit`` metres per input unit (for the ICP). RANSAC on
     FPFH is the project's wrapper (:func:`~masknet.registration.open3d_global.open3d_fpfh_ransac`,
-    the tutorial's radii, 100,000 iterations, all threads), then point-to-plane ICP."""
+    down-sampled to the voxel, the tutorial's radii, 100,000 iterations, all threads), then
+    point-to-plane ICP."""
     from masknet.io import require_open3d
     from masknet.registration.open3d_global import open3d_fpfh_ransac
 
     o3d = require_open3d("the Open3D tutorial pipeline")
-    coarse, _, _ = open3d_fpfh_ransac(template, source, voxel, repeatable=False)
+    coarse, _, _ = open3d_fpfh_ransac(template, source, voxel, repeatable=False, downsample=True)
     full_t, full_s = _cloud(o3d, template), _cloud(o3d, source)
     return _point_to_plane(o3d, full_t, full_s, coarse, unit)[0]
 

@@ -16,10 +16,12 @@ from masknet.io import require_open3d
 __all__ = ["open3d_fpfh_ransac", "open3d_fgr"]
 
 
-def _cloud_and_features(o3d, points: np.ndarray, voxel_size: float):
+def _cloud_and_features(o3d, points: np.ndarray, voxel_size: float, downsample: bool = False):
     cloud = o3d.geometry.PointCloud(
         o3d.utility.Vector3dVector(np.ascontiguousarray(points, dtype=np.float64))
     )
+    if downsample:  # the tutorial's first step, for clouds denser than the voxel
+        cloud = cloud.voxel_down_sample(voxel_size)
     search = o3d.geometry.KDTreeSearchParamHybrid
     cloud.estimate_normals(search(radius=2 * voxel_size, max_nn=30))
     features = o3d.pipelines.registration.compute_fpfh_feature(
@@ -36,6 +38,7 @@ def open3d_fpfh_ransac(
     confidence: float = 0.999,
     seed: int = 0,
     repeatable: bool = True,
+    downsample: bool = False,
 ) -> tuple[np.ndarray, float, float]:
     """RANSAC on FPFH matches (Open3D); returns (transform (4, 4), fitness, inlier_rmse).
 
@@ -43,7 +46,8 @@ def open3d_fpfh_ransac(
     ``seed`` fixes Open3D's random generator. Open3D runs RANSAC's trials in parallel
     threads with an early stop, so even seeded runs can differ (Open3D issue 7475);
     ``repeatable=True`` (the default) runs it on one thread, which makes the same input
-    and seed give the same transform (docs/RESULTS.md gives the cost).
+    and seed give the same transform (docs/RESULTS.md gives the cost). ``downsample``:
+    reduce both clouds to the voxel grid first, as Open3D's tutorial does for dense scans.
     """
     o3d = require_open3d("Open3D RANSAC registration")
     o3d.utility.random.seed(seed)
@@ -51,10 +55,12 @@ def open3d_fpfh_ransac(
         before = o3d.utility.get_max_threads()
         o3d.utility.set_max_threads(1)
         try:
-            return _ransac(o3d, template, source, voxel_size, max_iterations, confidence)
+            return _ransac(
+                o3d, template, source, voxel_size, max_iterations, confidence, downsample
+            )
         finally:
             o3d.utility.set_max_threads(before)
-    return _ransac(o3d, template, source, voxel_size, max_iterations, confidence)
+    return _ransac(o3d, template, source, voxel_size, max_iterations, confidence, downsample)
 
 
 def _ransac(
@@ -64,10 +70,11 @@ def _ransac(
     voxel_size: float,
     max_iterations: int,
     confidence: float,
+    downsample: bool = False,
 ) -> tuple[np.ndarray, float, float]:
     reg = o3d.pipelines.registration
-    src, src_f = _cloud_and_features(o3d, source, voxel_size)
-    tpl, tpl_f = _cloud_and_features(o3d, template, voxel_size)
+    src, src_f = _cloud_and_features(o3d, source, voxel_size, downsample)
+    tpl, tpl_f = _cloud_and_features(o3d, template, voxel_size, downsample)
     distance = 1.5 * voxel_size
     result = reg.registration_ransac_based_on_feature_matching(
         src,
