@@ -140,17 +140,18 @@ def test_numpy_rigid_transform_matches_rigid_align_and_never_reflects():
     assert np.linalg.det(rigid_transform_numpy(source, mirrored)[:3, :3]) > 0
 
 
-def test_batched_solve_equals_the_single_solve_and_recovers_the_motion():
+def test_batched_numpy_solve_equals_the_torch_solve_and_recovers_the_motion():
     rng = np.random.default_rng(0)
     source = rng.normal(size=(5, 40, 3))
     rot = Rotation.random(5, random_state=1).as_matrix()
     target = source @ rot.transpose(0, 2, 1) + rng.normal(size=(5, 1, 3))
     batched = rigid_transforms_numpy(source, target)
-    for b in range(5):
-        np.testing.assert_allclose(
-            batched[b], rigid_transform_numpy(source[b], target[b]), atol=1e-10
-        )
-        np.testing.assert_allclose(batched[b, :3, :3], rot[b], atol=1e-10)
+    torch_rot, torch_t = rigid_align(torch.from_numpy(source), torch.from_numpy(target))
+    np.testing.assert_allclose(batched[:, :3, :3], torch_rot.numpy(), atol=1e-10)
+    np.testing.assert_allclose(batched[:, :3, 3], torch_t.numpy(), atol=1e-10)
+    np.testing.assert_allclose(batched[:, :3, :3], rot, atol=1e-10)
+    single = rigid_transform_numpy(source[0], target[0])
+    np.testing.assert_allclose(single, batched[0], atol=1e-12)
 
 
 def test_weights_drop_rows_and_no_weight_gives_the_identity():

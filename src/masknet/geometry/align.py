@@ -101,17 +101,7 @@ def rigid_transform_numpy(source: np.ndarray, target: np.ndarray) -> np.ndarray:
     """:func:`rigid_align` for one pair in numpy float64, as a (4, 4) transform:
     source (P, 3) onto target (P, 3), P >= 1, unweighted. For loops over a single pair on
     the CPU, where torch's per-call cost would dominate a 3x3 solve."""
-    n = len(source)
-    s_mean, y_mean = source.sum(0) / n, target.sum(0) / n
-    cov = source.T @ target - n * np.outer(s_mean, y_mean)  # sum (s - s_mean)(y - y_mean)^T
-    u, _, vh = np.linalg.svd(cov)
-    rot = vh.T @ u.T
-    if np.linalg.det(rot) < 0:  # a reflection: flip the smallest singular direction
-        vh[2] *= -1
-        rot = vh.T @ u.T
-    out = np.eye(4)
-    out[:3, :3], out[:3, 3] = rot, y_mean - rot @ s_mean
-    return out
+    return rigid_transforms_numpy(source[None], target[None])[0]
 
 
 def rigid_transforms_numpy(
