@@ -24,13 +24,28 @@ def quick_run(tmp_path_factory):
     return out
 
 
+NAN_COLUMNS = {
+    "masks-per-round": {"precision", "recall", "source_precision", "source_recall"},
+    "networks": {"ms_mask", "ms_per_pair", "ms_register"},
+    "refine-masks": {"learned_outliers_removed", "rule_outliers_removed"},
+    "timing": {"paper_gtx1070_ms"},
+}
+
+
 @pytest.mark.parametrize("name", [n for n in EXPERIMENTS if n != "scans"])
 def test_every_experiment_writes_a_table(quick_run, name):
     payload = json.loads((quick_run / f"{name}.json").read_text())
     assert payload["experiment"] == name and payload["quick"] is True
     assert payload["rows"] and payload["wall_time_s"] > 0
-    numbers = [v for row in payload["rows"] for v in row.values() if isinstance(v, float)]
-    assert numbers and all(math.isfinite(v) or math.isnan(v) for v in numbers)
+    numbers = [
+        (key, v) for row in payload["rows"] for key, v in row.items() if isinstance(v, float)
+    ]
+    assert numbers
+    # NaN only where a row has nothing to measure: no mask (plain ICP), no outliers, no
+    # network (the identity), no figure in the paper. Everything else is finite.
+    allowed = NAN_COLUMNS.get(name, set())
+    bad = [(key, v) for key, v in numbers if not math.isfinite(v) and key not in allowed]
+    assert not bad, bad
     assert (quick_run / f"{name}.csv").read_text().count("\n") == len(payload["rows"]) + 1
 
 

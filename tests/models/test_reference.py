@@ -1,5 +1,6 @@
 """The paper-style reference computes the same function as MaskNet's fast paths."""
 
+import pytest
 import torch
 
 from masknet.evaluation.timing import median_ms
@@ -41,8 +42,12 @@ def test_variant_agreement_and_timing_of_every_variant(small_masknet):
     assert agreement["split head, fp32"]["point_agreement"] == 1.0
     assert agreement["fused, fp32"]["point_agreement"] > 0.999
     assert agreement["split head, fp32"]["precision_change"] == 0.0
-    for name in ("fused, bf16", "dynamic int8 (Linear)"):
-        assert 0.5 < agreement[name]["point_agreement"] <= 1.0
+    # Lower precision flips few decisions: measured 0.969 (bf16) and 0.941 (int8) for this
+    # small random network; the shipped one agrees to 0.997 (docs/RESULTS.md).
+    assert 0.95 <= agreement["fused, bf16"]["point_agreement"] < 1.0
+    assert 0.90 <= agreement["dynamic int8 (Linear)"]["point_agreement"] < 1.0
     times = time_variants({k: v for k, v in variants.items() if "int8" not in k}, 1, 2)
-    assert times["reference (Conv1d, concat, fp32)"]["speedup"] == 1.0
-    assert all(row["ms"] > 0 for row in times.values() if "ms" in row)
+    reference_ms = times["reference (Conv1d, concat, fp32)"]["ms"]
+    for row in times.values():  # each speed-up is the reference's time over the variant's
+        assert row["ms"] > 0
+        assert row["speedup"] == pytest.approx(reference_ms / row["ms"], rel=1e-9)
