@@ -89,9 +89,16 @@ class RegistrationResult:
             robust pipeline's inlier ICP move it further); None without a mask.
         times: seconds per stage, summed over rounds: ``"sample"`` (subsampling large
             clouds), ``"mask"`` (MaskNet), ``"register"`` (the method), ``"refine"``,
-            ``"search"`` (with a scene search) and ``"total"`` (the whole call).
+            ``"search"`` (with a scene search) and ``"total"`` (the whole call); ``"auto"``
+            and ``"robust"`` add ``"fast"`` (the fast path's ICP and check),
+            ``"features"`` (FPFH), ``"ransac"`` (RANSAC and the early refinement),
+            ``"hypotheses"`` and their ``"refine"``.
         info: what the method reported in its last run, as numpy arrays, () or (B,)
-            each. ICP methods: ``converged``, ``iterations`` (-1 where not reported),
+            each. ``"auto"`` and ``"robust"``: ``path``, ``source`` (of the winning
+            hypothesis), ``fitness`` and ``inlier_rmse`` (of the kept source points within
+            1.5 template spacings), ``score``, ``ambiguous``, ``runner_up`` ((4, 4), NaN
+            where none), ``runner_up_fitness``, ``runner_up_score``, ``hypotheses``, and for
+            ``"auto"`` ``escalated_fitness`` (NaN where the fast path sufficed). ICP methods: ``converged``, ``iterations`` (-1 where not reported),
             ``fitness`` and ``inlier_rmse`` (Open3D's definitions). PointNetLK:
             ``converged``, ``iterations``, ``feature_residual``.
         rounds: the cumulative transform after each round, (4, 4) or (B, 4, 4) each.
@@ -230,19 +237,27 @@ def register(
     Args:
         template: (N, 3) or (B, N, 3) full template cloud(s), any units.
         source: (M, 3) or (B, M, 3) partial source cloud(s), same units.
-        method: ``"icp"`` (batched torch ICP), ``"open3d-icp"`` (Open3D's
-            point-to-point ICP, pair by pair), a learned network: ``"pointnetlk"``,
-            ``"dcp"``, ``"prnet"``, ``"pcrnet"`` or ``"rpmnet"`` (the shipped weights
-            unless ``network=`` is given), ``"open3d-ransac"`` or ``"open3d-fgr"``
-            (Open3D's global registration on FPFH features), or ``"robust"``: Mask-ICP
-            from 24 rotation hypotheses, batched, scored by a trimmed fit and refined
-            (:mod:`masknet.registration.robust`; any rotation, outliers in the source;
-            about 20x the time of one Mask-ICP).
+        method: None (default) runs ``"auto"``, or ``"icp"`` when an option only
+            Mask-ICP's rounds take is given (``iterations`` other than 1, ``k``,
+            ``threshold``, ``refine_iterations``, ``init="identity"``, ICP's options).
+            ``"auto"``: one round of Mask-ICP, its fit checked, and ``"robust"`` where
+            the fit says it may be wrong (:mod:`masknet.registration.auto`;
+            ``info["path"]`` says which ran). ``"robust"``: the coarse-to-fine search,
+            FPFH correspondence hypotheses, then the two-sided mask and rotation
+            hypotheses, one score, refinement (:mod:`masknet.registration.coarse`; any
+            rotation, outliers in the source; ``info["ambiguous"]`` and
+            ``info["runner_up"]`` when another pose fits as well). ``"icp"`` (the paper's
+            Mask-ICP: batched torch ICP, or a KD-tree loop for one pair), ``"open3d-icp"``
+            (Open3D's point-to-point ICP, pair by pair), a learned network:
+            ``"pointnetlk"``, ``"dcp"``, ``"prnet"``, ``"pcrnet"`` or ``"rpmnet"`` (the
+            shipped weights unless ``network=`` is given), ``"open3d-ransac"`` or
+            ``"open3d-fgr"`` (Open3D's global registration on FPFH features).
         use_mask: Mask-X (True) or plain X (False).
         iterations: rounds of {mask -> initialise -> register -> move the source}.
         model: the MaskNet of the first round; None loads shipped weights once: the
-            paper's ``masknet_modelnet40`` for one round, the two-sided
-            ``masknet2_scans`` for ``iterations`` > 1 and ``"robust"``. A
+            paper's ``masknet_modelnet40`` for one round (and ``"auto"``'s fast path;
+            its escalation uses ``masknet2_scans``), the two-sided ``masknet2_scans`` for
+            ``iterations`` > 1 and ``"robust"``. A
             :class:`~masknet.models.two_sided.TwoSidedMaskNet` masks both clouds: the
             method then sees only the source points it keeps.
         k, threshold: inlier selection, as :meth:`MaskNet.predict_mask` (default
@@ -285,8 +300,8 @@ def register(
             the pose reached. A refiner's template mask is the top k points with k the
             number of source points it keeps, and the learned one runs in fp32: ``k``,
             ``threshold`` and ``precision`` apply to round 1.
-        **options: for the method. ``"robust"``: the fields of
-            :class:`~masknet.registration.options.RobustOptions` (it ignores
+        **options: for the method. ``"auto"`` and ``"robust"``: the fields of
+            :class:`~masknet.registration.options.RobustOptions` (they ignore
             ``iterations``, ``init``, ``k`` and ``threshold``). ``"icp"``: ``max_iterations`` (default 10),
             ``tolerance``, ``max_correspondence_distance``. ``"open3d-icp"``:
             ``max_iterations`` (default 10), ``max_correspondence_distance``,
