@@ -274,6 +274,8 @@ def run(args: argparse.Namespace) -> None:
 
     n, m = result.sampled
     sampled = "" if (n, m) == (len(template), len(source)) else f" (sampled to {n} and {m})"
+    if sampled and "path" in result.info:  # auto and robust: only the networks see samples
+        sampled = f" (the networks see {n:,} and {m:,} sampled points)"
     dropped = len(source_rows) - len(source)
     dropped_text = f", {dropped:,} non-finite rows dropped" if dropped else ""
     loop = ""
