@@ -308,12 +308,12 @@ def run(args: argparse.Namespace) -> None:
         print(f"source kept: {int(result.source_mask.sum()):,} of {len(source):,} points")
     angle = float(result.rotation_deg)
     print(
-        f"rotation {angle:.2f} deg, translation {np.linalg.norm(result.t):.4g} "
+        f"estimated motion: rotation {angle:.2f} deg, translation {np.linalg.norm(result.t):.4g} "
         f"(input units); {1e3 * result.times['total']:.1f} ms"
     )
     report_path(result.info, result.R)
     numbers = {k: v for k, v in result.info.items() if np.ndim(v) == 0 and _is_number(v)}
-    print("reported: " + ", ".join(f"{k} {np.asarray(v).item():.4g}" for k, v in numbers.items()))
+    print("reported: " + ", ".join(f"{k} {_shown(v)}" for k, v in numbers.items()))
     on_object = source if result.source_mask is None else source[result.source_mask]
     quality = evaluate_registration(template, on_object, result.transform)
     print(
@@ -339,6 +339,14 @@ def run(args: argparse.Namespace) -> None:
     print(f"wrote {', '.join(str(p) for p, _ in writers)}")
     if removed:
         print(f"removed {', '.join(map(str, removed))} (an earlier run's; this run wrote none)")
+
+
+def _shown(value: object) -> str:
+    """A reported number as a reader expects it: True/False for flags, 4 digits else."""
+    import numpy as np
+
+    item = np.asarray(value).item()
+    return str(item) if isinstance(item, bool) else f"{item:.4g}"
 
 
 def _is_number(value: object) -> bool:
