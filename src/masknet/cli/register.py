@@ -377,12 +377,15 @@ def report_path(info: dict, rotation: np.ndarray) -> None:
         why = "method robust"
     print(f"path: {path} ({why}); best hypothesis from {info['source']}")
     if bool(info.get("ambiguous", False)):
-        runner = np.asarray(info["runner_up"])
-        cos = (np.trace(runner[:3, :3].T @ rotation) - 1) / 2
+        from masknet.registration.coarse import rotation_between_deg
+
+        result_pose = np.eye(4)
+        result_pose[:3, :3] = rotation
+        apart = rotation_between_deg(np.asarray(info["runner_up"]), result_pose)
         print(
             "masknet: warning: the answer is ambiguous: another pose fits as well (score "
             f"{float(info['runner_up_score']):.3f} against {float(info['score']):.3f}; its "
-            f"rotation is {np.degrees(np.arccos(np.clip(cos, -1, 1))):.1f} deg from this one); the "
+            f"rotation is {apart:.1f} deg from this one); the "
             "shape "
             "may be symmetric",
             file=sys.stderr,

@@ -349,7 +349,8 @@ def register(
             options = {"max_iterations": options.get("max_iterations", DEFAULT_ITERATIONS["icp"])}
     if method not in GLOBAL_METHODS and method not in PIPELINES:
         options.setdefault("max_iterations", DEFAULT_ITERATIONS[method])
-    looping = method == "robust" or iterations > 1  # only then are there rounds to refine
+    # A loop and robust mask with the two-sided network by default (it rejects outliers).
+    two_sided_default = method == "robust" or iterations > 1
     search_model = None  # auto's escalation: the two-sided network masks both clouds
     if use_mask and method == "auto":
         search_model = model if isinstance(model, TwoSidedMaskNet) else _default_two_sided()
@@ -359,8 +360,9 @@ def register(
         # as model=, the escalation reuses its masks). A loop starts from the two-sided
         # network, which also rejects source outliers; its clean-pair cost after one round
         # is recovered by the refined rounds (docs/RESULTS.md, masks per round).
-        model = _default_two_sided() if looping else _default_model()
-    refiner = resolve_refiner(refine_masks, model if use_mask and looping else None)
+        model = _default_two_sided() if two_sided_default else _default_model()
+    # Refined rounds exist only in a loop (robust and auto refine by ICP with a cut-off).
+    refiner = resolve_refiner(refine_masks, model if use_mask and iterations > 1 else None)
     if method in NETWORK_METHODS and options.get("network") is None:
         options["network"] = _default_network(method)
 
@@ -370,14 +372,13 @@ def register(
     times["sample"] = time.perf_counter() - tic
 
     if method in PIPELINES:  # full resolution; the networks see the sampled clouds
-        if method == "robust":
-            two_sided = model if isinstance(model, TwoSidedMaskNet) else _default_two_sided()
+        if method == "robust":  # model: the two-sided network unless one was given
             run = robust_register(
                 tpl_full,
                 src_full,
                 tpl,
                 src,
-                two_sided if use_mask else None,
+                model if use_mask else None,
                 RobustOptions(**options),
                 times,
                 precision,

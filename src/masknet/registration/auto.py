@@ -34,6 +34,8 @@ from masknet.registration.coarse import (
     PoseFit,
     isolated_free,
     pose_fit,
+    random_subset,
+    rotation_between_deg,
 )
 from masknet.registration.icp_tree import icp_single
 from masknet.registration.methods import DEFAULT_MAX_ITERATIONS
@@ -97,7 +99,7 @@ def _one(
     tic = time.perf_counter()
     tree = KDTree(template)
     spacing = median_spacing(template, tree, sample=4096) or 1.0
-    fine = _subsample(source, options.fine_points)
+    fine = random_subset(source, options.fine_points)
     surface = isolated_free(fine, SURFACE_SPACINGS * spacing)
     source_mask = None
     if fast.source_mask is not None:  # a two-sided network: its kept points, spread
@@ -147,8 +149,7 @@ def _one(
                 )
             )
         for other, other_fitness, other_score in others:
-            cos = (np.trace(other[:3, :3].T @ transform[:3, :3]) - 1) / 2
-            apart = np.degrees(np.arccos(np.clip(cos, -1, 1))) >= options.distinct_deg
+            apart = rotation_between_deg(other, transform) >= options.distinct_deg
             if apart and other_score >= fit.score - options.ambiguity_margin:
                 info["ambiguous"] = np.array([True])
                 info["runner_up"] = other[None].copy()
@@ -160,12 +161,6 @@ def _one(
     info["path"] = np.array([f"robust/{run.info['path'][0]}"])
     info["escalated_fitness"] = np.array([fit.fitness])
     return RobustRun(run.transform, run.mask, run.source_mask, info)
-
-
-def _subsample(points: np.ndarray, count: int, seed: int = 0) -> np.ndarray:
-    if len(points) <= count:
-        return points
-    return points[np.random.default_rng(seed).choice(len(points), count, replace=False)]
 
 
 def _info(path: str, fit: PoseFit, escalated: float) -> dict[str, np.ndarray]:

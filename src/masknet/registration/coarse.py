@@ -44,10 +44,12 @@ from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
+import torch
 from pykdtree.kdtree import KDTree
 from scipy.spatial.transform import Rotation
 
 from masknet.geometry.clouds import median_spacing
+from masknet.geometry.se3 import rotation_error_deg
 from masknet.registration.correspondences import (
     FeatureCloud,
     feature_cloud,
@@ -55,6 +57,7 @@ from masknet.registration.correspondences import (
     ransac_poses,
     voxel_for,
 )
+from masknet.registration.evaluation import DEFAULT_SPACINGS
 from masknet.registration.icp_tree import icp_from_starts, icp_single
 from masknet.registration.options import RobustOptions
 
@@ -64,17 +67,18 @@ __all__ = [
     "hypothesis_rotations",
     "isolated_free",
     "pose_fit",
+    "random_subset",
+    "rotation_between_deg",
 ]
 
 # The inlier distance of the score, in template spacings: evaluate_registration's default.
-FIT_SPACINGS = 1.5
+FIT_SPACINGS = DEFAULT_SPACINGS
 # A source point with no other source point within this many template spacings is
 # isolated: it takes no part in the score.
 SURFACE_SPACINGS = 2.0
 # The refinement's ICP stops once its mean squared error changes by less than this
 # fraction: finer steps move a pose by far less than its error.
 REFINE_TOLERANCE = 1e-5
-REFINE_CUTOFFS = (1.0,)
 
 
 class CoarseRun(NamedTuple):
@@ -84,7 +88,8 @@ class CoarseRun(NamedTuple):
     early exit; ``"search"``: the learned side ran), ``source`` of the winning hypothesis
     (``"fpfh"``, ``"fpfh-masked"``, ``"rotation"``), ``fitness`` and ``inlier_rmse`` (the
     score's, input units), ``ambiguous`` (bool), ``runner_up`` ((4, 4) or None) and
-    ``runner_up_fitness``, ``hypotheses`` (how many were scored)."""
+    ``runner_up_fitness``, ``score`` and ``runner_up_score`` (:class:`PoseFit`),
+    ``hypotheses`` (how many were scored)."""
 
     transform: np.ndarray
     mask: np.ndarray | None
@@ -156,12 +161,15 @@ def pose_fits(tree: KDTree, points: np.ndarray, transforms: np.ndarray, limit: f
     ]
 
 
-def _rotation_deg(a: np.ndarray, b: np.ndarray) -> float:
-    cos = (np.trace(a[:3, :3].T @ b[:3, :3]) - 1) / 2
-    return float(np.degrees(np.arccos(np.clip(cos, -1, 1))))
+def rotation_between_deg(a: np.ndarray, b: np.ndarray) -> float:
+    """The angle in degrees between the rotations of transforms ``a`` and ``b`` (4, 4)."""
+    return float(
+        rotation_error_deg(torch.from_numpy(a[:3, :3].copy()), torch.from_numpy(b[:3, :3].copy()))
+    )
 
 
-def _subsample(points: np.ndarray, count: int, seed: int = 0) -> np.ndarray:
+def random_subset(points: np.ndarray, count: int, seed: int = 0) -> np.ndarray:
+    """At most ``count`` of ``points`` (P, 3), a seeded random subset without repeats."""
     if len(points) <= count:
         return points
     return points[np.random.default_rng(seed).choice(len(points), count, replace=False)]
@@ -186,7 +194,7 @@ def coarse_to_fine(
     searches without masks."""
     options.check()
     full_source = source
-    source = _subsample(full_source, options.fine_points)
+    source = random_subset(full_source, options.fine_points)
 
     def clock(stage: str, since: float) -> float:
         now = time.perf_counter()
@@ -201,26 +209,21 @@ def coarse_to_fine(
     # Isolated source points (uniform outliers, stray returns) would cap every pose's
     # fitness below what a correct pose reaches: the score counts the rest.
     surface = isolated_free(source, SURFACE_SPACINGS * spacing)
-    probe = _subsample(source[surface], options.hypothesis_points * 2)
+    probe = random_subset(source[surface], options.hypothesis_points * 2)
     scored: list[Scored] = []
-    support: list[float] = []  # share of the matches the best pose of each RANSAC explains
 
     def refine(pose: np.ndarray, points: np.ndarray, kind: str) -> Scored:
-        """ICP from ``pose`` with the pair cut-off at twice ``inlier_distance``, then at
-        it (a close cut-off alone stalls where the clouds were sampled apart), scored on
-        ``points``."""
-        tf = pose
-        for factor in REFINE_CUTOFFS:
-            sol = icp_single(
-                template,
-                points,
-                tf,
-                options.inlier_iterations,
-                REFINE_TOLERANCE,
-                max_correspondence_distance=factor * options.inlier_distance * spacing,
-                template_tree=tree,
-            )
-            tf = sol.transform[0].numpy()
+        """ICP from ``pose`` with pairs cut at ``inlier_distance``, scored on ``points``."""
+        sol = icp_single(
+            template,
+            points,
+            pose,
+            options.inlier_iterations,
+            REFINE_TOLERANCE,
+            max_correspondence_distance=options.inlier_distance * spacing,
+            template_tree=tree,
+        )
+        tf = sol.transform[0].numpy()
         return Scored(*pose_fit(tree, points, tf, limit), tf, kind)
 
     # 1. Correspondence hypotheses at each grid, fine first, scored as RANSAC left them;
@@ -235,7 +238,6 @@ def coarse_to_fine(
             trials=options.ransac_trials,
             keep=options.correspondence_hypotheses,
         )
-        support.append(float(found.inliers[0]) / len(pairs) if len(found.inliers) else 0.0)
         fits = pose_fits(tree, points, found.transform, limit)
         scored.extend(Scored(*f, p, kind) for f, p in zip(fits, found.transform, strict=True))
 
@@ -288,9 +290,9 @@ def coarse_to_fine(
         # Every hypothesis through a short ICP at hypothesis resolution (the
         # correspondence poses against the whole template, the rotations against the
         # masked part), then scored on the same kept points.
-        points = _subsample(kept_source, options.hypothesis_points * 2)
-        src_small = _subsample(kept_source, options.hypothesis_points)
-        whole_small = _subsample(template, options.hypothesis_points)
+        points = random_subset(kept_source, options.hypothesis_points * 2)
+        src_small = random_subset(kept_source, options.hypothesis_points)
+        whole_small = random_subset(template, options.hypothesis_points)
         if scored:
             poses = icp_from_starts(
                 KDTree(whole_small),
@@ -313,7 +315,7 @@ def coarse_to_fine(
         fits = pose_fits(tree, points, both, limit)
         scored.extend(Scored(*f, p, "as given") for f, p in zip(fits, both, strict=True))
         target = template if mask is None or mask.sum() < 3 else template[mask]
-        target_small = _subsample(target, options.hypothesis_points)
+        target_small = random_subset(target, options.hypothesis_points)
         src_centre, tgt_centre = src_small.mean(0), target.mean(0)
         rotations = hypothesis_rotations(24)[: options.hypotheses]
         if len(rotations):
@@ -338,12 +340,12 @@ def coarse_to_fine(
     # as given wins: the data cannot choose, and the input is the only other evidence. The
     # result says so (ambiguous, with the runner-up).
     alike = [f for f in finals if f.score >= finals[0].score - options.ambiguity_margin]
-    winner = min(alike, key=lambda f: _rotation_deg(f.pose, np.eye(4)))
+    winner = min(alike, key=lambda f: rotation_between_deg(f.pose, np.eye(4)))
     rival = next(
         (
             f
             for f in finals
-            if f is not winner and _rotation_deg(f.pose, winner.pose) >= options.distinct_deg
+            if f is not winner and rotation_between_deg(f.pose, winner.pose) >= options.distinct_deg
         ),
         None,
     )
@@ -368,7 +370,6 @@ def coarse_to_fine(
         "runner_up_fitness": float("nan") if rival is None else rival.fitness,
         "runner_up_score": float("nan") if rival is None else rival.score,
         "hypotheses": len(scored),
-        "support": support[0] if support else 0.0,
     }
     return CoarseRun(transform, mask, source_mask, info)
 
@@ -389,9 +390,15 @@ def _rank(entry: Scored) -> tuple[float, float, float]:
 
 
 def _has_open3d() -> bool:
-    import importlib.util
+    """Whether Open3D imports (it may be installed and still fail, e.g. without libusb)."""
+    from masknet.errors import MaskNetError
+    from masknet.io import require_open3d
 
-    return importlib.util.find_spec("open3d") is not None
+    try:
+        require_open3d("FPFH features")
+    except MaskNetError:
+        return False
+    return True
 
 
 def _voxel_labels(voxels: np.ndarray, points: np.ndarray, keep: np.ndarray) -> np.ndarray:
@@ -408,7 +415,7 @@ def _distinct(scored: list, count: int, limit: float) -> list:
         if len(out) == count:
             break
         if all(
-            _rotation_deg(entry.pose, other.pose) >= 2.0
+            rotation_between_deg(entry.pose, other.pose) >= 2.0
             or np.linalg.norm(entry.pose[:3, 3] - other.pose[:3, 3]) >= limit
             for other in out
         ):
