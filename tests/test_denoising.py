@@ -12,7 +12,6 @@ from masknet.denoising import (
     open3d_radius_outlier_removal,
     open3d_statistical_outlier_removal,
 )
-from masknet.io import require_open3d
 
 
 @pytest.fixture(scope="module")
@@ -54,16 +53,7 @@ def test_denoise_refuses_batches_and_bad_thresholds(small_masknet, clouds):
         denoise(noisy, template, method="masknet", model=small_masknet, threshold=2.0)
 
 
-def _has_open3d() -> bool:
-    try:
-        require_open3d("test")
-    except MaskNetError:
-        return False
-    return True
-
-
-@pytest.mark.skipif(not _has_open3d(), reason="Open3D unavailable")
-def test_open3d_filters_remove_an_isolated_cluster(clouds):
+def test_open3d_filters_remove_an_isolated_cluster(clouds, o3d):
     template, _ = clouds
     far = np.array([[9.0, 9.0, 9.0], [-9.0, 9.0, 0.0], [0.0, -9.0, 9.0]])
     cloud = np.concatenate([template, far])

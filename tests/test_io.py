@@ -366,8 +366,7 @@ def test_degenerate_and_absurd_clouds_are_named(tmp_path, capsys):
     assert "far.npy: one point lies" in err
 
 
-def test_pcd_header_that_disagrees_with_its_body_is_an_error(tmp_path):
-    pytest.importorskip("open3d")
+def test_pcd_header_that_disagrees_with_its_body_is_an_error(tmp_path, o3d):
     write_points(tmp_path / "a.pcd", np.random.default_rng(0).random((50, 3)))
     raw = (tmp_path / "a.pcd").read_bytes()
     assert read_points(tmp_path / "a.pcd").shape == (50, 3)

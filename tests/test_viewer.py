@@ -60,8 +60,9 @@ def _count(image: np.ndarray, rgb: tuple[int, int, int]) -> int:
     return int((np.abs(image * 255 - np.array(rgb)).max(-1) < 12).sum())
 
 
-@pytest.mark.skipif(CHROMIUM is None, reason="chromium not installed (make test installs it)")
-def test_points_are_drawn_in_a_real_browser(tmp_path, shape):
+def test_points_are_drawn_in_a_real_browser(tmp_path, shape, skip_unless_ci):
+    if CHROMIUM is None:
+        skip_unless_ci("chromium not installed (make test installs it)")
     red, green = (214, 39, 40), (44, 160, 44)
     layers = {"template": (shape, "#d62728"), "inliers": (shape[:300] + 1.0, "#2ca02c")}
     shown = _screenshot(write_viewer(tmp_path / "a.html", layers), tmp_path / "a.png")

@@ -101,8 +101,7 @@ def test_api_register_refuses_non_numeric_clouds():
 
 
 @pytest.mark.parametrize("kind", ["binary.ply", "ascii.ply", "binary.pcd", "array.npy"])
-def test_fuzzed_truncated_and_bit_flipped_files_fail_cleanly(tmp_path, kind):
-    pytest.importorskip("open3d")
+def test_fuzzed_truncated_and_bit_flipped_files_fail_cleanly(tmp_path, kind, o3d):
     ext = kind[kind.index(".") :]
     source = tmp_path / f"valid{ext}"
     if kind == "ascii.ply":

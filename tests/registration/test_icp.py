@@ -8,9 +8,7 @@ import torch
 from scipy.spatial import cKDTree
 
 from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
-from masknet.errors import MaskNetError
 from masknet.geometry import make_transform, so3_exp, transform_points
-from masknet.io import require_open3d
 from masknet.registration import ICPSolution, icp, open3d_icp
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -29,13 +27,6 @@ def _pairs(shapes, num: int, seed: int, **config):
 def _angle(r1: torch.Tensor, r2: torch.Tensor) -> torch.Tensor:
     """Rotation angle between (..., 3, 3) rotations, accurate near zero (unlike arccos)."""
     return 2 * torch.arcsin(((r1 - r2).flatten(-2).norm(dim=-1) / 8**0.5).clamp(max=1))
-
-
-def _open3d_or_skip():
-    try:
-        return require_open3d("these tests")
-    except MaskNetError as exc:
-        pytest.skip(str(exc))
 
 
 def test_recovers_known_transform_on_full_overlap(shapes):
@@ -198,9 +189,8 @@ def test_bad_arguments_raise(shapes):
 
 
 @pytest.mark.parametrize("max_dist", [None, 0.1])
-def test_agrees_with_open3d_step_by_step(shapes, max_dist):
+def test_agrees_with_open3d_step_by_step(shapes, max_dist, o3d):
     """Same iterations, same correspondences, same closed-form step: same result."""
-    _open3d_or_skip()
     pairs = _pairs(shapes, 2, seed=10, max_angle_deg=30, max_translation=0.3)
     src, tpl = pairs.source.double(), pairs.template.double()
     ours = icp(tpl, src, max_iterations=5, tolerance=0, max_correspondence_distance=max_dist)
@@ -219,8 +209,7 @@ def test_agrees_with_open3d_step_by_step(shapes, max_dist):
         torch.testing.assert_close(ours.inlier_rmse[b], theirs.inlier_rmse[0], atol=1e-10, rtol=0)
 
 
-def test_agrees_with_open3d_when_converged(shapes):
-    _open3d_or_skip()
+def test_agrees_with_open3d_when_converged(shapes, o3d):
     pairs = _pairs(shapes, 2, seed=11, keep_ratio=1.0)
     truth = pairs.transform.double()
     ours = icp(pairs.template.double(), pairs.source.double(), max_iterations=50)
@@ -231,8 +220,7 @@ def test_agrees_with_open3d_when_converged(shapes):
         assert _angle(theirs.transform[0, :3, :3], truth[b, :3, :3]) < 1e-4
 
 
-def test_open3d_icp_empty_template_and_init():
-    _open3d_or_skip()
+def test_open3d_icp_empty_template_and_init(o3d):
     g = np.random.default_rng(0)
     source = g.normal(size=(30, 3))
     init = np.eye(4)

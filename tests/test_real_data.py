@@ -1,0 +1,77 @@
+"""Real data from ../shared/data/scans (present in CI; elsewhere these tests skip): the
+carton found in the cluttered Kinect scene against its established pose, and pairs cut
+from the evaluation scans for the shipped scan weights' mask precision and the default's
+registration. Floors are stated margins under what these seeded pairs measure; the
+3DMatch pair is checked through the benchmark (tests/experiments)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from masknet import MaskNet, register
+from masknet.evaluation.registration import pose_errors
+from masknet.io import read_points
+from masknet.models import TwoSidedMaskNet
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+CARTON_TRUTH = Path(__file__).parents[1] / "docs" / "results" / "carton" / "ground_truth.txt"
+
+
+@pytest.fixture(scope="module", params=[True, False], ids=["shared points", "re-sampled"])
+def scan_pairs(request, scans_dir):
+    """Two pairs per evaluation scan (14): 70% views of 4,096-point templates, up to 45
+    degrees, noise 0.2% of the radius; the source copied from the template or re-sampled."""
+    from masknet.experiments.rounds import scan_eval_pairs
+
+    return scan_eval_pairs(2, request.param, seed=0)
+
+
+def _precision(predicted: np.ndarray, truth: np.ndarray) -> float:
+    return float((predicted & truth).sum() / max(predicted.sum(), 1))
+
+
+def test_the_default_finds_the_carton_in_the_cluttered_scene(scans_dir):
+    """Measured 0.012 deg and 0.16 mm from the established pose (scripts/carton_scene.py)."""
+    template = read_points(scans_dir / "milk.pcd", drop_nonfinite=True)
+    scene = read_points(scans_dir / "milk_cartoon_all_small_clorox.pcd", drop_nonfinite=True)
+    result = register(template, scene)
+    rotation, translation = pose_errors(result.transform[None], np.loadtxt(CARTON_TRUTH)[None])
+    assert result.info["path"] == "scene search"
+    assert rotation[0] < 0.5 and translation[0] < 0.002, (rotation, translation)
+
+
+@pytest.mark.parametrize(("name", "floor"), [("scans", 0.78), ("two-sided", 0.76)])
+def test_scan_weights_beat_chance_on_real_scan_pairs(scan_pairs, name, floor):
+    """Template-mask precision; chance is 0.70. Measured (shared / re-sampled):
+    masknet_scans 0.824 / 0.809, masknet2_scans 0.799 / 0.789."""
+    model = TwoSidedMaskNet.pretrained() if name == "two-sided" else MaskNet.pretrained("scans")
+    precision = []
+    for template, source, truth in zip(
+        scan_pairs.template, scan_pairs.source, scan_pairs.mask, strict=True
+    ):
+        if name == "two-sided":
+            mask = model.predict_masks(template.numpy(), source.numpy())[0]
+        else:
+            mask = model.predict_mask(template.numpy(), source.numpy())
+        precision.append(_precision(mask, truth.numpy()))
+    assert np.mean(precision) > floor, np.mean(precision)
+
+
+def test_the_default_and_the_refined_loop_on_real_scan_pairs(scan_pairs):
+    """Measured (shared / re-sampled): the default 1.71 / 1.51 deg mean; the refined loop's
+    mask (3 rounds) precision 0.873 / 0.905. No motion is about 25 deg. Floors: 3.0 deg,
+    and precision 0.84."""
+    truth = scan_pairs.transform.double().numpy()
+    errors, precision = [], []
+    for i in range(len(truth)):
+        template, source = scan_pairs.template[i].numpy(), scan_pairs.source[i].numpy()
+        result = register(template, source)
+        errors.append(pose_errors(result.transform[None], truth[i : i + 1])[0][0])
+        loop = register(template, source, iterations=3)
+        precision.append(_precision(loop.mask, scan_pairs.mask[i].numpy()))
+    assert np.mean(errors) < 3.0, errors
+    assert np.mean(precision) > 0.84, precision
