@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from safetensors import safe_open
 
 from masknet.data import bundled_sample_path, load_modelnet40
 from masknet.errors import MaskNetError
@@ -70,6 +71,58 @@ def test_resume_matches_uninterrupted_run(tmp_path, shapes):
     b = MaskNet.from_file(tmp_path / "split" / "last.safetensors").state_dict()
     for key in a:
         torch.testing.assert_close(a[key], b[key], rtol=1e-5, atol=1e-6)
+
+
+def _registration_task() -> RegistrationTask:
+    return RegistrationTask.for_network(
+        "pointnetlk", num_points=64, iterations=2, model_config={"encoder_channels": [16, 32]}
+    )
+
+
+@pytest.mark.parametrize("make_task", [_task, _registration_task], ids=["masknet", "pointnetlk"])
+def test_resume_continues_a_cosine_schedule_from_the_checkpoint(
+    tmp_path, shapes, make_task, capsys
+):
+    """A 3-epoch cosine run stopped after epoch 1 (its time budget) and resumed:
+    - ends exactly where the uninterrupted run ends, which needs the weights, Adam's
+      moments and the schedule's step from the checkpoint;
+    - runs only epochs 2 and 3, at the uninterrupted run's learning rates;
+    - continues from the checkpoint's weights: perturb them, and the resumed run ends
+      elsewhere, where a restart from scratch would still end on the uninterrupted run."""
+    from safetensors.torch import load_file, save_file
+
+    def config(out: str, minutes: float | None = None) -> TrainConfig:
+        c = _config(tmp_path / out, 3)
+        c.lr_schedule, c.max_minutes = "cosine", minutes
+        return c
+
+    def last(out: str) -> dict:
+        with safe_open(str(tmp_path / out / "last.safetensors"), framework="pt") as f:
+            return {k: f.get_tensor(k) for k in f.keys()}
+
+    straight = fit(make_task(), shapes, config("straight"))
+    for out in ("split", "perturbed"):
+        assert len(fit(make_task(), shapes, config(out, minutes=1e-9))) == 1  # stops after 1
+    capsys.readouterr()
+    resumed = fit(make_task(), shapes, config("split"), resume=True)
+    printed = capsys.readouterr().err
+    assert "at epoch 2" in printed and "epoch 1:" not in printed and "epoch 3:" in printed
+    assert [row["lr"] for row in resumed] == [row["lr"] for row in straight]
+    assert resumed[1]["lr"] < resumed[0]["lr"]  # cosine: the schedule moved on
+    a, b = last("straight"), last("split")
+    for key in a:
+        torch.testing.assert_close(a[key], b[key], rtol=1e-5, atol=1e-6)
+
+    ckpt = tmp_path / "perturbed" / "checkpoint.safetensors"
+    with safe_open(str(ckpt), framework="pt") as f:
+        metadata = f.metadata()
+    tensors = load_file(ckpt)
+    first = next(k for k in tensors if k.startswith("model/") and tensors[k].is_floating_point())
+    tensors[first] = tensors[first] + 0.5
+    save_file(tensors, ckpt, metadata)
+    fit(make_task(), shapes, config("perturbed"), resume=True)
+    c = last("perturbed")
+    assert max((a[k] - c[k]).abs().max().item() for k in a) > 1e-3
 
 
 def test_existing_checkpoint_needs_resume(tmp_path, shapes):
