@@ -143,3 +143,26 @@ def test_trimmed_mean_over_valid_entries():
     valid = np.array([[True, False, True, True], [False, False, False, False]])
     # Row 0 keeps round(0.5 * 3) = 2 of {4, 9, 2}: (2 + 4) / 2; row 1 has nothing valid.
     np.testing.assert_allclose(trimmed_mean(d2, 0.5, valid), [3.0, np.inf])
+
+
+@pytest.mark.usefixtures("one_thread")
+@pytest.mark.parametrize("method", ["robust", None])
+def test_rotations_to_180_and_outliers_on_sample_pairs(shapes, method):
+    """30 seeded pairs per set (70% views). Measured, the same for robust and the default:
+    rotations to 180 deg: 29 pairs within 2e-6 deg, one 114 deg off and reported as
+    ambiguous; 10% outliers: mean 0.040 deg, worst 0.10 deg."""
+    from masknet.data import PairConfig, make_test_pairs
+
+    for config in (PairConfig(max_angle_deg=180), PairConfig(outlier_ratio=0.1)):
+        pairs = make_test_pairs(shapes.astype(np.float32), 30, config, seed=31)
+        truth = pairs.transform.double().numpy()
+        errors, ambiguous = [], []
+        for i in range(30):
+            result = register(pairs.template[i].numpy(), pairs.source[i].numpy(), method=method)
+            errors.append(pose_errors(result.transform[None], truth[i : i + 1])[0][0])
+            ambiguous.append(bool(result.info["ambiguous"]))
+        errors, ambiguous = np.array(errors), np.array(ambiguous)
+        if config.outlier_ratio:
+            assert errors.mean() < 0.08 and errors.max() < 0.25, errors
+        else:  # every large error is flagged, and few are
+            assert ambiguous.sum() <= 2 and errors[~ambiguous].max() < 0.01, (errors, ambiguous)
