@@ -43,11 +43,18 @@ COMMANDS = {
 }
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse's parser, with a refusal on one line (no usage block above it)."""
+
+    def error(self, message: str):  # argparse calls it, and it exits with code 2
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``masknet`` parser: one subparser per command of :data:`COMMANDS`."""
     from masknet import __version__
 
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="masknet",
         description="MaskNet: predict which template points a partial source cloud also sees.",
     )
@@ -66,8 +73,8 @@ def main(argv: list[str] | None = None) -> int:
     except MaskNetError as exc:
         print(f"masknet: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("masknet: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as exc:
+        print(f"masknet: interrupted{f'; {exc}' if str(exc) else ''}", file=sys.stderr)
         return 130
     except BrokenPipeError:  # e.g. `masknet ... | head`: stop quietly, as Unix tools do
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())

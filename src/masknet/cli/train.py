@@ -243,7 +243,17 @@ def run(args: argparse.Namespace) -> None:
     if init is not None and not getattr(task, "model_config", True):
         # Fine-tuning keeps the architecture of the weights it starts from.
         task.model_config = dict(init.config)
-    history = fit(task, points, config, resume=args.resume, init_weights=init)
+    try:
+        history = fit(task, points, config, resume=args.resume, init_weights=init)
+    except KeyboardInterrupt:
+        from masknet.training.loop import CHECKPOINT
+
+        if (Path(args.out) / CHECKPOINT).exists():
+            raise KeyboardInterrupt(
+                f"the last finished epoch is saved in {Path(args.out) / CHECKPOINT}; "
+                "run the same command with --resume to continue"
+            ) from None
+        raise
     if history:
         last = history[-1]
         print(

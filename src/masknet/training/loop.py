@@ -351,7 +351,11 @@ def _fit(
             _write_csv(history, out / "log.csv")
             print(
                 f"epoch {epoch + 1}: "
-                + ", ".join(f"{k} {v:.4f}" for k, v in row.items() if k != "epoch"),
+                + ", ".join(
+                    f"{k} {v:.3g}" if k == "lr" else f"{k} {v:.4f}"  # lr exact: 5e-05, not 0.0001
+                    for k, v in row.items()
+                    if k != "epoch"
+                ),
                 file=sys.stderr,
                 flush=True,
             )
