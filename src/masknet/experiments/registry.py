@@ -26,6 +26,7 @@ from masknet.experiments import (
     rotation_sweep,
     rounds,
     scans,
+    startup,
     timing,
 )
 from masknet.experiments.context import BenchmarkContext, ExperimentResult
@@ -51,6 +52,7 @@ EXPERIMENTS: dict[str, Callable[[BenchmarkContext], ExperimentResult]] = {
     "scans": scans.run,
     "robust": robust.run,
     "real-pairs": real_pairs.run,
+    "startup": startup.run,
 }
 
 
