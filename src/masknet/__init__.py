@@ -7,6 +7,8 @@
     >>> result = register(template, source)           # Mask-ICP; result.transform (4, 4)
     >>> from masknet import evaluate_registration
     >>> evaluate_registration(template, source, result.transform).fitness  # inlier fraction
+    >>> from masknet import assess_registration
+    >>> assess_registration(template, source, result.transform).verdict  # did it work?
     >>> from masknet import denoise
     >>> kept = denoise(noisy, template)               # aligned clouds: kept.points, kept.mask
 
@@ -23,6 +25,7 @@ __all__ = [
     "DenoiseResult",
     "MaskNet",
     "MaskNetError",
+    "assess_registration",
     "denoise",
     "evaluate_registration",
     "RegistrationResult",
@@ -39,6 +42,7 @@ _LAZY = {
     "MaskNet": "masknet.models",
     "select_mask": "masknet.models",
     "RegistrationResult": "masknet.registration",
+    "assess_registration": "masknet.registration",
     "evaluate_registration": "masknet.registration",
     "register": "masknet.registration",
 }
@@ -46,7 +50,12 @@ _LAZY = {
 if TYPE_CHECKING:
     from masknet.denoising import DenoiseResult, denoise
     from masknet.models import MaskNet, select_mask
-    from masknet.registration import RegistrationResult, evaluate_registration, register
+    from masknet.registration import (
+        RegistrationResult,
+        assess_registration,
+        evaluate_registration,
+        register,
+    )
 
 
 def __getattr__(name: str):

@@ -15,6 +15,8 @@ its name), in a KD-tree, so a crop costs one query.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import sys
 import zlib
 from collections.abc import Iterator, Sequence
@@ -99,7 +101,9 @@ def load_scans(
     scans = []
     for path in files:
         try:
-            points = read_points(path, drop_nonfinite=True)
+            # A file skipped for its size needs no warning about its size as well.
+            with contextlib.redirect_stderr(io.StringIO()):
+                points = read_points(path, drop_nonfinite=True)
         except MaskNetError as exc:
             if not quiet:
                 _warn(f"{exc}; skipped")

@@ -27,6 +27,7 @@ from masknet.experiments import (
     rounds,
     scans,
     startup,
+    success,
     timing,
 )
 from masknet.experiments.context import BenchmarkContext, ExperimentResult
@@ -52,6 +53,7 @@ EXPERIMENTS: dict[str, Callable[[BenchmarkContext], ExperimentResult]] = {
     "scans": scans.run,
     "robust": robust.run,
     "real-pairs": real_pairs.run,
+    "success": success.run,
     "startup": startup.run,
 }
 

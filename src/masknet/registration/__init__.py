@@ -2,6 +2,7 @@
 
 * :mod:`.api`: the facade, :func:`register` and :class:`RegistrationResult`;
 * :mod:`.evaluation`: :func:`evaluate_registration`, inlier fraction and RMSE of any result;
+* :mod:`.assessment`: :func:`assess_registration`, did it work: a verdict and its reason;
 * :mod:`.methods`: method names, titles, options and defaults; :mod:`.options`: the
   typed options (``ICPCriteria``, ``Selection``, ``Rounds``, ``RobustOptions``);
 * :mod:`.validation` and :mod:`.sampling`: argument checks, large clouds to network size;
@@ -11,6 +12,7 @@
 """
 
 from masknet.registration.api import RegistrationResult, register
+from masknet.registration.assessment import Assessment, assess_registration
 from masknet.registration.evaluation import RegistrationQuality, evaluate_registration
 from masknet.registration.icp import ICPSolution, icp
 from masknet.registration.methods import METHOD_TITLES, METHODS
@@ -18,6 +20,7 @@ from masknet.registration.open3d_icp import open3d_icp
 from masknet.registration.options import ICPCriteria, RobustOptions, Rounds, Selection
 
 __all__ = [
+    "Assessment",
     "ICPCriteria",
     "METHODS",
     "METHOD_TITLES",
@@ -27,6 +30,7 @@ __all__ = [
     "RobustOptions",
     "Rounds",
     "Selection",
+    "assess_registration",
     "evaluate_registration",
     "icp",
     "open3d_icp",

@@ -26,7 +26,7 @@ from masknet.errors import MaskNetError
 from masknet.geometry.clouds import median_spacing
 from masknet.geometry.knn import knn_points
 from masknet.geometry.se3 import transform_points
-from masknet.registration.validation import as_numpy_batch
+from masknet.registration.validation import as_numpy_batch, as_rigid_transforms
 
 __all__ = ["DEFAULT_SPACINGS", "RegistrationQuality", "evaluate_registration"]
 
@@ -71,18 +71,7 @@ def evaluate_registration(
             or ``max_distance``.
     """
     template_b, source_b, single = as_numpy_batch(template, source)
-    tf = np.array(transform, dtype=np.float64)
-    b = template_b.shape[0]
-    if tf.shape == (4, 4):
-        tf = np.broadcast_to(tf, (b, 4, 4)).copy()  # writable, for torch
-    if tf.shape != (b, 4, 4) or not np.isfinite(tf).all():
-        raise MaskNetError(f"transform must be finite (4, 4) or ({b}, 4, 4), got {tf.shape}")
-    rot = tf[:, :3, :3]
-    rigid = np.allclose(rot @ rot.transpose(0, 2, 1), np.eye(3), atol=1e-4)
-    if not rigid or (np.linalg.det(rot) < 0).any() or not np.allclose(tf[:, 3], [0, 0, 0, 1]):
-        raise MaskNetError(
-            "transform must be rigid: a rotation and a translation, last row 0 0 0 1"
-        )
+    tf = as_rigid_transforms(transform, template_b.shape[0])
     if max_distance is not None and (
         isinstance(max_distance, bool)
         or not isinstance(max_distance, int | float | np.number)
@@ -92,7 +81,7 @@ def evaluate_registration(
     if max_distance is None:
         limits = np.array([DEFAULT_SPACINGS * median_spacing(t) for t in template_b])
     else:
-        limits = np.full(b, float(max_distance))
+        limits = np.full(len(template_b), float(max_distance))
     moved = transform_points(torch.from_numpy(tf), torch.from_numpy(source_b))
     d2 = knn_points(moved, torch.from_numpy(template_b), 1).dists[..., 0].numpy()
     inlier = d2 <= limits[:, None] ** 2

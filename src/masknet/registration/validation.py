@@ -10,7 +10,7 @@ from masknet.errors import MaskNetError
 from masknet.geometry.clouds import MIN_POINTS, as_cloud_batch
 from masknet.registration.methods import INITS, METHODS, OPTIONS
 
-__all__ = ["as_numpy_batch", "check_arguments"]
+__all__ = ["as_numpy_batch", "as_rigid_transforms", "check_arguments"]
 
 
 def check_arguments(
@@ -60,3 +60,20 @@ def as_numpy_batch(template: Any, source: Any) -> tuple[np.ndarray, np.ndarray, 
     _, _, single = as_cloud_batch(t, s)
     t, s = t.astype(np.float64), s.astype(np.float64)
     return (t[None], s[None], True) if single else (t, s, False)
+
+
+def as_rigid_transforms(transform: np.ndarray, b: int) -> np.ndarray:
+    """``transform`` (4, 4) or (B, 4, 4) as a writable float64 (B, 4, 4); refuses
+    anything but finite rigid transforms."""
+    tf = np.array(transform, dtype=np.float64)
+    if tf.shape == (4, 4):
+        tf = np.broadcast_to(tf, (b, 4, 4)).copy()  # writable, for torch
+    if tf.shape != (b, 4, 4) or not np.isfinite(tf).all():
+        raise MaskNetError(f"transform must be finite (4, 4) or ({b}, 4, 4), got {tf.shape}")
+    rot = tf[:, :3, :3]
+    rigid = np.allclose(rot @ rot.transpose(0, 2, 1), np.eye(3), atol=1e-4)
+    if not rigid or (np.linalg.det(rot) < 0).any() or not np.allclose(tf[:, 3], [0, 0, 0, 1]):
+        raise MaskNetError(
+            "transform must be rigid: a rotation and a translation, last row 0 0 0 1"
+        )
+    return tf

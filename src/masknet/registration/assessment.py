@@ -1,0 +1,174 @@
+"""``assess_registration``: did a registration work? A verdict with its reason.
+
+The share of source points that land near the template (``fitness``) cannot say: two
+partial scans at their true pose may overlap by a quarter, and a wrong pose of two room
+scans can fit as well as the right one. The verdict rests on two unit-free figures:
+
+* **The overlap fit.** The points that the pose brings near the other cloud (within 3
+  inlier distances) are the overlap it implies. On a right pose almost all of them lie
+  within one inlier distance (1.5 spacings), because the surfaces coincide there; on a
+  wrong pose surfaces only cross, and about half do. It is taken both ways, template to
+  source and source to template, and the smaller counts.
+* **The nearest fit.** A short ICP (cut-off 3 inlier distances) starts from the pose.
+  How far it turns and shifts the source says whether the pose is on a fit or some
+  degrees from one; the overlap fit is measured there, at the nearest fit.
+
+Verdicts: ``likely wrong`` when the overlap fit is under 0.5, or the nearest fit lies 8
+degrees or 15% of the source's radius away; ``likely correct`` when the overlap fit is at
+least 0.6 and the nearest fit lies within 3 degrees and 7.5% of the radius; ``uncertain``
+otherwise. Calibrated on ground-truth poses and poses turned 2, 5, 15
+and 45 degrees off (docs/RESULTS.md, "Did it work?", ``masknet benchmark success``).
+
+A result that is the right fit of an ambiguous shape (a flip of a symmetric object) is
+``likely correct`` here: the verdict judges the fit, and ``result.info["ambiguous"]``
+says whether another pose fits as well.
+
+Example::
+
+    result = register(template, source)
+    check = assess_registration(template, source, result.transform)
+    print(check.verdict, "-", check.reason)
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from masknet.geometry.clouds import median_spacing
+from masknet.registration.coarse import rotation_between_deg
+from masknet.registration.evaluation import DEFAULT_SPACINGS
+from masknet.registration.validation import as_numpy_batch, as_rigid_transforms
+
+__all__ = ["Assessment", "assess_registration"]
+
+NEAR = 3.0  # the overlap a pose implies: points within this many inlier distances
+CORRECT_FIT, WRONG_FIT = 0.6, 0.5  # overlap fit: likely correct at or above, wrong below
+CORRECT_DEG, WRONG_DEG = 3.0, 8.0  # the nearest fit's turn: correct within, wrong from
+CORRECT_SHIFT, WRONG_SHIFT = 0.075, 0.15  # its shift, in RMS radii of the moved source
+MAX_POINTS = 8192  # points asked per cloud (a seeded subset of larger clouds)
+VERDICTS = ("likely correct", "uncertain", "likely wrong")
+
+
+class Assessment(NamedTuple):
+    """verdict: ``likely correct``, ``uncertain`` or ``likely wrong``. reason: one line
+    saying why. overlap_fit: the smaller of the two directions' share of overlap points
+    within ``max_distance``. fitness: the share of all source points within
+    ``max_distance`` (Open3D's fitness). overlap: the share of source points in the
+    overlap (within 3 ``max_distance``). nearby_deg, nearby_shift: how far a short ICP
+    from the pose moves it, as a rotation in degrees and as the shift of the source's
+    centroid over its RMS radius. max_distance: the inlier distance, input units."""
+
+    verdict: str
+    reason: str
+    overlap_fit: float
+    fitness: float
+    overlap: float
+    nearby_deg: float
+    nearby_shift: float
+    max_distance: float
+
+
+def _subset(points: np.ndarray, seed: int) -> np.ndarray:
+    if len(points) <= MAX_POINTS:
+        return points
+    pick = np.random.default_rng(seed).choice(len(points), MAX_POINTS, replace=False)
+    return points[np.sort(pick)]
+
+
+def _overlap_fit(near_to: object, points: np.ndarray, limit: float) -> tuple[float, float, float]:
+    """(share within ``limit`` among points within NEAR ``limit``, share within ``limit``,
+    share within NEAR ``limit``) of ``points`` against the cloud of the tree ``near_to``."""
+    d, _ = near_to.query(points, k=1, distance_upper_bound=NEAR * limit)
+    near = np.isfinite(d)
+    close = int((d <= limit).sum())
+    return close / max(int(near.sum()), 1), close / len(points), float(near.mean())
+
+
+def assess_registration(
+    template: np.ndarray,
+    source: np.ndarray,
+    transform: np.ndarray,
+    *,
+    max_distance: float | None = None,
+) -> Assessment:
+    """Judge ``transform`` (source -> template) for one pair.
+
+    Args:
+        template: (N, 3) points.
+        source: (M, 3) points.
+        transform: (4, 4) rigid source -> template, as ``register`` returns it.
+        max_distance: the inlier distance in input units; None takes 1.5 times the
+            larger of the two clouds' median spacings (exact duplicates skipped), so
+            the verdict does not depend on the unit.
+
+    Raises:
+        MaskNetError: bad clouds (shape, NaN/inf, too few points), a batch, or a
+            transform that is not rigid.
+    """
+    from pykdtree.kdtree import KDTree
+
+    from masknet.errors import MaskNetError
+    from masknet.registration.icp_tree import icp_single
+
+    template_b, source_b, single = as_numpy_batch(template, source)
+    if not single:
+        raise MaskNetError("assess_registration judges one pair: (N, 3) and (M, 3) clouds")
+    tf = as_rigid_transforms(transform, 1)[0]
+    full_template, full_source = template_b[0], source_b[0]
+    if max_distance is None:
+        spacing = max(
+            median_spacing(full_template, sample=2048), median_spacing(full_source, sample=2048)
+        )
+        limit = DEFAULT_SPACINGS * spacing
+    else:
+        limit = float(max_distance)
+    if not limit > 0:
+        raise MaskNetError("every point of a cloud is the same point: no spacing to measure by")
+    template_pts, source_pts = _subset(full_template, 0), _subset(full_source, 1)
+    template_tree = KDTree(np.ascontiguousarray(full_template))
+
+    def moved_by(pose: np.ndarray) -> np.ndarray:
+        return source_pts @ pose[:3, :3].T + pose[:3, 3]
+
+    refined = (
+        icp_single(
+            full_template,
+            source_pts,
+            init=tf,
+            max_iterations=20,
+            max_correspondence_distance=NEAR * limit,
+            template_tree=template_tree,
+        )
+        .transform[0]
+        .numpy()
+    )
+    moved, nearest = moved_by(tf), moved_by(refined)
+    _, fitness, overlap = _overlap_fit(template_tree, moved, limit)
+    # The fit of the nearest fitting pose: the surfaces there, not a few spacings off.
+    source_fit, _, _ = _overlap_fit(template_tree, nearest, limit)
+    template_fit, _, _ = _overlap_fit(KDTree(np.ascontiguousarray(nearest)), template_pts, limit)
+    overlap_fit = min(source_fit, template_fit)
+    nearby_deg = rotation_between_deg(refined, tf)
+    radius = np.sqrt(((moved - moved.mean(0)) ** 2).sum(1).mean())
+    nearby_shift = float(np.linalg.norm(nearest.mean(0) - moved.mean(0)) / max(radius, 1e-300))
+    away = f"{nearby_deg:.1f} degrees and {nearby_shift:.0%} of the radius away"
+    if overlap_fit < WRONG_FIT:
+        verdict = "likely wrong"
+        reason = (
+            f"only {overlap_fit:.0%} of the overlap fits within {limit:.3g} at the nearest "
+            f"fit ({away}); right poses fit {CORRECT_FIT:.0%} or more"
+        )
+    elif nearby_deg >= WRONG_DEG or nearby_shift >= WRONG_SHIFT:
+        verdict = "likely wrong"
+        reason = f"a pose {away} fits better"
+    elif overlap_fit >= CORRECT_FIT and nearby_deg <= CORRECT_DEG and nearby_shift <= CORRECT_SHIFT:
+        verdict = "likely correct"
+        reason = f"{overlap_fit:.0%} of the overlap fits within {limit:.3g}, at a fit {away}"
+    else:
+        verdict = "uncertain"
+        reason = f"{overlap_fit:.0%} of the overlap fits within {limit:.3g}, at a fit {away}"
+    return Assessment(
+        verdict, reason, overlap_fit, fitness, overlap, nearby_deg, nearby_shift, limit
+    )
