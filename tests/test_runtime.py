@@ -1,14 +1,58 @@
 """Device and precision helpers."""
 
 import pytest
+import torch
 
+import masknet.runtime as runtime
 from masknet.errors import MaskNetError
 from masknet.runtime import default_precision, resolve_device
 
 
-def test_default_precision_is_a_known_mode():
-    assert default_precision("cpu") in ("fp32", "bf16")
+@pytest.fixture
+def cpuinfo(monkeypatch):
+    """``cpuinfo(text)``: default_precision reads ``text`` as /proc/cpuinfo (None: unreadable)."""
+    runtime._default_precision.cache_clear()
+
+    def set_text(text):
+        class FakePath:
+            def __init__(self, path):
+                assert str(path) == "/proc/cpuinfo"
+
+            def read_text(self):
+                if text is None:
+                    raise OSError("no /proc")
+                return text
+
+        monkeypatch.setattr(runtime, "Path", FakePath)
+        runtime._default_precision.cache_clear()
+
+    yield set_text
+    runtime._default_precision.cache_clear()
+
+
+@pytest.mark.parametrize(
+    "flags, expected",
+    [
+        ("fpu sse avx2 avx512f", "fp32"),
+        ("fpu avx512f avx512_bf16", "bf16"),
+        ("fpu amx_tile amx_bf16", "bf16"),
+        (None, "fp32"),  # no /proc/cpuinfo: the safe choice
+    ],
+)
+def test_cpu_precision_follows_the_bf16_flags(cpuinfo, flags, expected):
+    cpuinfo(None if flags is None else f"processor\t: 0\nflags\t\t: {flags}\n")
+    assert default_precision("cpu") == expected
     assert default_precision("meta") == "fp32"
+
+
+@pytest.mark.parametrize("supported, expected", [(True, "bf16"), (False, "fp32")])
+def test_cuda_precision_follows_bf16_support(monkeypatch, supported, expected):
+    runtime._default_precision.cache_clear()
+    monkeypatch.setattr(torch.cuda, "is_bf16_supported", lambda *a, **k: supported)
+    try:
+        assert default_precision("cuda") == expected
+    finally:
+        runtime._default_precision.cache_clear()
 
 
 def test_unknown_device_is_one_clear_error():

@@ -96,7 +96,7 @@ def test_bad_file_through_the_cli(tmp_path, good_file, capsys, name, command):
 def test_api_register_refuses_non_numeric_clouds():
     from masknet import register
 
-    with pytest.raises(MaskNetError, match="source must hold numbers"):
+    with pytest.raises(MaskNetError, match="source: expected numbers"):
         register(GOOD, GOOD.astype(str))
 
 

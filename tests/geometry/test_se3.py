@@ -55,7 +55,11 @@ def test_so3_exp_matches_scipy_from_rotvec():
 
 def test_so3_exp_batch_shape():
     omega = _rotvecs(6).reshape(2, 3, 3)
-    assert so3_exp(omega).shape == (2, 3, 3, 3)
+    rot = so3_exp(omega)
+    assert rot.shape == (2, 3, 3, 3)
+    # Each element is its own vector's rotation (scipy's).
+    expected = torch.from_numpy(Rotation.from_rotvec(omega.reshape(6, 3).numpy()).as_matrix())
+    torch.testing.assert_close(rot, expected.reshape(2, 3, 3, 3), atol=1e-12, rtol=0)
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])

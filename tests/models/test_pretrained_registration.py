@@ -41,14 +41,36 @@ def test_weights_load_with_their_card(method):
     assert card["epochs_trained"] >= 1
 
 
+# Per network, on the 40 pairs above (no motion: mean 24.1 deg): the measured mean error and
+# the bound, 1.5-1.6 times it, so that a result twice as bad as measured fails.
+MEAN_ERROR_BOUNDS = {
+    "dcp": 9.5,  # measured 5.80 deg
+    "prnet": 12.0,  # 7.85 (also under the former bound, half of no motion)
+    "pcrnet": 10.0,  # 6.20
+    "rpmnet": 3.1,  # 1.91
+}
+
+
 @pytest.mark.parametrize("method", NETWORKS)
 def test_recovers_known_transforms_far_better_than_no_motion(method, pairs):
-    """On full clouds of the bundled sample: the mean error is under half of no motion's."""
+    """On full clouds of the bundled sample: the mean error is within a measured bound,
+    far under no motion's."""
     truth = pairs.transform.double().numpy()
     result = register(pairs.template.numpy(), pairs.source.numpy(), method=method, use_mask=False)
     error, _ = pose_errors(result.transform, truth)
     identity, _ = pose_errors(np.broadcast_to(np.eye(4), truth.shape).copy(), truth)
-    assert error.mean() < 0.5 * identity.mean(), (error.mean(), identity.mean())
+    assert MEAN_ERROR_BOUNDS[method] < 0.5 * identity.mean()
+    assert error.mean() < MEAN_ERROR_BOUNDS[method], (error.mean(), identity.mean())
+
+
+# The median angle between the turned pair's estimate and R Q^T over the first 8 pairs:
+# measured, and a bound about 1.6 times it (no motion gives 15 deg, Q itself).
+EQUIVARIANCE_BOUNDS = {
+    "dcp": 7.5,  # measured 4.85 deg
+    "prnet": 10.0,  # 6.21
+    "pcrnet": 9.5,  # 5.94
+    "rpmnet": 0.7,  # 0.43
+}
 
 
 @pytest.mark.parametrize("method", NETWORKS)
@@ -61,4 +83,4 @@ def test_an_extra_rotation_of_the_source_is_followed(method, pairs):
     turned = register(template, source @ q.T, method=method, use_mask=False)
     expected = base.R @ q.T
     angle = rotation_error_deg(torch.from_numpy(turned.R), torch.from_numpy(expected)).numpy()
-    assert np.median(angle) < 10, angle
+    assert np.median(angle) < EQUIVARIANCE_BOUNDS[method], angle

@@ -19,7 +19,8 @@ def _small() -> TwoSidedMaskNet:
 
 def test_all_kept_source_gives_the_paper_masknet():
     model = _small()
-    t, s = torch.rand(2, 40, 3), torch.rand(2, 30, 3)
+    gen = torch.Generator().manual_seed(1)
+    t, s = torch.rand(2, 40, 3, generator=gen), torch.rand(2, 30, 3, generator=gen)
     with torch.no_grad():
         # Source weights of 1 everywhere: the template branch is the paper's MaskNet.
         for layer in model.source_head:
@@ -33,9 +34,9 @@ def test_all_kept_source_gives_the_paper_masknet():
 def test_frozen_template_branch_gets_no_gradient():
     model = _small().train()
     assert not model.masknet.training  # frozen BatchNorm statistics too
-    _, logits = model(
-        torch.rand(2, 40, 3), torch.rand(2, 30, 3), logits=True, template_branch=False
-    )
+    gen = torch.Generator().manual_seed(2)
+    t, s = torch.rand(2, 40, 3, generator=gen), torch.rand(2, 30, 3, generator=gen)
+    _, logits = model(t, s, logits=True, template_branch=False)
     logits.sum().backward()
     assert all(p.grad is None for p in model.masknet.parameters())
     assert model.source_point.weight.grad is not None
@@ -65,7 +66,7 @@ def test_save_load_round_trip(tmp_path):
 
 def test_corruption_labels_replaced_points():
     gen = torch.Generator().manual_seed(0)
-    pairs = make_pairs(torch.rand(4, 64, 3), PairConfig(), gen)
+    pairs = make_pairs(torch.rand(4, 64, 3, generator=gen), PairConfig(), gen)
     out = corrupt_source(pairs, CorruptionConfig(max_outlier_ratio=0.3, max_clutter=0.5), gen)
     assert out.source.shape == pairs.source.shape
     changed = (out.source - pairs.source).norm(dim=-1) > 0.05  # beyond 3 sigma of noise
@@ -76,11 +77,16 @@ def test_corruption_labels_replaced_points():
 def test_shipped_two_sided_masks_remove_outliers():
     model = TwoSidedMaskNet.pretrained()
     gen = torch.Generator().manual_seed(3)
-    cloud = torch.nn.functional.normalize(torch.randn(1, 1024, 3), dim=-1)  # a sphere
-    pairs = make_pairs(cloud, PairConfig(outlier_ratio=0.2), gen)
+    cloud = torch.nn.functional.normalize(torch.randn(1, 1024, 3, generator=gen), dim=-1)
+    pairs = make_pairs(cloud, PairConfig(outlier_ratio=0.2), gen)  # a sphere, 143 outliers
     _, kept = model.predict_masks(pairs.template[0].numpy(), pairs.source[0].numpy())
     truth = pairs.source_mask[0].numpy()
-    assert kept[truth].mean() > 0.9
-    assert (~kept[~truth]).mean() > 0.3
+    # Measured (bf16 and fp32 alike): every real point kept, 81 of the 143 outliers (0.566)
+    # removed. Floors: 0.45 (a fifth below), and 98% of the real points.
+    assert kept[truth].mean() > 0.98
+    assert (~kept[~truth]).mean() > 0.45
     result = register(pairs.template[0].numpy(), pairs.source[0].numpy(), model=model)
-    assert result.source_mask is not None and result.source_mask.shape == (pairs.source.shape[1],)
+    assert result.source_mask.shape == (pairs.source.shape[1],)
+    # register's source mask is the same network's: the same figures, the same floors
+    assert result.source_mask[truth].mean() > 0.98
+    assert (~result.source_mask[~truth]).mean() > 0.45
