@@ -19,7 +19,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from masknet.errors import MaskNetError
+from masknet.errors import MaskNetError, warns_once
 from masknet.geometry.clouds import as_cloud_batch, median_spacing, unit_radius
 from masknet.geometry.knn import knn_points
 from masknet.geometry.sampling import farthest_point_sample
@@ -64,6 +64,7 @@ def _default_refiner() -> RefineMaskNet:
 METHODS = ("distance", "masknet", "refined")
 
 
+@warns_once
 def denoise(
     noisy: np.ndarray,
     template: np.ndarray,

@@ -48,7 +48,7 @@ import numpy as np
 
 from masknet._atomic import atomic_target, write_text_atomic
 from masknet.errors import MaskNetError
-from masknet.io_checks import FLOAT32_MAX, check_geometry, check_pcd_body, check_ply_body
+from masknet.io_checks import check_cloud, check_pcd_body, check_ply_body
 
 __all__ = [
     "SUPPORTED_READ",
@@ -194,48 +194,8 @@ def read_points(
         raise
     except OSError as exc:
         raise MaskNetError(f"{name}: cannot read file ({exc.strerror or exc})") from exc
-    points, rows = _validate(points, name, drop_nonfinite)
+    points, rows = check_cloud(points, name, drop_nonfinite)
     return (points, rows) if return_rows else points
-
-
-def _validate(points: np.ndarray, name: str, drop_nonfinite: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Check shape, finiteness and size; return the first 3 columns as float64 (N, 3),
-    and which of the file's rows they are ((P,) bool)."""
-    if points.dtype.kind not in "iuf":
-        raise MaskNetError(f"{name}: expected numbers, got an array of dtype {points.dtype}")
-    if points.ndim != 2 or points.shape[1] < 3:
-        if points.size == 0:
-            raise MaskNetError(f"{name}: no points")
-        raise MaskNetError(
-            f"{name}: expected an (N, 3) array of points (extra columns allowed), "
-            f"got shape {tuple(points.shape)}"
-        )
-    points = np.ascontiguousarray(points[:, :3], dtype=np.float64)
-    if len(points) == 0:
-        raise MaskNetError(f"{name}: no points")
-    finite = np.isfinite(points).all(axis=1)
-    n_bad = int(len(points) - finite.sum())
-    if n_bad:
-        if not drop_nonfinite:
-            rows = "1 row contains" if n_bad == 1 else f"{n_bad} rows contain"
-            every = " (all of them)" if n_bad == len(points) else ""
-            raise MaskNetError(
-                f"{name}: {rows} NaN or inf{every}; pass --drop-nonfinite "
-                "(drop_nonfinite=True in Python) to drop them"
-            )
-        points = points[finite]
-        if len(points) == 0:
-            raise MaskNetError(f"{name}: all {n_bad} points contain NaN or inf; none remain")
-    if len(points) < 3:
-        raise MaskNetError(f"{name}: only {len(points)} point(s); at least 3 are needed")
-    largest = float(np.abs(points).max())
-    if largest > FLOAT32_MAX:
-        raise MaskNetError(
-            f"{name}: coordinates up to {largest:.3g}, beyond float32's range "
-            f"({FLOAT32_MAX:.3g}); rescale the cloud"
-        )
-    check_geometry(points, name)
-    return points, finite
 
 
 def _read_open3d(name: str, fmt: str) -> np.ndarray:

@@ -1,27 +1,110 @@
-"""Consistency checks of point files and clouds: a header that disagrees with its body
-(PLY, PCD), coordinates no float32 holds, clouds with no 3-D extent, and the warnings
-for clouds too small or too spread to trust. :mod:`masknet.io` runs them on every read.
+"""The one set of checks of point clouds, for files and for arrays alike.
+
+:func:`check_cloud` decides for :func:`masknet.io.read_points` (the CLI's every input)
+and for :func:`masknet.register` and the other entry points of the API: numbers only, an
+(N, 3) array (a transposed (3, N) one is named as such), NaN/inf rows counted (dropped
+on request), at least 3 points, coordinates small enough that squared distances do not
+overflow float32, and a 3-D extent; very few points, or one point far out, give a
+:class:`~masknet.errors.MaskNetWarning`. The PLY and PCD checks compare a header with
+its body.
 """
 
 from __future__ import annotations
 
 import os
-import sys
+import warnings
 
 import numpy as np
 
-from masknet.errors import MaskNetError
+from masknet.errors import MaskNetError, MaskNetWarning
 
-__all__ = ["FEW_POINTS", "FLOAT32_MAX", "check_geometry", "check_pcd_body", "check_ply_body"]
+__all__ = [
+    "FEW_POINTS",
+    "FLOAT32_MAX",
+    "LARGEST_COORDINATE",
+    "check_cloud",
+    "check_geometry",
+    "check_pcd_body",
+    "check_ply_body",
+]
 
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 FEW_POINTS = 10  # at most this many points: registration is unreliable, say so
+# Beyond this, squared distances of float32 coordinates (the networks', the KD-trees')
+# overflow: sqrt(3.4e38) is 1.8e19; keep a margin for sums of squares and products.
+LARGEST_COORDINATE = 1e15
+
+
+def check_cloud(
+    points: object, name: str, drop_nonfinite: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
+    """Decide whether ``points`` is a usable cloud; return it as float64 (N, 3) and which
+    of its rows were kept ((P,) bool). Extra columns (colour, intensity) are dropped.
+
+    Args:
+        points: an (N, C) array of numbers, C >= 3.
+        name: what to call it in messages: a file's path, ``"template"`` or ``"source"``.
+        drop_nonfinite: drop rows holding NaN or inf instead of refusing the cloud.
+
+    Raises:
+        MaskNetError: one line naming ``name`` and the problem.
+
+    Warns:
+        MaskNetWarning: 3-10 points, or one point far out (see :func:`check_geometry`).
+    """
+    array = np.asarray(points)
+    if array.dtype.kind not in "iuf":
+        raise MaskNetError(f"{name}: expected numbers, got an array of dtype {array.dtype}")
+    if array.ndim == 2 and array.shape[0] == 3 and array.shape[1] > 3:
+        raise MaskNetError(
+            f"{name}: shape {array.shape} looks transposed (3 rows of coordinates); "
+            "pass an (N, 3) array, one point per row (its .T)"
+        )
+    if array.ndim != 2 or array.shape[1] < 3:
+        if array.size == 0:
+            raise MaskNetError(f"{name}: no points")
+        raise MaskNetError(
+            f"{name}: expected an (N, 3) array of points (extra columns allowed), "
+            f"got shape {tuple(array.shape)}"
+        )
+    cloud = np.ascontiguousarray(array[:, :3], dtype=np.float64)
+    if len(cloud) == 0:
+        raise MaskNetError(f"{name}: no points")
+    finite = np.isfinite(cloud).all(axis=1)
+    n_bad = int(len(cloud) - finite.sum())
+    if n_bad:
+        if not drop_nonfinite:
+            rows = "1 row contains" if n_bad == 1 else f"{n_bad} rows contain"
+            every = " (all of them)" if n_bad == len(cloud) else ""
+            raise MaskNetError(
+                f"{name}: {rows} NaN or inf{every}; pass --drop-nonfinite "
+                "(drop_nonfinite=True in Python) to drop them"
+            )
+        cloud = cloud[finite]
+        if len(cloud) == 0:
+            raise MaskNetError(f"{name}: all {n_bad} points contain NaN or inf; none remain")
+    if len(cloud) < 3:
+        raise MaskNetError(f"{name}: only {len(cloud)} point(s); at least 3 are needed")
+    largest = float(np.abs(cloud).max())
+    if largest > FLOAT32_MAX:
+        raise MaskNetError(
+            f"{name}: coordinates up to {largest:.3g}, beyond float32's range "
+            f"({FLOAT32_MAX:.3g}); rescale the cloud"
+        )
+    if largest > LARGEST_COORDINATE:
+        raise MaskNetError(
+            f"{name}: coordinates up to {largest:.3g}: squared distances would overflow "
+            f"float32 (coordinates must stay under {LARGEST_COORDINATE:.0e}); rescale the cloud"
+        )
+    check_geometry(cloud, name)
+    return cloud, finite
 
 
 def check_geometry(points: np.ndarray, name: str) -> None:
-    """Refuse clouds (N, 3) with no 3-D extent to register, and warn on stderr where a
-    result will be unreliable: 3-10 points, or one point so far out that it sets the
-    cloud's spread (more than 1,000 times the median distance from the median)."""
+    """Refuse clouds (N, 3) with no 3-D extent to register, and warn
+    (:class:`~masknet.errors.MaskNetWarning`) where a result will be unreliable: 3-10
+    points, or one point so far out that it sets the cloud's spread (more than 1,000
+    times the median distance from the median)."""
     centred = points - np.median(points, axis=0)
     deviation = centred - centred.mean(0)
     # Singular values of the centred cloud, from its 3x3 scatter (no (N, 3) copy).
@@ -31,18 +114,18 @@ def check_geometry(points: np.ndarray, name: str) -> None:
     if spread[1] <= 1e-6 * spread[0]:  # (square roots of eigenvalues: 1e-6, not 1e-12)
         raise MaskNetError(f"{name}: all {len(points)} points lie on one line; nothing to register")
     if len(points) <= FEW_POINTS:
-        print(
-            f"masknet: warning: {name}: only {len(points)} points; the result is unreliable",
-            file=sys.stderr,
-        )
+        _warn(f"{name}: only {len(points)} points; the result is unreliable")
     distance = np.linalg.norm(centred, axis=1)
     typical = float(np.median(distance))
     if typical > 0 and distance.max() > 1000 * typical:
-        print(
-            f"masknet: warning: {name}: one point lies {distance.max() / typical:.3g} times farther out "
-            "than the median point; an outlier sets the cloud's scale",
-            file=sys.stderr,
+        _warn(
+            f"{name}: one point lies {distance.max() / typical:.3g} times farther out "
+            "than the median point; an outlier sets the cloud's scale"
         )
+
+
+def _warn(message: str) -> None:
+    warnings.warn(message, MaskNetWarning, stacklevel=4)
 
 
 _PLY_SIZES = {

@@ -5,7 +5,9 @@ options several commands share are in :mod:`masknet.cli._common`. Heavy imports
 happen inside ``run``, so ``masknet --help`` stays fast.
 
 Every failure caused by input (missing file, bad format, NaN rows, wrong shape)
-is printed as one line, ``masknet: error: <file>: <problem>``, with exit code 2.
+is printed as one line, ``masknet: error: <file>: <problem>``, with exit code 2. Every
+:class:`~masknet.errors.MaskNetWarning` the API issues is printed as one line,
+``masknet: warning: <message>``, once.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import warnings
 
 from masknet.cli import (
     benchmark,
@@ -25,7 +28,7 @@ from masknet.cli import (
     show,
     train,
 )
-from masknet.errors import MaskNetError
+from masknet.errors import MaskNetError, MaskNetWarning
 
 __all__ = ["COMMANDS", "main", "build_parser"]
 
@@ -68,6 +71,26 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Run ``masknet`` with ``argv`` (default: ``sys.argv[1:]``); returns the exit code."""
     args = build_parser().parse_args(argv)
+    shown, problems = warnings.showwarning, set()
+
+    def one_line(message, category, filename, lineno, file=None, line=None):
+        if not issubclass(category, MaskNetWarning):
+            shown(message, category, filename, lineno, file, line)
+            return
+        # "scan.ply: only 6 points" when read, "source: only 6 points" when registered:
+        # one problem, said once, naming the file.
+        problem = str(message).split(": ", 1)[-1]
+        if problem not in problems:
+            problems.add(problem)
+            print(f"masknet: warning: {message}", file=sys.stderr)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("default", MaskNetWarning)  # each message once
+        warnings.showwarning = one_line
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     try:
         COMMANDS[args.command].run(args)
     except MaskNetError as exc:

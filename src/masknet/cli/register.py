@@ -25,10 +25,8 @@ from masknet.cli._common import (
 from masknet.errors import MaskNetError
 from masknet.names import METHOD_TITLES, METHODS
 
-# Below this fraction of the source on the template after registration (or of the template
-# on the scan, after a scene search), the CLI warns: right results on clean pairs fit fully,
-# wrong ones about half (docs/RESULTS.md, "Did a registration work?"); partial overlaps of
-# real scans sit lower when right.
+# Below this fraction of the template on the scan where a scene search found it, the CLI
+# warns that the object may not be in the scan.
 LOW_FITNESS = 0.5
 
 if TYPE_CHECKING:  # heavy imports stay out of ``masknet --help``
@@ -170,7 +168,7 @@ def run(args: argparse.Namespace) -> None:
     import numpy as np
 
     from masknet.io import read_points, write_points, write_text_atomic
-    from masknet.registration import evaluate_registration, register
+    from masknet.registration import assess_registration, register
     from masknet.registration.evaluation import DEFAULT_SPACINGS
     from masknet.registration.methods import GLOBAL_METHODS
 
@@ -315,19 +313,16 @@ def run(args: argparse.Namespace) -> None:
     numbers = {k: v for k, v in result.info.items() if np.ndim(v) == 0 and _is_number(v)}
     print("reported: " + ", ".join(f"{k} {_shown(v)}" for k, v in numbers.items()))
     on_object = source if result.source_mask is None else source[result.source_mask]
-    quality = evaluate_registration(template, on_object, result.transform)
+    check = assess_registration(template, on_object, result.transform)
     print(
-        f"fit: {100 * float(quality.fitness):.1f}% of the {len(on_object):,} "
+        f"did it work: {check.verdict}: {check.reason} (inlier distance {DEFAULT_SPACINGS:g} "
+        f"spacings); fit: {check.fitness:.1%} of the "
         f"{'kept ' if result.source_mask is not None else ''}source points within "
-        f"{float(quality.max_distance):.3g} of {Path(args.template).name} "
-        f"({DEFAULT_SPACINGS:g} template spacings), RMSE {float(quality.inlier_rmse):.3g} "
-        "(input units)"
+        f"{check.max_distance:.3g} of {Path(args.template).name}"
     )
-    if float(quality.fitness) < LOW_FITNESS:
+    if check.verdict != "likely correct":
         print(
-            f"masknet: warning: under {100 * LOW_FITNESS:.0f}% of {Path(args.source).name} lies on "
-            f"{Path(args.template).name} after registration: check the result in --html (it "
-            "may have failed, or the clouds overlap only in part)",
+            f"masknet: warning: the result is {check.verdict}: {check.reason}; check it in --html",
             file=sys.stderr,
         )
     if args.viewpoint is not None and "search_fitness" not in result.info:

@@ -15,9 +15,8 @@ its name), in a KD-tree, so a crop costs one query.
 
 from __future__ import annotations
 
-import contextlib
-import io
 import sys
+import warnings
 import zlib
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
@@ -29,7 +28,7 @@ from scipy.spatial import cKDTree
 
 from masknet.data.pairs import Pairs, derive_seed
 from masknet.data.views import ViewConfig, make_view_pairs, normalize_cloud
-from masknet.errors import MaskNetError
+from masknet.errors import MaskNetError, MaskNetWarning
 
 __all__ = [
     "SCAN_EXTENSIONS",
@@ -102,7 +101,8 @@ def load_scans(
     for path in files:
         try:
             # A file skipped for its size needs no warning about its size as well.
-            with contextlib.redirect_stderr(io.StringIO()):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", MaskNetWarning)
                 points = read_points(path, drop_nonfinite=True)
         except MaskNetError as exc:
             if not quiet:

@@ -25,10 +25,15 @@ def as_cloud_batch(template: np.ndarray, source: np.ndarray) -> tuple[Tensor, Te
     return batched float32 tensors (B, N, 3), (B, M, 3) and whether the input was one pair.
 
     Raises:
-        MaskNetError: a dtype that is not numeric (bool, strings, objects), mismatched
-            or wrong shapes, fewer than :data:`MIN_POINTS` points, NaN or inf
-            coordinates, or different batch sizes.
+        MaskNetError: mismatched or wrong shapes, different batch sizes, or a cloud that
+            :func:`masknet.io_checks.check_cloud` refuses (not numbers, transposed, fewer
+            than :data:`MIN_POINTS` points, NaN or inf, overflow, no 3-D extent).
+
+    Warns:
+        MaskNetWarning: a cloud of 3-10 points, or one point far out.
     """
+    from masknet.io_checks import check_cloud
+
     t, s = np.asarray(template), np.asarray(source)
     if t.ndim != s.ndim or t.ndim not in (2, 3):
         raise MaskNetError(
@@ -37,17 +42,13 @@ def as_cloud_batch(template: np.ndarray, source: np.ndarray) -> tuple[Tensor, Te
     single = t.ndim == 2
     if single:
         t, s = t[None], s[None]
-    for name, a in (("template", t), ("source", s)):
-        if a.dtype.kind not in "iuf":  # not bool, strings or objects
-            raise MaskNetError(f"{name} must hold numbers; got an array of dtype {a.dtype}")
-        if a.shape[-1] != 3:
-            raise MaskNetError(f"{name} must have 3 columns (x, y, z); got shape {a.shape}")
-        if a.shape[1] < MIN_POINTS:
-            raise MaskNetError(f"{name} has {a.shape[1]} points; at least {MIN_POINTS} are needed")
-        if not np.isfinite(a).all():
-            raise MaskNetError(f"{name} contains NaN or inf coordinates")
     if t.shape[0] != s.shape[0]:
         raise MaskNetError(f"batch sizes differ: template {t.shape[0]}, source {s.shape[0]}")
+    for name, a in (("template", t), ("source", s)):
+        if a.shape[-1] != 3 and not (a.shape[1] == 3 and a.shape[-1] > 3):
+            raise MaskNetError(f"{name} must have 3 columns (x, y, z); got shape {a.shape}")
+        for i, cloud in enumerate(a):  # the checks of every file read, cloud by cloud
+            check_cloud(cloud, name if single else f"{name} {i}")
     return (
         torch.from_numpy(np.ascontiguousarray(t, np.float32)),
         torch.from_numpy(np.ascontiguousarray(s, np.float32)),

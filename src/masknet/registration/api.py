@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from masknet.errors import MaskNetError
+from masknet.errors import MaskNetError, warns_once
 from masknet.geometry.clouds import MIN_POINTS
 from masknet.models import REGISTRATION_NETWORKS
 from masknet.models.masknet import MaskNet
@@ -210,6 +210,27 @@ def _default_network(method: str) -> torch.nn.Module:
     return REGISTRATION_NETWORKS[method].pretrained().eval()
 
 
+def _finite_rows(template: Any, source: Any) -> tuple:
+    """The finite rows of one pair: template, source, and which rows they are (bool)."""
+    from masknet.io_checks import check_cloud
+
+    if np.ndim(template) != 2 or np.ndim(source) != 2:
+        raise MaskNetError("drop_nonfinite takes one pair: (N, 3) and (M, 3) clouds")
+    template, template_rows = check_cloud(template, "template", drop_nonfinite=True)
+    source, source_rows = check_cloud(source, "source", drop_nonfinite=True)
+    return template, source, template_rows, source_rows
+
+
+def _spread_rows(mask: np.ndarray | None, rows: np.ndarray) -> np.ndarray | None:
+    """A (1, kept) mask over all the input's rows (1, P), False where a row was dropped."""
+    if mask is None:
+        return None
+    full = np.zeros((1, len(rows)), bool)
+    full[0, rows] = mask[0]
+    return full
+
+
+@warns_once
 def register(
     template: np.ndarray,
     source: np.ndarray,
@@ -230,6 +251,7 @@ def register(
     robust: RobustOptions | None = None,
     scene: bool | SceneSearch | None = None,
     refine_masks: str | Refiner | None = DEFAULT_REFINER,
+    drop_nonfinite: bool = False,
     **options: Any,
 ) -> RegistrationResult:
     """Register a partial source to a full template, optionally through MaskNet's mask.
@@ -300,6 +322,9 @@ def register(
             the pose reached. A refiner's template mask is the top k points with k the
             number of source points it keeps, and the learned one runs in fp32: ``k``,
             ``threshold`` and ``precision`` apply to round 1.
+        drop_nonfinite: drop template and source rows holding NaN or inf (one pair
+            only) instead of refusing them, as ``masknet register --drop-nonfinite``;
+            ``mask`` and ``source_mask`` still cover every input row, False where dropped.
         **options: for the method. ``"auto"`` and ``"robust"``: the fields of
             :class:`~masknet.registration.options.RobustOptions` (they ignore
             ``iterations``, ``init``, ``k`` and ``threshold``). ``"icp"``: ``max_iterations`` (default 10),
@@ -337,6 +362,9 @@ def register(
     check_arguments(
         method, options, iterations, k, threshold, use_mask, init, refine_iterations, max_points
     )
+    template_rows = source_rows = None
+    if drop_nonfinite:
+        template, source, template_rows, source_rows = _finite_rows(template, source)
     tpl_full, src_full, single = as_numpy_batch(template, source)
     found = _search_scene(tpl_full, src_full, single, scene)
     auto_scene = False
@@ -449,6 +477,10 @@ def register(
             full = np.zeros(tpl_full.shape[:2], bool)
             full[:, template_index] = inliers
             inliers = full
+
+    if template_rows is not None:  # dropped rows are neither inliers nor kept
+        mask, inliers = (_spread_rows(m, template_rows) for m in (mask, inliers))
+        source_mask = _spread_rows(source_mask, source_rows)
 
     def out(a: np.ndarray) -> np.ndarray:
         return a[0] if single else a

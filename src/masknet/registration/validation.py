@@ -54,9 +54,6 @@ def check_arguments(
 def as_numpy_batch(template: Any, source: Any) -> tuple[np.ndarray, np.ndarray, bool]:
     """Validate as :meth:`MaskNet.predict` does; return float64 (B, N, 3), (B, M, 3), single."""
     t, s = np.asarray(template), np.asarray(source)
-    for name, a in (("template", t), ("source", s)):
-        if a.dtype.kind not in "iuf":
-            raise MaskNetError(f"{name} must hold numbers, got an array of dtype {a.dtype}")
     _, _, single = as_cloud_batch(t, s)
     t, s = t.astype(np.float64), s.astype(np.float64)
     return (t[None], s[None], True) if single else (t, s, False)
