@@ -62,9 +62,11 @@ def test_scan_weights_beat_chance_on_real_scan_pairs(scan_pairs, name, floor):
 
 
 def test_the_default_and_the_refined_loop_on_real_scan_pairs(scan_pairs):
-    """Measured (shared / re-sampled): the default 1.71 / 1.51 deg mean; the refined loop's
-    mask (3 rounds) precision 0.873 / 0.905. No motion is about 25 deg. Floors: 3.0 deg,
-    and precision 0.84."""
+    """Errors on these 14 pairs are heavy-tailed (a few hard pairs land 5-60 deg off, and
+    which ones moves with float rounding), so the floors are on the median and on the
+    count of misses. Measured (shared / re-sampled): the default's median 0.03 / 0.48 deg,
+    pairs beyond 5 deg 2 / 3; the refined loop's mask (3 rounds) precision 0.873 / 0.905.
+    No motion is about 25 deg. Floors: median 1 deg, at most 5 misses, precision 0.84."""
     truth = scan_pairs.transform.double().numpy()
     errors, precision = [], []
     for i in range(len(truth)):
@@ -73,5 +75,6 @@ def test_the_default_and_the_refined_loop_on_real_scan_pairs(scan_pairs):
         errors.append(pose_errors(result.transform[None], truth[i : i + 1])[0][0])
         loop = register(template, source, iterations=3)
         precision.append(_precision(loop.mask, scan_pairs.mask[i].numpy()))
-    assert np.mean(errors) < 3.0, errors
+    errors = np.array(errors)
+    assert np.median(errors) < 1.0 and (errors > 5).sum() <= 5, errors
     assert np.mean(precision) > 0.84, precision

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 import torch
 from torch import Tensor
 
 from masknet.errors import MaskNetError
 
-__all__ = ["MIN_POINTS", "as_cloud_batch", "median_spacing", "unit_radius"]
+__all__ = ["MIN_POINTS", "Frame", "as_cloud_batch", "median_spacing", "unit_radius"]
 
 # The fewest points a template or source may have for MaskNet and the registration networks.
 MIN_POINTS = 3
@@ -76,3 +78,40 @@ def median_spacing(
     d = np.asarray(d).reshape(len(queries), k)[:, 1:]
     positive = d[d > 0]
     return float(np.median(positive)) if len(positive) else 0.0
+
+
+class Frame(NamedTuple):
+    """One unit-free frame for a call: points ``x`` become ``(x - centre) / scale``.
+
+    centre: (B, 3), each template's centroid. scale: one number for the batch, the mean
+    RMS radius of the templates about their centroids. A registration run in the frame
+    and mapped out again does not depend on the unit (or the origin) of its input.
+    """
+
+    centre: np.ndarray
+    scale: float
+
+    @classmethod
+    def of(cls, template: np.ndarray) -> Frame:
+        """The frame of templates (B, N, 3)."""
+        centre = template.mean(1)
+        radii = np.sqrt(((template - centre[:, None]) ** 2).sum(-1).mean(-1))
+        return cls(centre, float(radii.mean()) if radii.mean() > 0 else 1.0)
+
+    def points_in(self, points: np.ndarray) -> np.ndarray:
+        """(B, P, 3) input points -> the frame, float64 holding float32 values.
+
+        Snapping to float32 (6e-8 of the radius) makes a cloud given in metres and the
+        same cloud in millimetres land on the same numbers in nearly every coordinate,
+        where float64 would keep their last-bit differences, which voxel grids and
+        random consensus can amplify into different answers."""
+        return ((points - self.centre[:, None]) / self.scale).astype(np.float32).astype(np.float64)
+
+    def transforms_out(self, transforms: np.ndarray) -> np.ndarray:
+        """(B, 4, 4) source -> template transforms in the frame -> in input units."""
+        out = np.array(transforms, dtype=np.float64)
+        rot = out[:, :3, :3]
+        out[:, :3, 3] = (
+            self.scale * out[:, :3, 3] + self.centre - np.einsum("bij,bj->bi", rot, self.centre)
+        )
+        return out

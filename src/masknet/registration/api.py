@@ -30,7 +30,7 @@ import numpy as np
 import torch
 
 from masknet.errors import MaskNetError, warns_once
-from masknet.geometry.clouds import MIN_POINTS
+from masknet.geometry.clouds import MIN_POINTS, Frame
 from masknet.models import REGISTRATION_NETWORKS
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
@@ -221,6 +221,17 @@ def _finite_rows(template: Any, source: Any) -> tuple:
     return template, source, template_rows, source_rows
 
 
+def _info_out(info: dict, frame: Frame, single: bool) -> dict:
+    """A method's report in input units: RMSEs scaled, the runner-up pose mapped out."""
+    out = dict(info)
+    if "inlier_rmse" in out:
+        out["inlier_rmse"] = np.asarray(out["inlier_rmse"]) * frame.scale
+    if "runner_up" in out:
+        pose = np.asarray(out["runner_up"], dtype=np.float64)
+        out["runner_up"] = np.where(np.isfinite(pose), frame.transforms_out(pose), np.nan)
+    return out
+
+
 def _spread_rows(mask: np.ndarray | None, rows: np.ndarray) -> np.ndarray | None:
     """A (1, kept) mask over all the input's rows (1, P), False where a row was dropped."""
     if mask is None:
@@ -394,6 +405,14 @@ def register(
     if method in NETWORK_METHODS and options.get("network") is None:
         options["network"] = _default_network(method)
 
+    # Everything runs in one frame (the template's centroid, its RMS radius): the result
+    # does not depend on the unit or the origin. Distances given in input units follow.
+    frame, tpl_input = Frame.of(tpl_full), tpl_full
+    tpl_full, src_full = frame.points_in(tpl_full), frame.points_in(src_full)
+    if options.get("max_correspondence_distance") is not None:
+        options["max_correspondence_distance"] = (
+            options["max_correspondence_distance"] / frame.scale
+        )
     times = {"sample": 0.0, "mask": 0.0, "register": 0.0, "refine": 0.0}
     tic = time.perf_counter()
     tpl, src, template_index, source_index = fit_to_network(tpl_full, src_full, single, max_points)
@@ -450,6 +469,9 @@ def register(
         total = run_icp(tpl, apply_transform(total, src), None, refine_options).transform @ total
         times["refine"] = time.perf_counter() - tic
 
+    total = frame.transforms_out(total)
+    rounds = [frame.transforms_out(r[None] if single else r)[0 if single else ...] for r in rounds]
+    info = _info_out(info, frame, single)
     if source_index is not None and source_mask is not None:
         source_mask = spread_mask(src_full[0], source_index, source_mask[0])[None]
     if found is not None:  # back to the whole scene, then full-resolution ICP on the object
@@ -457,7 +479,7 @@ def register(
         tic = time.perf_counter()
         search_options = scene if isinstance(scene, SceneSearch) else None
         on_object = scene_source[found.source_mask]
-        total = polish(tpl_full[0], on_object, [total[0], found.transform], search_options)[None]
+        total = polish(tpl_input[0], on_object, [total[0], found.transform], search_options)[None]
         times["refine"] += time.perf_counter() - tic
         rounds = [r @ found.transform for r in rounds]
         on_object = found.source_mask.copy()
