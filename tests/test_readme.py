@@ -24,7 +24,8 @@ def test_the_readme_has_python_examples():
 
 
 @pytest.mark.parametrize("index", range(len(_python_blocks())))
-def test_readme_python_example_runs(index, small_masknet, one_thread):
+def test_readme_python_example_runs(index, small_masknet, one_thread, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # a block that writes files writes them here
     shapes = load_modelnet40(bundled_sample_path(), "test").points[:1]
     pair = make_test_pairs(shapes, 1, PairConfig(), seed=3)  # turned 27.4 deg, moved 0.82
     template, source = pair.template[0].double().numpy(), pair.source[0].double().numpy()
@@ -102,6 +103,9 @@ def test_readme_python_example_runs(index, small_masknet, one_thread):
         assert namespace["quality"].fitness == 1  # measured 1.0, inlier RMSE 3.4e-8
         assert namespace["quality"].inlier_rmse < 1e-5
         checked.append("fit")
+    if "read_points" in namespace:  # a round trip through a file
+        np.testing.assert_allclose(namespace["points"], source)
+        checked.append("files")
     if "unmoved" in namespace:  # did it work: the exact result, and doing nothing (27 deg off)
         assert namespace["check"].verdict == "likely correct", namespace["check"]
         assert namespace["unmoved"].verdict == "likely wrong", namespace["unmoved"]

@@ -43,6 +43,7 @@ import warnings
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import ModuleType
+from typing import NamedTuple
 
 import numpy as np
 
@@ -53,6 +54,8 @@ from masknet.io_checks import check_cloud, check_pcd_body, check_ply_body
 __all__ = [
     "SUPPORTED_READ",
     "SUPPORTED_WRITE",
+    "PointAttributes",
+    "read_point_attributes",
     "read_points",
     "write_points",
     "write_mask",
@@ -198,6 +201,44 @@ def read_points(
     return (points, rows) if return_rows else points
 
 
+class PointAttributes(NamedTuple):
+    """What a ``.ply``/``.pcd`` file holds beside its points, row for row with the file:
+    colors (P, 3) in [0, 1] and normals (P, 3), each None where the file has none."""
+
+    colors: np.ndarray | None = None
+    normals: np.ndarray | None = None
+
+    def take(self, rows: np.ndarray) -> PointAttributes:
+        """The attributes of ``rows`` (a bool mask or indices over the points)."""
+        return PointAttributes(*(None if a is None else a[rows] for a in self))
+
+    def turned(self, rotation: np.ndarray) -> PointAttributes:
+        """Normals turned by ``rotation`` (3, 3), as the points are moved."""
+        return self._replace(normals=None if self.normals is None else self.normals @ rotation.T)
+
+
+def read_point_attributes(path: PathLike) -> PointAttributes:
+    """Colours and normals of a ``.ply``/``.pcd`` file (read by Open3D), row for row with
+    :func:`read_points` ``(..., return_rows=True)``'s rows; none for other formats, or
+    when Open3D is not available. Outputs pass them on, so nothing the user had is lost."""
+    name = os.fspath(path)
+    fmt = Path(name).suffix.lower().lstrip(".")
+    if fmt not in ("ply", "pcd"):
+        return PointAttributes()
+    try:
+        o3d = _load_open3d()
+    except Exception:
+        return PointAttributes()
+    with _captured_output(), o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+        cloud = o3d.io.read_point_cloud(
+            name, format=fmt, remove_nan_points=False, remove_infinite_points=False
+        )
+    return PointAttributes(
+        np.asarray(cloud.colors, dtype=np.float64) if cloud.has_colors() else None,
+        np.asarray(cloud.normals, dtype=np.float64) if cloud.has_normals() else None,
+    )
+
+
 def _read_open3d(name: str, fmt: str) -> np.ndarray:
     """Read ``.ply``/``.pcd`` with Open3D; a reported failure or 0 points is an error."""
     feature = f"{name}: reading .{fmt} files"
@@ -339,12 +380,18 @@ def write_mask(path: PathLike, mask: np.ndarray) -> None:
     write_text_atomic(name, "".join("1\n" if m else "0\n" for m in mask.tolist()))
 
 
-def write_points(path: PathLike, points: np.ndarray) -> None:
+def write_points(
+    path: PathLike,
+    points: np.ndarray,
+    colors: np.ndarray | None = None,
+    normals: np.ndarray | None = None,
+) -> None:
     """Write points (N, 3) to ``path``, format by extension, atomically.
 
-    ``.ply``/``.pcd`` via Open3D (``.pcd`` stores float32), ``.xyz``/``.txt`` as text
-    with full float64 precision, ``.npy`` as a float64 array. Parent directories are
-    created. An unsupported extension raises before anything is written.
+    ``.ply``/``.pcd`` via Open3D (``.pcd`` stores float32), with ``colors`` (N, 3) in
+    [0, 1] and ``normals`` (N, 3) where given; ``.xyz``/``.txt`` as text with full
+    float64 precision, ``.npy`` as a float64 array (these two hold points only). Parent
+    directories are created. An unsupported extension raises before anything is written.
     """
     name = os.fspath(path)
     ext = Path(name).suffix.lower()
@@ -364,6 +411,9 @@ def write_points(path: PathLike, points: np.ndarray) -> None:
     with atomic_target(name, suffix=ext) as tmp:
         if o3d is not None:
             cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+            for name_, values in (("colors", colors), ("normals", normals)):
+                if values is not None and len(values) == len(points):
+                    setattr(cloud, name_, o3d.utility.Vector3dVector(np.asarray(values, float)))
             verbosity = o3d.utility.VerbosityLevel.Warning
             with _captured_output() as out, o3d.utility.VerbosityContextManager(verbosity):
                 ok = o3d.io.write_point_cloud(tmp, cloud)

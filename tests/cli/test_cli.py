@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
 
 from masknet.cli import main
 from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
@@ -554,3 +556,61 @@ def test_a_writer_error_names_the_users_file_not_the_temporary_one(tmp_path, pai
     assert (
         err.startswith(f"masknet: error: {out}: cannot write an empty cloud") and ".part" not in err
     )
+
+
+def test_colour_and_normals_pass_through_to_the_outputs(tmp_path, capsys, o3d):
+    """PLY/PCD inputs with colour and normals: the registered source keeps its colours and
+    has its normals turned by R; the inliers, the mask and the denoised points keep theirs."""
+    from masknet.io import read_point_attributes
+
+    rng = np.random.default_rng(0)
+    shape = load_modelnet40(bundled_sample_path(), "test").points[0].astype(np.float64)
+    rot = Rotation.from_euler("z", 20, degrees=True).as_matrix()
+
+    def save(path, points, colors, normals):
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+        cloud.colors = o3d.utility.Vector3dVector(colors)
+        cloud.normals = o3d.utility.Vector3dVector(normals)
+        o3d.io.write_point_cloud(str(path), cloud)
+
+    normals = shape / np.linalg.norm(shape, axis=1, keepdims=True)
+    colors = rng.random((len(shape), 3))
+    part = shape[:, 0] > -0.3
+    save(tmp_path / "t.ply", shape, colors, normals)
+    save(tmp_path / "s.pcd", shape[part] @ rot.T, colors[part], normals[part] @ rot.T)
+    assert (
+        main(
+            [
+                "register",
+                str(tmp_path / "t.ply"),
+                str(tmp_path / "s.pcd"),
+                "-o",
+                str(tmp_path / "m.ply"),
+            ]
+        )
+        == 0
+    )
+    moved = read_point_attributes(tmp_path / "m.ply")
+    np.testing.assert_allclose(moved.colors, colors[part], atol=1 / 255)
+    np.testing.assert_allclose(moved.normals, normals[part], atol=1e-4)  # turned back by R
+    inliers = read_point_attributes(tmp_path / "m_inliers.ply")
+    kept = read_points(tmp_path / "m_inliers.ply")
+    index = cKDTree(shape).query(kept)[1]
+    np.testing.assert_allclose(inliers.colors, colors[index], atol=1 / 255)
+    np.testing.assert_allclose(inliers.normals, normals[index], atol=1e-6)
+    assert (
+        main(
+            [
+                "denoise",
+                str(tmp_path / "t.ply"),
+                str(tmp_path / "t.ply"),
+                "-o",
+                str(tmp_path / "d.pcd"),
+            ]
+        )
+        == 0
+    )
+    np.testing.assert_allclose(
+        read_point_attributes(tmp_path / "d.pcd").colors, colors, atol=1 / 255
+    )
+    capsys.readouterr()

@@ -68,7 +68,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> None:
     """Denoise; write the kept points and ``<stem>_mask.txt`` (and views)."""
     from masknet.denoising import denoise
-    from masknet.io import read_points, write_mask, write_points
+    from masknet.io import read_point_attributes, read_points, write_mask, write_points
 
     if not 0 <= args.threshold <= 1:
         raise MaskNetError(f"--threshold must be in [0, 1], got {args.threshold}")
@@ -101,8 +101,9 @@ def run(args: argparse.Namespace) -> None:
         )
         rule = f"MaskNet score >= {args.threshold}"
     mask_path = out.with_name(out.stem + "_mask.txt")
+    carried = read_point_attributes(args.noisy).take(noisy_rows).take(result.mask)
     writers = [
-        (out, lambda p: write_points(p, result.points)),
+        (out, lambda p: write_points(p, result.points, *carried)),
         (mask_path, lambda p: write_mask(p, file_rows(result.mask, noisy_rows))),
     ]
     if args.html:  # written with the others, all or nothing

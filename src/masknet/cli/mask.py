@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> None:
     """Predict the mask; write the inlier points and ``<stem>_mask.txt`` (and views)."""
     import numpy as np
 
-    from masknet.io import read_points, write_mask, write_points
+    from masknet.io import read_point_attributes, read_points, write_mask, write_points
 
     if args.threshold is not None and not 0 <= args.threshold <= 1:
         raise MaskNetError(f"--threshold must be in [0, 1] (scores are), got {args.threshold}")
@@ -72,8 +72,9 @@ def run(args: argparse.Namespace) -> None:
         return_scores=True,
     )
     mask_path = out.with_name(out.stem + "_mask.txt")
+    carried = read_point_attributes(args.template).take(template_rows).take(mask)
     writers = [
-        (out, lambda p: write_points(p, template[mask])),
+        (out, lambda p: write_points(p, template[mask], *carried)),
         (mask_path, lambda p: write_mask(p, file_rows(mask, template_rows))),
     ]
     if args.html:  # written with the others, all or nothing

@@ -167,7 +167,7 @@ def run(args: argparse.Namespace) -> None:
     """Register; write the outputs all-or-nothing and print what the method reported."""
     import numpy as np
 
-    from masknet.io import read_points, write_points, write_text_atomic
+    from masknet.io import read_point_attributes, read_points, write_points, write_text_atomic
     from masknet.registration import assess_registration, register
     from masknet.registration.evaluation import DEFAULT_SPACINGS
     from masknet.registration.methods import GLOBAL_METHODS
@@ -186,7 +186,9 @@ def run(args: argparse.Namespace) -> None:
     ]
     check_outputs([out, *derived] + check_html(args.html), inputs=[args.template, args.source])
     with progress(f"reading {args.template}"):
-        template = read_points(args.template, drop_nonfinite=args.drop_nonfinite)
+        template, template_rows = read_points(
+            args.template, drop_nonfinite=args.drop_nonfinite, return_rows=True
+        )
     with progress(f"reading {args.source}"):
         source, source_rows = read_points(
             args.source, drop_nonfinite=args.drop_nonfinite, return_rows=True
@@ -241,13 +243,17 @@ def run(args: argparse.Namespace) -> None:
     # '#' comments, so that np.loadtxt reads the 4x4 matrix as it is.
     header = "# source -> template: template ~= R @ source + t, [[R, t], [0, 0, 0, 1]]"
     text = header + "\n" + "\n".join(" ".join(f"{v:.10g}" for v in row) for row in result.transform)
+    # Colour and normals of .ply/.pcd inputs go on to the outputs (normals turned too).
+    carried = read_point_attributes(args.source).take(source_rows).turned(result.R)
+    template_carried = read_point_attributes(args.template).take(template_rows)
     writers = [
-        (out, lambda p: write_points(p, moved)),
+        (out, lambda p: write_points(p, moved, *carried)),
         (transform_path, lambda p: write_text_atomic(p, text + "\n")),
     ]
     if result.mask is not None:
         inliers_path = out.with_name(out.stem + "_inliers" + out.suffix)
-        writers.append((inliers_path, lambda p: write_points(p, template[result.mask])))
+        inliers = template_carried.take(result.mask)
+        writers.append((inliers_path, lambda p: write_points(p, template[result.mask], *inliers)))
     if result.source_mask is not None:
         from masknet.io import write_mask
 
