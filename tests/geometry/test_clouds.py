@@ -16,12 +16,18 @@ def test_unit_radius():
     torch.testing.assert_close(unit_radius(pts), torch.tensor([2.0]))
 
 
+CLOUD = np.random.default_rng(0).random((2, 40, 3))  # usable clouds (3-D, no warning)
+
+
 def test_as_cloud_batch_single_and_batched():
-    t, s, single = as_cloud_batch(np.zeros((10, 3)), np.ones((5, 3), np.float64))
-    assert single and t.shape == (1, 10, 3) and s.shape == (1, 5, 3)
+    t, s, single = as_cloud_batch(CLOUD[0], CLOUD[1, :20].astype(np.float64))
+    assert single and t.shape == (1, 40, 3) and s.shape == (1, 20, 3)
     assert t.dtype == s.dtype == torch.float32
-    t, s, single = as_cloud_batch(np.zeros((2, 10, 3)), np.zeros((2, 5, 3)))
-    assert not single and t.shape == (2, 10, 3) and s.shape == (2, 5, 3)
+    np.testing.assert_allclose(t[0].numpy(), CLOUD[0], rtol=1e-7)  # values kept, as float32
+    t, s, single = as_cloud_batch(CLOUD, CLOUD[:, :20])
+    assert not single and t.shape == (2, 40, 3) and s.shape == (2, 20, 3)
+    with pytest.raises(MaskNetError, match="source 1: all 20 points are identical"):
+        as_cloud_batch(CLOUD, np.stack([CLOUD[0, :20], np.ones((20, 3))]))  # every pair checked
 
 
 @pytest.mark.parametrize(
@@ -30,7 +36,7 @@ def test_as_cloud_batch_single_and_batched():
         (np.zeros((10, 2)), np.zeros((5, 2)), "3 columns"),
         (np.zeros((10, 3)), np.zeros((2, 5, 3)), "both be"),
         (np.zeros((2, 10, 3)), np.zeros((3, 5, 3)), "batch sizes"),
-        (np.zeros((10, 3)), np.zeros((MIN_POINTS - 1, 3)), "at least"),
+        (CLOUD[0], CLOUD[1, : MIN_POINTS - 1], "at least"),
         (np.full((10, 3), np.nan), np.zeros((5, 3)), "NaN"),
     ],
 )
@@ -43,7 +49,7 @@ def test_as_cloud_batch_rejects_bad_clouds(template, source, match):
     "bad", [np.full((10, 3), "1.0"), np.ones((10, 3), dtype=bool), np.empty((10, 3), dtype=object)]
 )
 def test_non_numeric_clouds_are_one_clear_error(bad):
-    with pytest.raises(MaskNetError, match="template must hold numbers; got an array of dtype"):
+    with pytest.raises(MaskNetError, match="template: expected numbers, got an array of dtype"):
         as_cloud_batch(bad, np.ones((10, 3)))
 
 
