@@ -13,10 +13,6 @@ from masknet.registration.methods import METHODS
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
-# Open3D's FGR is not repeatable even within one unit (its own random tuples, no seed).
-NOT_REPEATABLE = {"open3d-fgr"}
-
-
 @pytest.fixture(scope="module")
 def real_pair(scans_dir):
     rng = np.random.default_rng(0)
@@ -28,7 +24,7 @@ def real_pair(scans_dir):
     )
 
 
-@pytest.mark.parametrize("method", [m for m in METHODS if m not in NOT_REPEATABLE])
+@pytest.mark.parametrize("method", METHODS)
 def test_metres_and_millimetres_give_the_same_transform(real_pair, method, o3d):
     template, source = real_pair
     metres = register(template, source, method=method)

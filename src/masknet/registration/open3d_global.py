@@ -107,5 +107,6 @@ def open3d_fgr(
     src, src_f = _cloud_and_features(o3d, source, voxel_size)
     tpl, tpl_f = _cloud_and_features(o3d, template, voxel_size)
     option = reg.FastGlobalRegistrationOption(maximum_correspondence_distance=0.5 * voxel_size)
+    o3d.utility.random.seed(0)  # FGR draws its tuples from Open3D's global generator
     result = reg.registration_fgr_based_on_feature_matching(src, tpl, src_f, tpl_f, option)
     return np.asarray(result.transformation), result.fitness, result.inlier_rmse
