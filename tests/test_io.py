@@ -384,3 +384,32 @@ def test_pcd_header_that_disagrees_with_its_body_is_an_error(tmp_path, o3d):
     (tmp_path / "rows.pcd").write_text(text)
     with pytest.raises(MaskNetError, match="declares 5 points but the body has 3 rows"):
         read_points(tmp_path / "rows.pcd")
+
+
+def test_ctrl_c_while_open3d_imports_is_an_interrupt_not_a_missing_package(monkeypatch, o3d):
+    """Ctrl-C during Open3D's C initialisation used to surface as 'needs Open3D, which did
+    not import (initialization failed)'. The interrupt is held until the import ends."""
+    import builtins
+    import signal
+
+    from masknet import io as masknet_io
+
+    real_import = builtins.__import__
+
+    def import_with_ctrl_c(name, *args, **kwargs):
+        if name == "open3d":
+            try:
+                signal.raise_signal(signal.SIGINT)  # arrives in the middle of the import
+            except KeyboardInterrupt:  # as Open3D's C initialisation reports it
+                raise ImportError("initialization failed") from None
+        return real_import(name, *args, **kwargs)
+
+    masknet_io._load_open3d.cache_clear()
+    monkeypatch.setattr(builtins, "__import__", import_with_ctrl_c)
+    before = signal.getsignal(signal.SIGINT)
+    with pytest.raises(KeyboardInterrupt):
+        masknet_io.require_open3d("reading .pcd files")
+    assert signal.getsignal(signal.SIGINT) is before  # the user's handler is back
+    monkeypatch.setattr(builtins, "__import__", real_import)
+    masknet_io._load_open3d.cache_clear()
+    assert masknet_io.require_open3d("reading .pcd files") is o3d

@@ -38,7 +38,9 @@ import functools
 import io
 import os
 import re
+import signal
 import tempfile
+import threading
 import warnings
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -77,9 +79,22 @@ _FAILURE = re.compile(r"fail|error", re.IGNORECASE)
 
 @functools.lru_cache(maxsize=1)
 def _load_open3d() -> ModuleType:
-    """Import Open3D once (slow), and quieten its logger to errors only."""
-    import open3d
+    """Import Open3D once (slow), and quieten its logger to errors only.
 
+    Ctrl-C during the import would break Open3D's C initialisation, which then reports
+    itself as not importable; the interrupt is held until the import ends and raised then,
+    so that it is reported as what it is."""
+    interrupted: list[int] = []
+    held = threading.current_thread() is threading.main_thread()
+    if held:
+        previous = signal.signal(signal.SIGINT, lambda signum, frame: interrupted.append(signum))
+    try:
+        import open3d
+    finally:
+        if held:
+            signal.signal(signal.SIGINT, previous)
+    if interrupted:
+        raise KeyboardInterrupt
     open3d.utility.set_verbosity_level(open3d.utility.VerbosityLevel.Error)
     return open3d
 
