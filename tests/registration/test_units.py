@@ -13,6 +13,7 @@ from masknet.registration.methods import METHODS
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
+
 @pytest.fixture(scope="module")
 def real_pair(scans_dir):
     rng = np.random.default_rng(0)
