@@ -23,9 +23,12 @@ places, scores them all with one fit, and refines only the best:
    whole template, from one KD-tree built once, ties broken by the inlier RMSE.
 5. **Refinement of the best ``candidates``**: ``inlier_iterations`` of ICP on the kept
    source with pairs cut at ``inlier_distance`` template spacings; rescored, the best wins.
-6. **Ambiguity.** When a pose at least ``distinct_deg`` away fits within
-   ``ambiguity_margin`` of the best (a symmetric shape), the result says so
-   (``info["ambiguous"]``, with the runner-up's transform and fitness).
+6. **Ambiguity.** When answers fit within ``ambiguity_margin`` of the best, each is first
+   refined as far as it goes (pairs cut at twice ``inlier_distance``, then at it) and
+   scored again; among those still alike, the least rotation from the pose as given
+   wins. When a pose at least ``distinct_deg`` away still fits within the margin (a
+   symmetric shape), the result says so (``info["ambiguous"]``, with the runner-up's
+   transform and fitness).
 
 Everything runs on one pair in numpy and KD-trees; stage times go to ``times``
 (``features``, ``ransac``, ``mask``, ``hypotheses``, ``refine``).
