@@ -3,6 +3,7 @@ each as a single line."""
 
 from __future__ import annotations
 
+import contextvars
 import functools
 import warnings
 from collections.abc import Callable
@@ -25,25 +26,37 @@ class MaskNetWarning(UserWarning):
     prints it as ``masknet: warning: <message>``."""
 
 
+# The messages already issued within the outermost call of a @warns_once entry point
+# (None outside one): per thread and task, no global warnings state is touched.
+_ISSUED: contextvars.ContextVar[set[str] | None] = contextvars.ContextVar(
+    "masknet_warnings_issued", default=None
+)
+
+
+def warn(message: str, stacklevel: int = 3) -> None:
+    """Issue ``message`` as a :class:`MaskNetWarning`, once per call of a
+    :func:`warns_once` entry point (every time outside one)."""
+    issued = _ISSUED.get()
+    if issued is not None:
+        if message in issued:
+            return
+        issued.add(message)
+    warnings.warn(message, MaskNetWarning, stacklevel=stacklevel)
+
+
 def warns_once(function: F) -> F:
     """Decorate an entry point of the API whose stages check the clouds again: each
-    :class:`MaskNetWarning` message reaches the caller once, whatever the stages repeat;
-    other warnings pass through unchanged."""
+    :class:`MaskNetWarning` message reaches the caller once per call, whatever the
+    stages repeat. Other warnings are not touched."""
 
     @functools.wraps(function)
     def wrapper(*args, **kwargs):
-        caught: list = []
+        if _ISSUED.get() is not None:  # an inner entry point: the outer one counts
+            return function(*args, **kwargs)
+        token = _ISSUED.set(set())
         try:
-            with warnings.catch_warnings(record=True) as caught:
-                warnings.simplefilter("always")
-                return function(*args, **kwargs)
-        finally:  # out of the recording context: pass each on once
-            shown: set[str] = set()
-            for w in caught:
-                text = str(w.message)
-                if issubclass(w.category, MaskNetWarning) and text in shown:
-                    continue
-                shown.add(text)
-                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+            return function(*args, **kwargs)
+        finally:
+            _ISSUED.reset(token)
 
     return wrapper  # type: ignore[return-value]

@@ -85,16 +85,18 @@ def _load_open3d() -> ModuleType:
     itself as not importable; the interrupt is held until the import ends and raised then,
     so that it is reported as what it is."""
     interrupted: list[int] = []
-    held = threading.current_thread() is threading.main_thread()
+    previous = signal.getsignal(signal.SIGINT)
+    # Only where Python may set handlers, and over a handler Python knows (not C's).
+    held = threading.current_thread() is threading.main_thread() and previous is not None
     if held:
-        previous = signal.signal(signal.SIGINT, lambda signum, frame: interrupted.append(signum))
+        signal.signal(signal.SIGINT, lambda signum, frame: interrupted.append(signum))
     try:
         import open3d
     finally:
         if held:
             signal.signal(signal.SIGINT, previous)
-    if interrupted:
-        raise KeyboardInterrupt
+    if interrupted:  # the user's handler decides now (KeyboardInterrupt by default)
+        signal.raise_signal(signal.SIGINT)
     open3d.utility.set_verbosity_level(open3d.utility.VerbosityLevel.Error)
     return open3d
 

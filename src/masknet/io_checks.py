@@ -12,11 +12,10 @@ its body.
 from __future__ import annotations
 
 import os
-import warnings
 
 import numpy as np
 
-from masknet.errors import MaskNetError, MaskNetWarning
+from masknet.errors import MaskNetError, warn
 
 __all__ = [
     "FEW_POINTS",
@@ -125,7 +124,7 @@ def check_geometry(points: np.ndarray, name: str) -> None:
 
 
 def _warn(message: str) -> None:
-    warnings.warn(message, MaskNetWarning, stacklevel=4)
+    warn(message, stacklevel=5)
 
 
 _PLY_SIZES = {

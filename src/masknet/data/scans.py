@@ -100,7 +100,8 @@ def load_scans(
     scans = []
     for path in files:
         try:
-            # A file skipped for its size needs no warning about its size as well.
+            # A file that is skipped says so in one line; its cloud warnings would only
+            # add to that.
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", MaskNetWarning)
                 points = read_points(path, drop_nonfinite=True)

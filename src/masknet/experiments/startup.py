@@ -54,7 +54,7 @@ def run(ctx: BenchmarkContext) -> ExperimentResult:
             "masknet register, a missing file (refused)": [*cli, "register", missing, t],
             "python -c 'import torch'": [sys.executable, "-c", "import torch"],
             "python -c 'import open3d'": [sys.executable, "-c", "import open3d"],
-            "masknet register, a bundled sample pair": [
+            "masknet register, a ModelNet40 test pair": [
                 *cli,
                 "register",
                 t,
@@ -66,7 +66,7 @@ def run(ctx: BenchmarkContext) -> ExperimentResult:
         for name, argv in calls.items():
             seconds, code = _wall(argv, repeats)
             row = {"call": name, "seconds": seconds, "exit_code": code}
-            if name.startswith("masknet register, a bundled"):
+            if name.startswith("masknet register, a ModelNet40"):
                 row["registration_s"] = work
                 row["start_up_s"] = seconds - work
             rows.append(row)

@@ -14,6 +14,9 @@ __all__ = ["MIN_POINTS", "Frame", "as_cloud_batch", "median_spacing", "unit_radi
 
 # The fewest points a template or source may have for MaskNet and the registration networks.
 MIN_POINTS = 3
+# A frame holds float32 values only while every point lies within this many template
+# radii of the template's centroid (float32 then resolves 6e-5 of a radius or finer).
+SNAP_RADII = 1e3
 
 
 def unit_radius(points: Tensor) -> Tensor:
@@ -84,28 +87,33 @@ class Frame(NamedTuple):
     """One unit-free frame for a call: points ``x`` become ``(x - centre) / scale``.
 
     centre: (B, 3), each template's centroid. scale: one number for the batch, the mean
-    RMS radius of the templates about their centroids. A registration run in the frame
-    and mapped out again does not depend on the unit (or the origin) of its input.
+    RMS radius of the templates about their centroids. snap: coordinates in the frame
+    are held as float32 values (6e-8 of a radius near the template): a cloud given in
+    metres and the same cloud in millimetres then land on the same numbers in nearly
+    every coordinate, where float64 would keep last-bit differences that voxel grids,
+    ties between neighbours and random consensus can amplify into different answers.
+    Where a cloud lies farther than :data:`SNAP_RADII` radii from the template, float32
+    would cost precision, and the frame keeps float64.
     """
 
     centre: np.ndarray
     scale: float
+    snap: bool = True
 
     @classmethod
-    def of(cls, template: np.ndarray) -> Frame:
-        """The frame of templates (B, N, 3)."""
+    def of(cls, template: np.ndarray, *others: np.ndarray) -> Frame:
+        """The frame of templates (B, N, 3), for them and ``others`` (B, P, 3)."""
         centre = template.mean(1)
         radii = np.sqrt(((template - centre[:, None]) ** 2).sum(-1).mean(-1))
-        return cls(centre, float(radii.mean()) if radii.mean() > 0 else 1.0)
+        scale = float(radii.mean()) if radii.mean() > 0 else 1.0
+        reach = max(float(np.abs(c - centre[:, None]).max()) for c in (template, *others))
+        return cls(centre, scale, reach <= SNAP_RADII * scale)
 
     def points_in(self, points: np.ndarray) -> np.ndarray:
-        """(B, P, 3) input points -> the frame, float64 holding float32 values.
-
-        Snapping to float32 (6e-8 of the radius) makes a cloud given in metres and the
-        same cloud in millimetres land on the same numbers in nearly every coordinate,
-        where float64 would keep their last-bit differences, which voxel grids and
-        random consensus can amplify into different answers."""
-        return ((points - self.centre[:, None]) / self.scale).astype(np.float32).astype(np.float64)
+        """(B, P, 3) input points -> the frame (float64, holding float32 values when
+        ``snap``)."""
+        inside = (points - self.centre[:, None]) / self.scale
+        return inside.astype(np.float32).astype(np.float64) if self.snap else inside
 
     def transforms_out(self, transforms: np.ndarray) -> np.ndarray:
         """(B, 4, 4) source -> template transforms in the frame -> in input units."""

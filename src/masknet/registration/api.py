@@ -58,7 +58,12 @@ from masknet.registration.robust import robust_register
 from masknet.registration.rounds import apply_transform, mask_and_register
 from masknet.registration.sampling import fit_to_network, spread_mask
 from masknet.registration.scene import SceneMatch, SceneSearch, is_scene, locate, polish
-from masknet.registration.validation import as_numpy_batch, check_arguments
+from masknet.registration.validation import (
+    as_numpy_batch,
+    check_arguments,
+    finite_rows,
+    spread_rows,
+)
 
 __all__ = [
     "GLOBAL_METHODS",
@@ -210,18 +215,7 @@ def _default_network(method: str) -> torch.nn.Module:
     return REGISTRATION_NETWORKS[method].pretrained().eval()
 
 
-def _finite_rows(template: Any, source: Any) -> tuple:
-    """The finite rows of one pair: template, source, and which rows they are (bool)."""
-    from masknet.io_checks import check_cloud
-
-    if np.ndim(template) != 2 or np.ndim(source) != 2:
-        raise MaskNetError("drop_nonfinite takes one pair: (N, 3) and (M, 3) clouds")
-    template, template_rows = check_cloud(template, "template", drop_nonfinite=True)
-    source, source_rows = check_cloud(source, "source", drop_nonfinite=True)
-    return template, source, template_rows, source_rows
-
-
-def _info_out(info: dict, frame: Frame, single: bool) -> dict:
+def _info_out(info: dict, frame: Frame) -> dict:
     """A method's report in input units: RMSEs scaled, the runner-up pose mapped out."""
     out = dict(info)
     if "inlier_rmse" in out:
@@ -230,15 +224,6 @@ def _info_out(info: dict, frame: Frame, single: bool) -> dict:
         pose = np.asarray(out["runner_up"], dtype=np.float64)
         out["runner_up"] = np.where(np.isfinite(pose), frame.transforms_out(pose), np.nan)
     return out
-
-
-def _spread_rows(mask: np.ndarray | None, rows: np.ndarray) -> np.ndarray | None:
-    """A (1, kept) mask over all the input's rows (1, P), False where a row was dropped."""
-    if mask is None:
-        return None
-    full = np.zeros((1, len(rows)), bool)
-    full[0, rows] = mask[0]
-    return full
 
 
 @warns_once
@@ -354,7 +339,9 @@ def register(
         RegistrationResult (source -> template, see :mod:`masknet.geometry.se3`).
 
     Raises:
-        MaskNetError: bad clouds (shape, NaN/inf, fewer than 3 points, batch sizes),
+        MaskNetError: bad clouds (shape, batch sizes, or what
+            :func:`masknet.io_checks.check_cloud` refuses: NaN/inf, fewer than 3 points,
+            a transposed array, identical or collinear points, overflowing coordinates),
             an unknown method, option or init, bad iterations/k/threshold, or (for
             ``"open3d-icp"``) no Open3D.
     """
@@ -375,7 +362,7 @@ def register(
     )
     template_rows = source_rows = None
     if drop_nonfinite:
-        template, source, template_rows, source_rows = _finite_rows(template, source)
+        template, source, template_rows, source_rows = finite_rows(template, source)
     tpl_full, src_full, single = as_numpy_batch(template, source)
     found = _search_scene(tpl_full, src_full, single, scene)
     auto_scene = False
@@ -407,7 +394,7 @@ def register(
 
     # Everything runs in one frame (the template's centroid, its RMS radius): the result
     # does not depend on the unit or the origin. Distances given in input units follow.
-    frame, tpl_input = Frame.of(tpl_full), tpl_full
+    frame, tpl_input = Frame.of(tpl_full, src_full), tpl_full
     tpl_full, src_full = frame.points_in(tpl_full), frame.points_in(src_full)
     if options.get("max_correspondence_distance") is not None:
         options["max_correspondence_distance"] = (
@@ -471,7 +458,7 @@ def register(
 
     total = frame.transforms_out(total)
     rounds = [frame.transforms_out(r[None] if single else r)[0 if single else ...] for r in rounds]
-    info = _info_out(info, frame, single)
+    info = _info_out(info, frame)
     if source_index is not None and source_mask is not None:
         source_mask = spread_mask(src_full[0], source_index, source_mask[0])[None]
     if found is not None:  # back to the whole scene, then full-resolution ICP on the object
@@ -501,8 +488,8 @@ def register(
             inliers = full
 
     if template_rows is not None:  # dropped rows are neither inliers nor kept
-        mask, inliers = (_spread_rows(m, template_rows) for m in (mask, inliers))
-        source_mask = _spread_rows(source_mask, source_rows)
+        mask, inliers = (spread_rows(m, template_rows) for m in (mask, inliers))
+        source_mask = spread_rows(source_mask, source_rows)
 
     def out(a: np.ndarray) -> np.ndarray:
         return a[0] if single else a

@@ -54,8 +54,9 @@ VERDICTS = ("likely correct", "uncertain", "likely wrong")
 class Assessment(NamedTuple):
     """verdict: ``likely correct``, ``uncertain`` or ``likely wrong``. reason: one line
     saying why. overlap_fit: the smaller of the two directions' share of overlap points
-    within ``max_distance``. fitness: the share of all source points within
-    ``max_distance`` (Open3D's fitness). overlap: the share of source points in the
+    within ``max_distance``. fitness: the share of source points within
+    ``max_distance`` (Open3D's fitness; over a seeded subset of 8,192 points for larger
+    sources). overlap: the share of source points in the
     overlap (within 3 ``max_distance``). nearby_deg, nearby_shift: how far a short ICP
     from the pose moves it, as a rotation in degrees and as the shift of the source's
     centroid over its RMS radius. max_distance: the inlier distance, input units."""
@@ -124,6 +125,8 @@ def assess_registration(
         limit = DEFAULT_SPACINGS * spacing
     else:
         limit = float(max_distance)
+    if max_distance is not None and not (np.isfinite(limit) and limit > 0):
+        raise MaskNetError(f"max_distance must be a positive number, got {max_distance!r}")
     if not limit > 0:
         raise MaskNetError("every point of a cloud is the same point: no spacing to measure by")
     template_pts, source_pts = _subset(full_template, 0), _subset(full_source, 1)

@@ -353,18 +353,14 @@ def coarse_to_fine(
     alike = [f for f in finals if f.score >= finals[0].score - options.ambiguity_margin]
     if len(alike) > 1:
         # Before the input decides, the fits each answer reaches when refined as far as
-        # it goes (a looser cut-off first) choose; the answers keep their poses, as a
-        # looser cut-off can also move a right pose on a partial scan.
-        reached = [refine(f.pose, kept_source, f.kind, loose=True) for f in finals]
-        finals = sorted(
-            (
-                f._replace(fitness=r.fitness, score=r.score)
-                for f, r in zip(finals, reached, strict=True)
-            ),
-            key=_rank,
-            reverse=True,
-        )
-        alike = [f for f in finals if f.score >= finals[0].score - options.ambiguity_margin]
+        # it goes (a looser cut-off first) rank them; the answers keep their poses and
+        # their own fits, as a looser cut-off can also move a right pose on a partial scan.
+        reached = {id(f): refine(f.pose, kept_source, f.kind, loose=True).score for f in finals}
+        finals.sort(key=lambda f: reached[id(f)], reverse=True)
+        top = reached[id(finals[0])]
+        alike = [f for f in finals if reached[id(f)] >= top - options.ambiguity_margin]
+    else:
+        reached = {id(f): f.score for f in finals}
     winner = min(alike, key=lambda f: rotation_between_deg(f.pose, np.eye(4)))
     rival = next(
         (
@@ -374,7 +370,9 @@ def coarse_to_fine(
         ),
         None,
     )
-    ambiguous = rival is not None and rival.score >= winner.score - options.ambiguity_margin
+    ambiguous = (
+        rival is not None and reached[id(rival)] >= reached[id(winner)] - options.ambiguity_margin
+    )
     transform = winner.pose
     if predict_masks is not None:  # the template points the moved kept source covers
         # (also after an early exit, where the network never ran)

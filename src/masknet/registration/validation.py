@@ -8,9 +8,16 @@ import numpy as np
 
 from masknet.errors import MaskNetError
 from masknet.geometry.clouds import MIN_POINTS, as_cloud_batch
+from masknet.io_checks import check_cloud
 from masknet.registration.methods import INITS, METHODS, OPTIONS
 
-__all__ = ["as_numpy_batch", "as_rigid_transforms", "check_arguments"]
+__all__ = [
+    "as_numpy_batch",
+    "as_rigid_transforms",
+    "check_arguments",
+    "finite_rows",
+    "spread_rows",
+]
 
 
 def check_arguments(
@@ -74,3 +81,21 @@ def as_rigid_transforms(transform: np.ndarray, b: int) -> np.ndarray:
             "transform must be rigid: a rotation and a translation, last row 0 0 0 1"
         )
     return tf
+
+
+def finite_rows(template: Any, source: Any) -> tuple:
+    """The finite rows of one pair: template, source, and which rows they are (bool)."""
+    if np.ndim(template) != 2 or np.ndim(source) != 2:
+        raise MaskNetError("drop_nonfinite takes one pair: (N, 3) and (M, 3) clouds")
+    template, template_rows = check_cloud(template, "template", drop_nonfinite=True)
+    source, source_rows = check_cloud(source, "source", drop_nonfinite=True)
+    return template, source, template_rows, source_rows
+
+
+def spread_rows(mask: np.ndarray | None, rows: np.ndarray) -> np.ndarray | None:
+    """A (1, kept) mask over all the input's rows (1, P), False where a row was dropped."""
+    if mask is None:
+        return None
+    full = np.zeros((1, len(rows)), bool)
+    full[0, rows] = mask[0]
+    return full
