@@ -234,13 +234,15 @@ class PointAttributes(NamedTuple):
         return self._replace(normals=None if self.normals is None else self.normals @ rotation.T)
 
 
-def read_point_attributes(path: PathLike) -> PointAttributes:
+def read_point_attributes(path: PathLike, for_output: PathLike | None = None) -> PointAttributes:
     """Colours and normals of a ``.ply``/``.pcd`` file (read by Open3D), row for row with
     :func:`read_points` ``(..., return_rows=True)``'s rows; none for other formats, or
-    when Open3D is not available. Outputs pass them on, so nothing the user had is lost."""
+    when Open3D is not available. Outputs pass them on, so nothing the user had is lost.
+    ``for_output``: the file they are for; none (and no read) when it cannot hold them."""
     name = os.fspath(path)
     fmt = Path(name).suffix.lower().lstrip(".")
-    if fmt not in ("ply", "pcd"):
+    holds = for_output is None or Path(for_output).suffix.lower() in (".ply", ".pcd")
+    if fmt not in ("ply", "pcd") or not holds:
         return PointAttributes()
     try:
         o3d = _load_open3d()

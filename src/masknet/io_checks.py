@@ -25,6 +25,7 @@ __all__ = [
     "check_geometry",
     "check_pcd_body",
     "check_ply_body",
+    "over_rows",
 ]
 
 FLOAT32_MAX = float(np.finfo(np.float32).max)
@@ -32,6 +33,14 @@ FEW_POINTS = 10  # at most this many points: registration is unreliable, say so
 # Beyond this, squared distances of float32 coordinates (the networks', the KD-trees')
 # overflow: sqrt(3.4e38) is 1.8e19; keep a margin for sums of squares and products.
 LARGEST_COORDINATE = 1e15
+
+
+def over_rows(mask: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """A mask (K,) over the rows :func:`check_cloud` kept, laid out over all the input's
+    rows (P,): dropped rows (``rows`` False) get False."""
+    full = np.zeros(len(rows), dtype=bool)
+    full[rows] = mask
+    return full
 
 
 def check_cloud(

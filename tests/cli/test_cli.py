@@ -18,14 +18,18 @@ from masknet.evaluation.registration import pose_errors
 from masknet.io import read_points
 
 
-@pytest.fixture(scope="module")
-def pair_files(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("pair")
+def _pair_files(folder, seed: int):
+    """A pair of the first sample shape as template.xyz and source.npy, and the pair."""
     shapes = load_modelnet40(bundled_sample_path(), "test").points[:1]
-    pair = make_test_pairs(shapes, 1, PairConfig(), seed=1)
+    pair = make_test_pairs(shapes, 1, PairConfig(), seed=seed)
     np.savetxt(folder / "template.xyz", pair.template[0].numpy())
     np.save(folder / "source.npy", pair.source[0].numpy())
     return folder / "template.xyz", folder / "source.npy", pair
+
+
+@pytest.fixture(scope="module")
+def pair_files(tmp_path_factory):
+    return _pair_files(tmp_path_factory.mktemp("pair"), seed=1)
 
 
 def test_mask_writes_inliers_and_mask(tmp_path, small_masknet_weights, pair_files, capsys):
@@ -275,12 +279,7 @@ def test_register_no_mask_writes_no_inliers(tmp_path, pair_files, capsys):
 @pytest.fixture(scope="module")
 def turned_pair_files(tmp_path_factory):
     """pair_files' shape turned 27.4 deg and moved 0.82 (pair_files' is turned only 5.6)."""
-    folder = tmp_path_factory.mktemp("turned")
-    shapes = load_modelnet40(bundled_sample_path(), "test").points[:1]
-    pair = make_test_pairs(shapes, 1, PairConfig(), seed=3)
-    np.savetxt(folder / "template.xyz", pair.template[0].numpy())
-    np.save(folder / "source.npy", pair.source[0].numpy())
-    return folder / "template.xyz", folder / "source.npy", pair
+    return _pair_files(tmp_path_factory.mktemp("turned"), seed=3)
 
 
 # Rotation (deg) and translation bounds: the errors measured on the turned pair (bf16 and

@@ -275,11 +275,9 @@ def progress(label: str, after: float | None = None) -> Iterator[None]:
 def file_rows(mask: np.ndarray, rows: np.ndarray) -> np.ndarray:
     """A per-point mask (K,) laid out over the input file's rows (P,): rows dropped as
     non-finite (``rows`` False) get False, so line i of a mask file is row i of the input."""
-    import numpy as np
+    from masknet.io_checks import over_rows
 
-    full = np.zeros(len(rows), dtype=bool)
-    full[rows] = mask
-    return full
+    return over_rows(mask, rows)
 
 
 def check_outputs(

@@ -101,7 +101,7 @@ def run(args: argparse.Namespace) -> None:
         )
         rule = f"MaskNet score >= {args.threshold}"
     mask_path = out.with_name(out.stem + "_mask.txt")
-    carried = read_point_attributes(args.noisy).take(noisy_rows).take(result.mask)
+    carried = read_point_attributes(args.noisy, out).take(noisy_rows).take(result.mask)
     writers = [
         (out, lambda p: write_points(p, result.points, *carried)),
         (mask_path, lambda p: write_mask(p, file_rows(result.mask, noisy_rows))),

@@ -72,7 +72,7 @@ def run(args: argparse.Namespace) -> None:
         return_scores=True,
     )
     mask_path = out.with_name(out.stem + "_mask.txt")
-    carried = read_point_attributes(args.template).take(template_rows).take(mask)
+    carried = read_point_attributes(args.template, out).take(template_rows).take(mask)
     writers = [
         (out, lambda p: write_points(p, template[mask], *carried)),
         (mask_path, lambda p: write_mask(p, file_rows(mask, template_rows))),

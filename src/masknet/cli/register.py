@@ -244,8 +244,8 @@ def run(args: argparse.Namespace) -> None:
     header = "# source -> template: template ~= R @ source + t, [[R, t], [0, 0, 0, 1]]"
     text = header + "\n" + "\n".join(" ".join(f"{v:.10g}" for v in row) for row in result.transform)
     # Colour and normals of .ply/.pcd inputs go on to the outputs (normals turned too).
-    carried = read_point_attributes(args.source).take(source_rows).turned(result.R)
-    template_carried = read_point_attributes(args.template).take(template_rows)
+    carried = read_point_attributes(args.source, out).take(source_rows).turned(result.R)
+    template_carried = read_point_attributes(args.template, out).take(template_rows)
     writers = [
         (out, lambda p: write_points(p, moved, *carried)),
         (transform_path, lambda p: write_text_atomic(p, text + "\n")),

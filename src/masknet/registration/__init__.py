@@ -1,6 +1,6 @@
 """Registration: ``register`` (Mask-X for every method) and the algorithms behind it.
 
-* :mod:`.api`: the facade, :func:`register` and :class:`RegistrationResult`;
+* :mod:`.api`: the facade, :func:`register`; :mod:`.result`: :class:`RegistrationResult`;
 * :mod:`.evaluation`: :func:`evaluate_registration`, inlier fraction and RMSE of any result;
 * :mod:`.assessment`: :func:`assess_registration`, did it work: a verdict and its reason;
 * :mod:`.methods`: method names, titles, options and defaults; :mod:`.options`: the

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import functools
 import time
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -54,6 +53,7 @@ from masknet.registration.options import (
     resolve_options,
 )
 from masknet.registration.refinement import DEFAULT_REFINER, Refiner, resolve_refiner
+from masknet.registration.result import RegistrationResult
 from masknet.registration.robust import robust_register
 from masknet.registration.rounds import apply_transform, mask_and_register
 from masknet.registration.sampling import fit_to_network, spread_mask
@@ -74,96 +74,6 @@ __all__ = [
     "RegistrationResult",
     "register",
 ]
-
-
-@dataclass
-class RegistrationResult:
-    """What :func:`register` returns. Arrays are numpy, float64 unless stated.
-
-    The transform maps **source points into the template frame**,
-    ``template ~= source @ R.T + t``; see :mod:`masknet.geometry.se3`. Shapes are
-    given for one pair, with a leading batch dimension B for batched input.
-
-    Attributes:
-        R: (3, 3) or (B, 3, 3) rotation.
-        t: (3,) or (B, 3) translation, in the input's units.
-        transform: (4, 4) or (B, 4, 4), ``[[R, t], [0, 1]]``.
-        mask: (N,) or (B, N) bool over the input template: the inliers used in the
-            last round, or with a refiner (``iterations`` > 1) its mask at the pose the
-            rounds reached (before ``refine_iterations``, a scene search's polish or the
-            robust pipeline's inlier ICP move it further); None without a mask.
-        times: seconds per stage, summed over rounds: ``"sample"`` (subsampling large
-            clouds), ``"mask"`` (MaskNet), ``"register"`` (the method), ``"refine"``,
-            ``"search"`` (with a scene search) and ``"total"`` (the whole call); ``"auto"``
-            and ``"robust"`` add ``"fast"`` (the fast path's ICP and check),
-            ``"features"`` (FPFH), ``"ransac"`` (RANSAC and the early refinement),
-            ``"hypotheses"`` and their ``"refine"``.
-        info: what the method reported in its last run, as numpy arrays, () or (B,)
-            each. ``"auto"`` and ``"robust"``: ``path``, ``source`` (of the winning
-            hypothesis), ``fitness`` and ``inlier_rmse`` (of the kept source points within
-            1.5 template spacings), ``score``, ``ambiguous``, ``runner_up`` ((4, 4), NaN
-            where none), ``runner_up_fitness``, ``runner_up_score``, ``hypotheses``, and for
-            ``"auto"`` ``escalated_fitness`` (NaN where the fast path sufficed). ICP methods: ``converged``, ``iterations`` (-1 where not reported),
-            ``fitness`` and ``inlier_rmse`` (Open3D's definitions). PointNetLK:
-            ``converged``, ``iterations``, ``feature_residual``.
-        rounds: the cumulative transform after each round, (4, 4) or (B, 4, 4) each.
-        sampled: (template, source) sizes the method ran on, for single pairs.
-        correspondence_inliers: (N,) or (B, N) bool, for PRNet and RPM-Net: the template
-            points taking part in a confident correspondence in the last round (the rule
-            is in :mod:`masknet.models.prnet` and :mod:`masknet.models.rpmnet`); template
-            points the network did not see (sampled away for its input size) are False;
-            None for other methods.
-        source_mask: (M,) or (B, M) bool over the source: the points a two-sided MaskNet
-            kept in the last round, or a refiner's at the pose the rounds reached (for a
-            large single pair, each point takes the label of its nearest sampled point);
-            None for one round of the paper's MaskNet and without a mask.
-    """
-
-    R: np.ndarray
-    t: np.ndarray
-    transform: np.ndarray
-    mask: np.ndarray | None
-    times: dict[str, float] = field(default_factory=dict)
-    info: dict[str, np.ndarray] = field(default_factory=dict)
-    rounds: list[np.ndarray] = field(default_factory=list)
-    sampled: tuple[int, int] | None = None
-    correspondence_inliers: np.ndarray | None = None
-    source_mask: np.ndarray | None = None
-
-    # Open3D's names (``RegistrationResult`` of ``open3d.pipelines.registration``).
-    @property
-    def transformation(self) -> np.ndarray:
-        """Open3D's name for :attr:`transform`: (4, 4) or (B, 4, 4)."""
-        return self.transform
-
-    @property
-    def fitness(self) -> np.ndarray | None:
-        """Fraction of source points with a template point within the correspondence
-        distance (Open3D's definition), () or (B,), as the method reports it; None where it
-        does not. ICP without ``max_correspondence_distance`` counts every pair, so it is 1
-        whatever the result: :func:`~masknet.registration.evaluate_registration` judges any
-        result alike."""
-        return self.info.get("fitness")
-
-    @property
-    def inlier_rmse(self) -> np.ndarray | None:
-        """RMSE over those correspondences, in the input's units; None where not reported."""
-        return self.info.get("inlier_rmse")
-
-    @property
-    def converged(self) -> bool | np.ndarray | None:
-        """Whether the method's own stopping rule was met: a bool for one pair, (B,) bool
-        for a batch; None where the method has no such rule (global registration, DCP)."""
-        value = self.info.get("converged")
-        if value is None:
-            return None
-        return bool(value) if np.ndim(value) == 0 else np.asarray(value, bool)
-
-    @property
-    def rotation_deg(self) -> np.ndarray:
-        """The angle of ``R`` in degrees, arccos((trace R - 1) / 2): () or (B,)."""
-        cos = (np.trace(self.R, axis1=-2, axis2=-1) - 1) / 2
-        return np.degrees(np.arccos(np.clip(cos, -1, 1)))
 
 
 def _search_scene(

@@ -8,7 +8,7 @@ import numpy as np
 
 from masknet.errors import MaskNetError
 from masknet.geometry.clouds import MIN_POINTS, as_cloud_batch
-from masknet.io_checks import check_cloud
+from masknet.io_checks import check_cloud, over_rows
 from masknet.registration.methods import INITS, METHODS, OPTIONS
 
 __all__ = [
@@ -96,6 +96,4 @@ def spread_rows(mask: np.ndarray | None, rows: np.ndarray) -> np.ndarray | None:
     """A (1, kept) mask over all the input's rows (1, P), False where a row was dropped."""
     if mask is None:
         return None
-    full = np.zeros((1, len(rows)), bool)
-    full[0, rows] = mask[0]
-    return full
+    return over_rows(mask[0], rows)[None]
