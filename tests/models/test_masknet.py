@@ -292,6 +292,20 @@ def test_predict_mask_threshold(model, clouds):
     np.testing.assert_array_equal(same_scores, scores)
 
 
+def test_predict_masks_is_the_two_mask_protocol(model, clouds):
+    template, source = clouds
+    t, s = template.numpy(), source.numpy()
+    for args in ({}, {"k": 10}, {"threshold": 0.5}):
+        template_mask, source_mask = model.predict_masks(t[0], s[0], **args)
+        assert source_mask is None  # MaskNet keeps every source point
+        np.testing.assert_array_equal(template_mask, model.predict_mask(t[0], s[0], **args))
+    batched, _ = model.predict_masks(t, s[:, :50], precision="fp32")
+    assert batched.shape == (3, 96)
+    np.testing.assert_array_equal(batched.sum(1), [50, 50, 50])
+    with pytest.raises(TypeError):
+        model.predict_masks(t, s, 10)  # everything after the clouds is keyword-only
+
+
 def test_select_mask_rules():
     scores = torch.tensor([[0.1, 0.9, 0.5, 0.7], [0.8, 0.2, 0.6, 0.4]])
     assert select_mask(scores, k=2).tolist() == [

@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 import torch
 
 from masknet import register
@@ -29,6 +30,17 @@ def test_all_kept_source_gives_the_paper_masknet():
         tpl_scores, src_scores = model(t, s)
         assert torch.all(src_scores > 0.99)
         assert torch.allclose(tpl_scores, model.masknet(t, s), atol=1e-5)
+
+
+def test_predict_masks_takes_its_options_by_keyword():
+    model = _small()
+    gen = np.random.default_rng(0)
+    t, s = gen.random((40, 3)), gen.random((30, 3))
+    template_mask, source_mask = model.predict_masks(t, s, k=5)
+    assert template_mask.shape == (40,) and template_mask.sum() == 5
+    assert source_mask.shape == (30,) and source_mask.dtype == bool
+    with pytest.raises(TypeError):
+        model.predict_masks(t, s, 5)
 
 
 def test_frozen_template_branch_gets_no_gradient():

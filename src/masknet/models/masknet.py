@@ -290,6 +290,28 @@ class MaskNet(SafetensorsWeights, nn.Module):
         mask = mask[0] if scores.ndim == 1 else mask
         return (mask, scores) if return_scores else mask
 
+    def predict_masks(
+        self,
+        template: np.ndarray,
+        source: np.ndarray,
+        *,
+        k: int | None = None,
+        threshold: float | None = None,
+        precision: Precision | Literal["auto"] = "auto",
+        normalize: bool = True,
+    ) -> tuple[np.ndarray, None]:
+        """The mask protocol every mask network answers: ``(template mask, source mask)``.
+
+        MaskNet masks the template only, so the source mask is None (every source point
+        kept). The template mask is :meth:`predict_mask`'s: top-k with k = M, the number of
+        source points, unless ``k`` or ``threshold`` is given, as
+        :meth:`masknet.models.TwoSidedMaskNet.predict_masks` selects its template mask.
+        """
+        mask = self.predict_mask(
+            template, source, k=k, threshold=threshold, precision=precision, normalize=normalize
+        )
+        return mask, None
+
 
 class FusedMaskNet(nn.Module):
     """Inference-only MaskNet: split head, BatchNorm folded, optional bf16.

@@ -190,6 +190,7 @@ class RefineMaskNet(SafetensorsWeights, nn.Module):
         self,
         template: np.ndarray,
         source: np.ndarray,
+        *,
         k: int | None = None,
         threshold: float | None = None,
         source_threshold: float = 0.5,
