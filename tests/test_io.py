@@ -13,7 +13,9 @@ from masknet.errors import MaskNetError, MaskNetWarning
 from masknet.io import (
     SUPPORTED_READ,
     SUPPORTED_WRITE,
+    PointsRead,
     read_points,
+    read_points_with_rows,
     require_open3d,
     write_mask,
     write_points,
@@ -233,6 +235,23 @@ def test_nan_rows(tmp_path, ext):
     got = read_points(path, drop_nonfinite=True)
     keep = np.isfinite(pts).all(axis=1)
     np.testing.assert_allclose(got, pts[keep], atol=1e-6)
+    read = read_points_with_rows(path, drop_nonfinite=True)
+    assert isinstance(read, PointsRead)
+    np.testing.assert_array_equal(read.points, got)
+    np.testing.assert_array_equal(read.rows, keep)
+
+
+def test_return_rows_is_deprecated(tmp_path):
+    path = tmp_path / "a.npy"
+    np.save(path, _cloud(20))
+    read = read_points_with_rows(path)
+    assert read.rows.all() and read.rows.shape == (20,)
+    with pytest.warns(DeprecationWarning, match="read_points_with_rows"):
+        points, rows = read_points(path, return_rows=True)
+    np.testing.assert_array_equal(points, read.points)
+    np.testing.assert_array_equal(rows, read.rows)
+    with pytest.warns(DeprecationWarning):
+        np.testing.assert_array_equal(read_points(path, return_rows=False), read.points)
 
 
 @pytest.mark.parametrize("ext", [".npy", ".ply"])

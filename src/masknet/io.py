@@ -57,8 +57,10 @@ __all__ = [
     "SUPPORTED_READ",
     "SUPPORTED_WRITE",
     "PointAttributes",
+    "PointsRead",
     "read_point_attributes",
     "read_points",
+    "read_points_with_rows",
     "write_points",
     "write_mask",
     "write_text_atomic",
@@ -175,23 +177,52 @@ def _open3d_failure(captured: str) -> str | None:
 # --------------------------------------------------------------------------- reading
 
 
+class PointsRead(NamedTuple):
+    """A cloud read from a file and where its points lie in the file
+    (:func:`read_points_with_rows`): points (N, 3) float64, and rows (P,) bool over the
+    file's P rows, True for the N kept, so that per-point outputs can be laid out row for
+    row."""
+
+    points: np.ndarray
+    rows: np.ndarray
+
+
 def read_points(
-    path: PathLike, drop_nonfinite: bool = False, return_rows: bool = False
-) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+    path: PathLike, drop_nonfinite: bool = False, *, return_rows: bool | None = None
+) -> np.ndarray:
     """Read a point cloud file into a float64 array (N, 3), N >= 3, all finite.
 
     Args:
         path: a ``.ply``, ``.pcd``, ``.xyz``, ``.txt``, ``.csv``, ``.npy`` or ``.bin``
             file (see the module docstring for the formats).
         drop_nonfinite: drop rows containing NaN or inf instead of raising.
-        return_rows: also return ``rows`` (P,) bool over the file's rows, True for
-            those kept, so that per-point outputs can be laid out row for row.
+        return_rows: deprecated (it changed the return type); use
+            :func:`read_points_with_rows`, which also says which of the file's rows were
+            kept.
 
     Raises:
         MaskNetError: the file is missing, a directory, of an unsupported type,
             unreadable, truncated or corrupt; or it holds no points, fewer than 3,
             an array of the wrong shape, or (unless ``drop_nonfinite``) NaN/inf rows.
     """
+    read = read_points_with_rows(path, drop_nonfinite=drop_nonfinite)
+    if return_rows is not None:
+        warnings.warn(
+            "read_points(..., return_rows=...) is deprecated and will be removed in the next "
+            "release; use read_points_with_rows(path), which returns (points, rows)",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        if return_rows:
+            return tuple(read)
+    return read.points
+
+
+def read_points_with_rows(path: PathLike, *, drop_nonfinite: bool = False) -> PointsRead:
+    """:func:`read_points`, and which of the file's rows the points are:
+    ``PointsRead(points, rows)``, points (N, 3) float64 and rows (P,) bool over the file's
+    P rows, True for those kept (all of them unless ``drop_nonfinite`` dropped some).
+    Raises as :func:`read_points` does."""
     name = os.fspath(path)
     p = Path(name)
     if not p.exists():
@@ -215,7 +246,7 @@ def read_points(
     except OSError as exc:
         raise MaskNetError(f"{name}: cannot read file ({exc.strerror or exc})") from exc
     points, rows = check_cloud(points, name, drop_nonfinite)
-    return (points, rows) if return_rows else points
+    return PointsRead(points, rows)
 
 
 class PointAttributes(NamedTuple):
@@ -236,7 +267,7 @@ class PointAttributes(NamedTuple):
 
 def read_point_attributes(path: PathLike, for_output: PathLike | None = None) -> PointAttributes:
     """Colours and normals of a ``.ply``/``.pcd`` file (read by Open3D), row for row with
-    :func:`read_points` ``(..., return_rows=True)``'s rows; none for other formats, or
+    :func:`read_points_with_rows`'s rows; none for other formats, or
     when Open3D is not available. Outputs pass them on, so nothing the user had is lost.
     ``for_output``: the file they are for; none (and no read) when it cannot hold them."""
     name = os.fspath(path)

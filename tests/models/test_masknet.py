@@ -8,7 +8,7 @@ import torch
 
 from masknet.errors import MaskNetError
 from masknet.geometry import unit_radius
-from masknet.models.masknet import FusedMaskNet, MaskNet, centre, select_mask
+from masknet.models.masknet import FusedMaskNet, MaskNet, ScoredMask, centre, select_mask
 from masknet.models.pointnet import PointNetEncoder, fold_batchnorm
 
 SMALL = {"encoder_channels": (16, 32, 32, 64, 128), "head_channels": (128, 64, 32, 16)}
@@ -287,9 +287,22 @@ def test_predict_mask_threshold(model, clouds):
     mask = model.predict_mask(t, s, threshold=threshold)
     np.testing.assert_array_equal(mask, scores >= threshold)
     assert 0 < mask.sum() < mask.size
-    with_scores, same_scores = model.predict_mask(t, s, threshold=threshold, return_scores=True)
-    np.testing.assert_array_equal(with_scores, mask)
-    np.testing.assert_array_equal(same_scores, scores)
+    scored = model.predict_mask_with_scores(t, s, threshold=threshold)
+    assert isinstance(scored, ScoredMask)
+    np.testing.assert_array_equal(scored.mask, mask)
+    np.testing.assert_array_equal(scored.scores, scores)
+
+
+def test_return_scores_is_deprecated(model, clouds):
+    template, source = clouds
+    t, s = template[0].numpy(), source[0].numpy()
+    scored = model.predict_mask_with_scores(t, s)
+    with pytest.warns(DeprecationWarning, match="predict_mask_with_scores"):
+        mask, scores = model.predict_mask(t, s, return_scores=True)
+    np.testing.assert_array_equal(mask, scored.mask)
+    np.testing.assert_array_equal(scores, scored.scores)
+    with pytest.warns(DeprecationWarning):
+        np.testing.assert_array_equal(model.predict_mask(t, s, return_scores=False), mask)
 
 
 def test_predict_masks_is_the_two_mask_protocol(model, clouds):

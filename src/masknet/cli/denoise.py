@@ -68,7 +68,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> None:
     """Denoise; write the kept points and ``<stem>_mask.txt`` (and views)."""
     from masknet.denoising import denoise
-    from masknet.io import read_point_attributes, read_points, write_mask, write_points
+    from masknet.io import (
+        read_point_attributes,
+        read_points,
+        read_points_with_rows,
+        write_mask,
+        write_points,
+    )
 
     if not 0 <= args.threshold <= 1:
         raise MaskNetError(f"--threshold must be in [0, 1], got {args.threshold}")
@@ -77,9 +83,7 @@ def run(args: argparse.Namespace) -> None:
         [out, out.with_name(out.stem + "_mask.txt")] + check_html(args.html),
         inputs=[args.noisy, args.template],
     )
-    noisy, noisy_rows = read_points(
-        args.noisy, drop_nonfinite=args.drop_nonfinite, return_rows=True
-    )
+    noisy, noisy_rows = read_points_with_rows(args.noisy, drop_nonfinite=args.drop_nonfinite)
     template = read_points(args.template, drop_nonfinite=args.drop_nonfinite)
     if args.method == "distance":
         result = denoise(noisy, template, method="distance", max_distance=args.max_distance)

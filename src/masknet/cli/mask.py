@@ -49,7 +49,13 @@ def run(args: argparse.Namespace) -> None:
     """Predict the mask; write the inlier points and ``<stem>_mask.txt`` (and views)."""
     import numpy as np
 
-    from masknet.io import read_point_attributes, read_points, write_mask, write_points
+    from masknet.io import (
+        read_point_attributes,
+        read_points,
+        read_points_with_rows,
+        write_mask,
+        write_points,
+    )
 
     if args.threshold is not None and not 0 <= args.threshold <= 1:
         raise MaskNetError(f"--threshold must be in [0, 1] (scores are), got {args.threshold}")
@@ -58,18 +64,13 @@ def run(args: argparse.Namespace) -> None:
         [out, out.with_name(out.stem + "_mask.txt")] + check_html(args.html),
         inputs=[args.template, args.source],
     )
-    template, template_rows = read_points(
-        args.template, drop_nonfinite=args.drop_nonfinite, return_rows=True
+    template, template_rows = read_points_with_rows(
+        args.template, drop_nonfinite=args.drop_nonfinite
     )
     source = read_points(args.source, drop_nonfinite=args.drop_nonfinite)
     model = load_model(args)
-    mask, scores = model.predict_mask(
-        template,
-        source,
-        k=args.k,
-        threshold=args.threshold,
-        precision=args.inference_precision,
-        return_scores=True,
+    mask, scores = model.predict_mask_with_scores(
+        template, source, k=args.k, threshold=args.threshold, precision=args.inference_precision
     )
     mask_path = out.with_name(out.stem + "_mask.txt")
     carried = read_point_attributes(args.template, out).take(template_rows).take(mask)

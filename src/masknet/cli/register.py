@@ -167,7 +167,12 @@ def run(args: argparse.Namespace) -> None:
     """Register; write the outputs all-or-nothing and print what the method reported."""
     import numpy as np
 
-    from masknet.io import read_point_attributes, read_points, write_points, write_text_atomic
+    from masknet.io import (
+        read_point_attributes,
+        read_points_with_rows,
+        write_points,
+        write_text_atomic,
+    )
     from masknet.registration import assess_registration, register
     from masknet.registration.evaluation import DEFAULT_SPACINGS
     from masknet.registration.methods import GLOBAL_METHODS
@@ -186,13 +191,11 @@ def run(args: argparse.Namespace) -> None:
     ]
     check_outputs([out, *derived] + check_html(args.html), inputs=[args.template, args.source])
     with progress(f"reading {args.template}"):
-        template, template_rows = read_points(
-            args.template, drop_nonfinite=args.drop_nonfinite, return_rows=True
+        template, template_rows = read_points_with_rows(
+            args.template, drop_nonfinite=args.drop_nonfinite
         )
     with progress(f"reading {args.source}"):
-        source, source_rows = read_points(
-            args.source, drop_nonfinite=args.drop_nonfinite, return_rows=True
-        )
+        source, source_rows = read_points_with_rows(args.source, drop_nonfinite=args.drop_nonfinite)
     from masknet.registration.scene import is_scene
 
     if args.scene != "off" and is_scene(source, template):

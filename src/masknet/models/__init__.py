@@ -3,7 +3,7 @@ networks."""
 
 from masknet.models.dcp import DCP
 from masknet.models.layers import RegistrationSolution
-from masknet.models.masknet import FusedMaskNet, MaskNet, select_mask
+from masknet.models.masknet import FusedMaskNet, MaskNet, ScoredMask, select_mask
 from masknet.models.pcrnet import PCRNet
 from masknet.models.pointnet import PointNetEncoder, fold_batchnorm
 from masknet.models.pointnetlk import LKSolution, PointNetLK
@@ -33,6 +33,7 @@ __all__ = [
     "REGISTRATION_NETWORKS",
     "RPMNet",
     "RegistrationSolution",
+    "ScoredMask",
     "TwoSidedMaskNet",
     "fold_batchnorm",
     "select_mask",

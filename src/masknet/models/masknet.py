@@ -31,8 +31,9 @@ by a threshold epsilon (as the paper describes).
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import numpy as np
 import torch
@@ -46,6 +47,7 @@ from masknet.runtime import default_precision
 __all__ = [
     "MaskNet",
     "FusedMaskNet",
+    "ScoredMask",
     "select_mask",
     "predict_two_masks",
     "centre",
@@ -61,6 +63,15 @@ _DTYPES = {"fp32": torch.float32, "bf16": torch.bfloat16}
 # pairs keep each layer's (B, N, C) activations in cache: MaskNet's bf16 path runs about
 # 2x faster per pair at 8 than at 64, PointNetLK and PRNet 1.5-2.5x (2-core EPYC, 2 threads).
 PAIRS_PER_CALL = 8
+
+
+class ScoredMask(NamedTuple):
+    """A template mask and the scores it was selected from, as
+    :meth:`MaskNet.predict_mask_with_scores` returns them: mask (N,) or (B, N) bool, scores
+    (N,) or (B, N) float32 in [0, 1]."""
+
+    mask: np.ndarray
+    scores: np.ndarray
 
 
 def centre(points: Tensor) -> Tensor:
@@ -273,22 +284,52 @@ class MaskNet(SafetensorsWeights, nn.Module):
         threshold: float | None = None,
         precision: Precision | Literal["auto"] = "auto",
         normalize: bool = True,
-        return_scores: bool = False,
-    ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+        return_scores: bool | None = None,
+    ) -> np.ndarray:
         """Boolean inlier mask, (N,) or (B, N), for template (N, 3) or (B, N, 3) and
         source (M, 3) or (B, M, 3).
 
         By default top-k with k = M, the number of source points. Pass ``k`` for
-        another top-k, or ``threshold`` for the paper's epsilon rule. With
-        ``return_scores``, returns ``(mask, scores)``, the scores as :meth:`predict`.
+        another top-k, or ``threshold`` for the paper's epsilon rule.
+        :meth:`predict_mask_with_scores` gives the scores beside the mask.
+
+        ``return_scores`` is deprecated (it changed the return type): use
+        :meth:`predict_mask_with_scores`.
         """
+        scored = self.predict_mask_with_scores(
+            template, source, k=k, threshold=threshold, precision=precision, normalize=normalize
+        )
+        if return_scores is not None:
+            warnings.warn(
+                "predict_mask(..., return_scores=...) is deprecated and will be removed in "
+                "the next release; use predict_mask_with_scores(template, source), which "
+                "returns (mask, scores)",
+                DeprecationWarning,
+                stacklevel=2,
+            )
+            if return_scores:
+                return tuple(scored)
+        return scored.mask
+
+    def predict_mask_with_scores(
+        self,
+        template: np.ndarray,
+        source: np.ndarray,
+        *,
+        k: int | None = None,
+        threshold: float | None = None,
+        precision: Precision | Literal["auto"] = "auto",
+        normalize: bool = True,
+    ) -> ScoredMask:
+        """:meth:`predict_mask`'s mask and the scores it was selected from, from one
+        forward pass: ``ScoredMask(mask, scores)``, the mask (N,) or (B, N) bool and the
+        scores as :meth:`predict` gives them."""
         scores = self.predict(template, source, precision=precision, normalize=normalize)
         batch = torch.from_numpy(np.atleast_2d(scores))
         if threshold is None and k is None:
             k = np.asarray(source).shape[-2]
         mask = select_mask(batch, k=k, threshold=threshold).numpy()
-        mask = mask[0] if scores.ndim == 1 else mask
-        return (mask, scores) if return_scores else mask
+        return ScoredMask(mask[0] if scores.ndim == 1 else mask, scores)
 
     def predict_masks(
         self,
