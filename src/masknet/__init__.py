@@ -10,7 +10,7 @@
     >>> from masknet import assess_registration
     >>> assess_registration(template, source, result.transform).verdict  # did it work?
     >>> from masknet import denoise
-    >>> kept = denoise(noisy, template)               # aligned clouds: kept.points, kept.mask
+    >>> kept = denoise(template, noisy)               # aligned clouds: kept.points, kept.mask
 
 The transform convention for every registration result is documented in
 :mod:`masknet.geometry.se3`: ``template ~= R @ source + t``.

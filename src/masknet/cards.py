@@ -254,7 +254,7 @@ def render_denoise_card(card: dict) -> str:
 MaskNet applied the other way round (the paper's denoising use): it scores the points of a
 noisy source cloud given a clean template of the same object. Same architecture as
 `masknet_modelnet40`. Load it with `MaskNet.pretrained("{card["name"]}")`, or use
-`masknet.denoise(noisy, template)` / `masknet denoise NOISY TEMPLATE -o OUT`.
+`masknet.denoise(template, noisy)` / `masknet denoise TEMPLATE NOISY -o OUT`.
 
 ## Training actually done
 - `masknet train --model denoise`: ModelNet40 training split, {card["training"]["shapes"]["train"]} shapes

@@ -1,7 +1,7 @@
 """Denoising: remove the points of a scan that a clean template does not explain.
 
-Given a noisy cloud Y (a scan with outliers) and a clean template X of the same
-object, :func:`denoise` decides for every point of Y whether X explains it: by its
+Given a clean template X of an object and a noisy cloud Y of the same object (a scan with
+outliers), :func:`denoise` decides for every point of Y whether X explains it: by its
 distance to X (``method="distance"``, the default; the clouds must be aligned), or by
 the two-sided MaskNet's source mask (``method="masknet"``; the shipped
 ``masknet2_scans`` weights), which needs no alignment: it was trained on pairs
@@ -18,11 +18,14 @@ import functools
 from typing import NamedTuple
 
 import numpy as np
+import torch
+from torch import Tensor
 
-from masknet.errors import MaskNetError, warns_once
-from masknet.geometry.clouds import as_cloud_batch, median_spacing, unit_radius
+from masknet.errors import MaskNetError, checks_done, warns_once
+from masknet.geometry.clouds import median_spacing, unit_radius
 from masknet.geometry.knn import knn_points
 from masknet.geometry.sampling import farthest_point_sample
+from masknet.io_checks import check_cloud
 from masknet.models.masknet import MaskNet
 from masknet.models.refine import RefineMaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
@@ -66,8 +69,9 @@ METHODS = ("distance", "masknet", "refined")
 
 @warns_once
 def denoise(
-    noisy: np.ndarray,
     template: np.ndarray,
+    noisy: np.ndarray,
+    *,
     method: str = "distance",
     model: TwoSidedMaskNet | MaskNet | None = None,
     threshold: float = 0.5,
@@ -76,13 +80,15 @@ def denoise(
 ) -> DenoiseResult:
     """Remove the points of ``noisy`` (P, 3) that the clean ``template`` (N, 3) does not explain.
 
+    The clouds come in the project's order, template first; every option is keyword-only.
+
     For ``"distance"`` and ``"refined"`` the clouds must be aligned (denoise after a
     registration, e.g. ``register`` and then this on the moved source); ``"masknet"``
     with the two-sided network does not need it.
 
     Example::
 
-        kept = denoise(scan, model_cloud, method="masknet").points
+        kept = denoise(model_cloud, scan, method="masknet").points
 
     Args:
         method: ``"distance"`` (the default: keep points within ``max_distance`` of their
@@ -109,9 +115,7 @@ def denoise(
         raise MaskNetError(f"unknown denoising method {method!r}; choose {', '.join(METHODS)}")
     if not 0 <= threshold <= 1:
         raise MaskNetError(f"threshold must be in [0, 1], got {threshold}")
-    y, x, single = as_cloud_batch(np.asarray(noisy), np.asarray(template))
-    if not single:
-        raise MaskNetError("denoise takes one noisy cloud (P, 3) and one template (N, 3)")
+    x, y = _checked_pair(template, noisy)
     if method == "distance":
         limit = 3 * median_spacing(template) if max_distance is None else max_distance
         if not limit > 0:
@@ -130,18 +134,41 @@ def denoise(
     if method == "refined" and x.shape[1] > NETWORK_POINTS:
         # the network compares the two clouds' spacings: sample both alike
         x = x[:, farthest_point_sample(x[0].numpy(), NETWORK_POINTS).indices]
-    if isinstance(model, TwoSidedMaskNet | RefineMaskNet):
-        # predict's normalize scales both clouds by the template's radius.
-        scores = model.predict(x.numpy(), y.numpy(), precision=precision)[1][0]
-    else:
-        radius = unit_radius(x)[:, None, None]
-        scores = model.predict(
-            (y / radius).numpy(), (x / radius).numpy(), precision=precision, normalize=False
-        )[0]
+    # The networks check the clouds again under their own argument names; they were
+    # checked above as "template" and "noisy", so the repeats stay quiet.
+    with checks_done():
+        if isinstance(model, TwoSidedMaskNet | RefineMaskNet):
+            # predict's normalize scales both clouds by the template's radius.
+            scores = model.predict(x.numpy(), y.numpy(), precision=precision)[1][0]
+        else:  # a paper MaskNet trained for denoising scores its first cloud: the noisy one
+            radius = unit_radius(x)[:, None, None]
+            scores = model.predict(
+                (y / radius).numpy(), (x / radius).numpy(), precision=precision, normalize=False
+            )[0]
     if sampled is not None:
         scores = spread_mask(y_np, sampled, scores)
     mask = scores >= threshold
     return DenoiseResult(np.asarray(noisy)[mask], mask, scores)
+
+
+def _checked_pair(template: np.ndarray, noisy: np.ndarray) -> tuple[Tensor, Tensor]:
+    """The checks of :func:`masknet.io_checks.check_cloud`, each cloud under its own name
+    (``template``, ``noisy``): float32 tensors (1, N, 3) and (1, P, 3)."""
+    t, y = np.asarray(template), np.asarray(noisy)
+    if t.ndim != 2 or y.ndim != 2:
+        raise MaskNetError(
+            "denoise takes one template (N, 3) and one noisy cloud (P, 3); "
+            f"got shapes {t.shape} and {y.shape}"
+        )
+    for name, a in (("template", t), ("noisy", y)):
+        # (3, P) with P > 3 is left to check_cloud, which names it as transposed.
+        if a.shape[1] != 3 and not (a.shape[0] == 3 and a.shape[1] > 3):
+            raise MaskNetError(f"{name} must have 3 columns (x, y, z); got shape {a.shape}")
+        check_cloud(a, name)
+    return (
+        torch.from_numpy(np.ascontiguousarray(t[None], np.float32)),
+        torch.from_numpy(np.ascontiguousarray(y[None], np.float32)),
+    )
 
 
 def _open3d_cloud(points: np.ndarray):

@@ -3,10 +3,11 @@ each as a single line."""
 
 from __future__ import annotations
 
+import contextlib
 import contextvars
 import functools
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import TypeVar
 
 F = TypeVar("F", bound=Callable)
@@ -33,9 +34,18 @@ _ISSUED: contextvars.ContextVar[set[str] | None] = contextvars.ContextVar(
 )
 
 
+# True within :func:`checks_done`: the clouds were checked, and warned about, already.
+_CHECKED: contextvars.ContextVar[bool] = contextvars.ContextVar(
+    "masknet_clouds_checked", default=False
+)
+
+
 def warn(message: str, stacklevel: int = 3) -> None:
     """Issue ``message`` as a :class:`MaskNetWarning`, once per call of a
-    :func:`warns_once` entry point (every time outside one)."""
+    :func:`warns_once` entry point (every time outside one); never within
+    :func:`checks_done`."""
+    if _CHECKED.get():
+        return
     issued = _ISSUED.get()
     if issued is not None:
         if message in issued:
@@ -60,3 +70,16 @@ def warns_once(function: F) -> F:
             _ISSUED.reset(token)
 
     return wrapper  # type: ignore[return-value]
+
+
+@contextlib.contextmanager
+def checks_done() -> Iterator[None]:
+    """Within: no :class:`MaskNetWarning` is issued. For an entry point that has checked
+    its clouds under their own names (``noisy``) and then hands them to stages that check
+    them again under theirs (``template``, ``source``): the warnings were given once,
+    rightly named. Errors are not touched; per thread and task, as :func:`warns_once`."""
+    token = _CHECKED.set(True)
+    try:
+        yield
+    finally:
+        _CHECKED.reset(token)

@@ -143,8 +143,7 @@ def test_an_output_that_is_an_input_is_refused_before_any_work(
     if through_link:
         target = tmp_path / "alias.xyz"
         target.symlink_to(source)
-    first, second = (source, template) if command == "denoise" else (template, source)
-    code = main([command, str(first), str(second), "-o", str(target)])
+    code = main([command, str(template), str(source), "-o", str(target)])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1
     assert "is the input" in err[0] and "never overwrites an input" in err[0]

@@ -62,7 +62,7 @@ def workdir(tmp_path, monkeypatch, small_masknet_weights) -> dict[str, str]:
         (masknet.training, "fit"),
         (masknet.registration, "register"),
         (masknet.denoising, "denoise"),
-        (MaskNet, "predict_mask"),
+        (MaskNet, "predict_mask_with_scores"),
         (masknet.evaluation.evaluate, "evaluate_masknet"),
         (masknet.evaluation.scans, "evaluate_scans"),
         (masknet.experiments, "run_experiments"),
@@ -96,7 +96,7 @@ def _tree(root: Path) -> dict[str, bytes | None]:
 
 MASK = "mask template.xyz source.npy -o m.xyz"
 REGISTER = "register template.xyz source.npy -o r.xyz"
-DENOISE = "denoise source.npy template.xyz -o kept.xyz"
+DENOISE = "denoise template.xyz source.npy -o kept.xyz"
 EVALUATE_SCANS = "evaluate --weights @weights --scans scans"
 TRAIN = "train --out run"
 TRAIN_SCANS = "train --out run --scans scans --modelnet-fraction 0 --val-scans b"
@@ -117,9 +117,9 @@ REFUSALS = {
     "mask template.xyz source.npy -o v.png --html v.html": (
         "v.png: named for two outputs; give each output its own name"
     ),
-    "denoise source.npy template.xyz -o kept.foo": "kept.foo: cannot write extension '.foo' (supported: ...",
+    "denoise template.xyz source.npy -o kept.foo": "kept.foo: cannot write extension '.foo' (supported: ...",
     "mask template.xyz source.npy -o taken.xyz": "taken.xyz: is a directory, not a file",
-    "denoise source.npy template.xyz -o template.xyz/kept.xyz": (
+    "denoise template.xyz source.npy -o template.xyz/kept.xyz": (
         "template.xyz/kept.xyz: cannot write into template.xyz (not a writable directory)"
     ),
     f"{DENOISE} --html view.png": (

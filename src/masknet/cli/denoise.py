@@ -26,12 +26,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="remove the points of NOISY that TEMPLATE (a clean cloud of the same object) "
         "does not explain",
     )
-    p.add_argument("noisy", help="the scan with outliers: .ply .pcd .xyz .txt .csv .npy .bin")
     p.add_argument(
         "template",
-        help="a clean cloud of the same object; for --method distance aligned with NOISY "
-        "(e.g. after register), for --method masknet in any pose within about 45 degrees",
+        help="a clean cloud of the object: .ply .pcd .xyz .txt .csv .npy .bin; for --method "
+        "distance aligned with NOISY (e.g. after register), for --method masknet in any pose "
+        "within about 45 degrees",
     )
+    p.add_argument("noisy", help="the scan with outliers, of the same object")
     p.add_argument(
         "-o",
         "--output",
@@ -81,12 +82,12 @@ def run(args: argparse.Namespace) -> None:
     out = Path(args.output)
     check_outputs(
         [out, out.with_name(out.stem + "_mask.txt")] + check_html(args.html),
-        inputs=[args.noisy, args.template],
+        inputs=[args.template, args.noisy],
     )
-    noisy, noisy_rows = read_points_with_rows(args.noisy, drop_nonfinite=args.drop_nonfinite)
     template = read_points(args.template, drop_nonfinite=args.drop_nonfinite)
+    noisy, noisy_rows = read_points_with_rows(args.noisy, drop_nonfinite=args.drop_nonfinite)
     if args.method == "distance":
-        result = denoise(noisy, template, method="distance", max_distance=args.max_distance)
+        result = denoise(template, noisy, method="distance", max_distance=args.max_distance)
         rule = f"distance <= {args.max_distance or '3x template spacing'}"
     else:
         if args.method == "refined":
@@ -96,8 +97,8 @@ def run(args: argparse.Namespace) -> None:
         else:
             model = load_model(args, two_sided=True)
         result = denoise(
-            noisy,
             template,
+            noisy,
             method=args.method,
             model=model,
             threshold=args.threshold,

@@ -34,8 +34,8 @@ def run(ctx: BenchmarkContext) -> ExperimentResult:
         methods = {
             "template distance (3x spacing)": np.stack(
                 [
-                    denoise(c, t, method="distance").mask
-                    for c, t in zip(noisy, templates, strict=True)
+                    denoise(t, c, method="distance").mask
+                    for t, c in zip(templates, noisy, strict=True)
                 ]
             ),
             "Open3D statistical (20 nn, 2 std)": np.stack(

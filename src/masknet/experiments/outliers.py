@@ -27,7 +27,7 @@ def register_denoise_register(pairs: Pairs, how: dict, kwargs: dict) -> dict[str
         template, source = templates[i], sources[i]
         first = register(template, source, **kwargs).transform
         moved = source @ first[:3, :3].T + first[:3, 3]
-        cleaned = denoise(moved, template, **how).points
+        cleaned = denoise(template, moved, **how).points
         if len(cleaned) < MIN_POINTS:
             # A first pass far off leaves almost nothing near the template, too few points
             # for register(): keep its estimate.
