@@ -6,7 +6,8 @@
     >>> from masknet import register
     >>> result = register(template, source)           # Mask-ICP; result.transform (4, 4)
     >>> from masknet import evaluate_registration
-    >>> evaluate_registration(template, source, result.transform).fitness  # inlier fraction
+    >>> quality = evaluate_registration(template=template, source=source, transform=result.transform)
+    >>> quality.fitness                               # inlier fraction (names only: not Open3D's order)
     >>> from masknet import assess_registration
     >>> assess_registration(template, source, result.transform).verdict  # did it work?
     >>> from masknet import denoise

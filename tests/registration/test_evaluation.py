@@ -29,7 +29,7 @@ def _moved(
 
 def test_the_true_transform_fits_every_point(shape):
     source, back = _moved(shape[:600], 40.0, np.array([0.5, -0.2, 0.1]))
-    quality = evaluate_registration(shape, source, back)
+    quality = evaluate_registration(template=shape, source=source, transform=back)
     assert quality.fitness == pytest.approx(1.0)
     assert quality.inlier_rmse == pytest.approx(0.0, abs=1e-9)
     assert quality.max_distance == pytest.approx(DEFAULT_SPACINGS * median_spacing(shape))
@@ -37,19 +37,23 @@ def test_the_true_transform_fits_every_point(shape):
 
 def test_a_wrong_transform_fits_fewer_points(shape):
     source, back = _moved(shape[:600], 40.0, np.zeros(3))
-    right = evaluate_registration(shape, source, back).fitness
-    wrong = evaluate_registration(shape, source, np.eye(4)).fitness
+    right = evaluate_registration(template=shape, source=source, transform=back).fitness
+    wrong = evaluate_registration(template=shape, source=source, transform=np.eye(4)).fitness
     far = np.eye(4)
     far[:3, 3] = 10.0  # the source moved well away from the template
     assert wrong < 0.7 * right
-    assert evaluate_registration(shape, source, far).fitness == 0.0
-    assert evaluate_registration(shape, source, far).inlier_rmse == 0.0  # none, as Open3D
+    assert evaluate_registration(template=shape, source=source, transform=far).fitness == 0.0
+    assert (
+        evaluate_registration(template=shape, source=source, transform=far).inlier_rmse == 0.0
+    )  # none, as Open3D
 
 
 def test_the_default_distance_does_not_depend_on_the_unit(shape):
     source, _ = _moved(shape[:600], 15.0, np.array([0.05, 0.0, 0.0]))
-    metres = evaluate_registration(shape, source, np.eye(4))
-    millimetres = evaluate_registration(1000 * shape, 1000 * source, np.eye(4))
+    metres = evaluate_registration(template=shape, source=source, transform=np.eye(4))
+    millimetres = evaluate_registration(
+        template=1000 * shape, source=1000 * source, transform=np.eye(4)
+    )
     assert 0 < metres.fitness < 1
     assert millimetres.fitness == pytest.approx(metres.fitness)
     assert millimetres.inlier_rmse == pytest.approx(1000 * metres.inlier_rmse)
@@ -58,7 +62,10 @@ def test_the_default_distance_does_not_depend_on_the_unit(shape):
 def test_batches_and_an_explicit_distance(shape):
     source, back = _moved(shape[:600], 20.0, np.zeros(3))
     quality = evaluate_registration(
-        np.stack([shape, shape]), np.stack([source, source]), np.stack([back, np.eye(4)]), 1e-6
+        template=np.stack([shape, shape]),
+        source=np.stack([source, source]),
+        transform=np.stack([back, np.eye(4)]),
+        max_distance=1e-6,
     )
     assert quality.fitness.shape == (2,)
     assert quality.fitness[0] == pytest.approx(1.0) and quality.fitness[1] < 0.5
@@ -79,4 +86,18 @@ def test_batches_and_an_explicit_distance(shape):
 )
 def test_bad_arguments_are_one_clear_error(shape, transform, distance, words):
     with pytest.raises(MaskNetError, match=words):
-        evaluate_registration(shape, shape[:100], transform, distance)
+        evaluate_registration(
+            template=shape, source=shape[:100], transform=transform, max_distance=distance
+        )
+
+
+def test_a_positional_call_is_refused(shape):
+    """Open3D's evaluate_registration takes (source, target, distance, transformation): a
+    call in either order by position would measure some cloud; only names are taken."""
+    source, back = _moved(shape[:600], 20.0, np.zeros(3))
+    with pytest.raises(TypeError):
+        evaluate_registration(shape, source, back)
+    with pytest.raises(TypeError):
+        evaluate_registration(source, shape, 0.01, back)  # Open3D's order
+    with pytest.raises(TypeError):
+        evaluate_registration(shape, source=source, transform=back)

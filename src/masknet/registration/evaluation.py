@@ -7,10 +7,14 @@ point is an inlier when its nearest template point, after the transform, is with
 run reports (which counts every pair when it has no distance cut-off), it judges any
 method's result on the same footing, and says when a registration has failed.
 
+Every argument is given by name. Open3D's function of the same name takes ``(source,
+target, max_correspondence_distance, transformation)``: a call in that order would run and
+measure the wrong cloud, so a positional call is a ``TypeError`` instead.
+
 Example::
 
     result = register(template, source)
-    quality = evaluate_registration(template, source, result.transform)
+    quality = evaluate_registration(template=template, source=source, transform=result.transform)
     if quality.fitness < 0.3:
         print("the source barely touches the template: check the result")
 """
@@ -48,12 +52,17 @@ class RegistrationQuality(NamedTuple):
 
 
 def evaluate_registration(
+    *,
     template: np.ndarray,
     source: np.ndarray,
     transform: np.ndarray,
     max_distance: float | None = None,
 ) -> RegistrationQuality:
     """Inlier fraction and RMSE of ``source`` moved by ``transform`` against ``template``.
+
+    Keyword arguments only (``evaluate_registration(template=t, source=s, transform=T)``):
+    Open3D's ``evaluate_registration`` takes the source first, and a call in its order
+    would measure the wrong cloud.
 
     Args:
         template: (N, 3) or (B, N, 3) points.
