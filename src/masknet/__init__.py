@@ -30,6 +30,7 @@ __all__ = [
     "denoise",
     "evaluate_registration",
     "RegistrationResult",
+    "SceneSearch",
     "register",
     "select_mask",
     "__version__",
@@ -46,6 +47,7 @@ _LAZY = {
     "assess_registration": "masknet.registration",
     "evaluate_registration": "masknet.registration",
     "register": "masknet.registration",
+    "SceneSearch": "masknet.registration.scene",
 }
 
 if TYPE_CHECKING:
@@ -57,6 +59,7 @@ if TYPE_CHECKING:
         evaluate_registration,
         register,
     )
+    from masknet.registration.scene import SceneSearch
 
 
 def __getattr__(name: str):
