@@ -7,8 +7,9 @@ e.g. ``scan.ply: 12 rows contain NaN or inf``.
 
 **Formats** (chosen by extension, case-insensitive):
 
-* ``.ply``, ``.pcd``: Open3D (``.ply`` falls back to trimesh when Open3D does not
-  import). Note that ``.pcd`` files written by Open3D store float32 coordinates.
+* ``.ply``, ``.pcd``: Open3D (``.ply`` falls back to trimesh, of the ``data`` extra,
+  when Open3D does not import). Note that ``.pcd`` files written by Open3D store
+  float32 coordinates.
 * ``.xyz``, ``.txt``, ``.csv``: text, one point per line, whitespace or comma
   separated; the first 3 columns are x, y, z (extra columns such as normals or
   colours are ignored); ``#`` starts a comment; one header line is skipped.
@@ -50,6 +51,7 @@ from typing import NamedTuple
 import numpy as np
 
 from masknet._atomic import atomic_target, write_text_atomic
+from masknet._extras import need
 from masknet.errors import MaskNetError
 from masknet.io_checks import check_cloud, check_pcd_body, check_ply_body
 
@@ -321,7 +323,7 @@ def _read_open3d(name: str, fmt: str) -> np.ndarray:
 
 def _read_trimesh(name: str) -> np.ndarray:
     """Fallback PLY reader (vertices of whatever trimesh loads)."""
-    import trimesh
+    trimesh = need("trimesh", "data", f"{name}: reading .ply files without Open3D")
 
     try:
         obj = trimesh.load(name)

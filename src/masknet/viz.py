@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from masknet._atomic import atomic_target
+from masknet._extras import pyplot
 
 __all__ = ["display_points", "plot_clouds", "plot_mask"]
 
@@ -29,10 +30,7 @@ def plot_mask(
     is known, else the source. Right: the template coloured by the prediction, split
     into true positives, false positives and misses when the truth is known.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     predicted = np.asarray(predicted, bool)
     fig = plt.figure(figsize=(13, 4.6), dpi=110)
@@ -106,10 +104,7 @@ def plot_clouds(
     Clouds keep their relative pose (one shared, equal-aspect frame); layers larger
     than ``max_points`` are subsampled evenly for drawing.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     clouds, counts = {}, {}
     for name, (points, colour) in layers.items():
@@ -140,8 +135,7 @@ def plot_clouds(
 
 def _save(fig, path: str | os.PathLike) -> Path:
     """Write a figure atomically (temporary file, then rename) and close it."""
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     fig.tight_layout()
     path = Path(path)
     try:

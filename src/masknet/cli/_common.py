@@ -13,6 +13,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from masknet._extras import PICTURES, require
 from masknet.errors import MaskNetError
 
 if TYPE_CHECKING:
@@ -349,6 +350,7 @@ def check_html(path: str | None) -> list[Path]:
     html = Path(path)
     if html.suffix.lower() != ".html":
         raise MaskNetError(f"{html}: the viewer is an .html file; give a name ending in .html")
+    require(*PICTURES)  # for the PNG; refused now, not after the computing
     return [html, html.with_suffix(".png")]
 
 

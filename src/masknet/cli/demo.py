@@ -6,6 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
+from masknet._extras import PICTURES, require
 from masknet.cli._common import add_model_options, load_model, positive_int, seed
 
 
@@ -24,6 +25,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> None:
     """Evaluate on the sample; write ``masknet_demo.png`` and ``metrics.json``."""
+    require(*PICTURES)  # for the picture; refused now, not after the evaluation
     import torch
 
     from masknet.data import bundled_sample_path, load_modelnet40

@@ -10,6 +10,8 @@
   (S,) int, optional ``{train,test}_names`` (S,) str and ``shape_names`` (40,) str;
 * raw ``.off`` meshes: ``<class>/{train,test}/*.off``, surface-sampled with trimesh.
 
+The HDF5 and ``.off`` layouts need h5py and trimesh (``pip install 'masknet[data]'``).
+
 Every shape is returned centred on its bounding-box centre and scaled to a
 largest radius of 1.0, the normalisation of the bundled data.
 """
@@ -26,6 +28,7 @@ from typing import Literal
 
 import numpy as np
 
+from masknet._extras import need
 from masknet.errors import MaskNetError
 
 __all__ = [
@@ -183,7 +186,7 @@ def _load_npz(path: Path, split: Split) -> PointCloudSet:
 
 
 def _load_hdf5(folder: Path, split: Split) -> PointCloudSet:
-    import h5py
+    h5py = need("h5py", "data", f"{folder}: reading HDF5 shards")
 
     names_file = folder / "shape_names.txt"
     if not names_file.exists():
@@ -239,7 +242,7 @@ def _read_npy_shape(file: Path) -> np.ndarray:
 
 
 def _sample_mesh(file: Path, num_points: int) -> np.ndarray:
-    import trimesh
+    trimesh = need("trimesh", "data", f"{file}: sampling meshes")
 
     try:
         mesh = trimesh.load(file, force="mesh", process=False)

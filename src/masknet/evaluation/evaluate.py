@@ -7,8 +7,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
-from tqdm.auto import tqdm
 
+from masknet._extras import progress_bar
 from masknet.data.pairs import PairConfig, Pairs, make_test_pairs
 from masknet.metrics import MaskMetrics, mask_metrics
 from masknet.models.masknet import PAIRS_PER_CALL, MaskNet, select_mask
@@ -77,7 +77,7 @@ def score_pairs(
     device = next(model.parameters()).device
     total = pairs.template.shape[0]
     scores = []
-    for i in tqdm(
+    for i in progress_bar(
         range(0, total, batch_size), desc="evaluating", disable=not progress, leave=False
     ):
         t = pairs.template[i : i + batch_size].to(device)
@@ -188,7 +188,7 @@ def realigned_mask_metrics(
 
     template, source = pairs.template.double().numpy(), pairs.source.double().numpy()
     masks = []
-    for i in tqdm(range(0, len(template), chunk), desc="realigning", disable=not progress):
+    for i in progress_bar(range(0, len(template), chunk), desc="realigning", disable=not progress):
         result = register(
             template[i : i + chunk],
             source[i : i + chunk],

@@ -16,8 +16,8 @@ from collections.abc import Iterable, Mapping
 
 import numpy as np
 import torch
-from tqdm.auto import tqdm
 
+from masknet._extras import progress_bar
 from masknet.data.pairs import Pairs
 from masknet.geometry.se3 import rotation_error_deg
 from masknet.models.masknet import PAIRS_PER_CALL
@@ -165,7 +165,7 @@ def benchmark_registration(
         estimates = np.empty_like(truth)
         stage = {"total": 0.0, "mask": 0.0, "register": 0.0, "refine": 0.0}
         register(template[0], source[0], **kwargs, **common)  # warm-up: loads, caches
-        for i in tqdm(range(len(truth)), desc=name, disable=not progress, mininterval=1):
+        for i in progress_bar(range(len(truth)), desc=name, disable=not progress, mininterval=1):
             result = register(template[i], source[i], **kwargs, **common)
             estimates[i] = result.transform
             for key in stage:
@@ -189,7 +189,9 @@ def iteration_errors(
     """
     template, source, truth = pair_arrays(pairs)
     per_round = np.empty((rounds, *truth.shape))
-    for i in tqdm(range(len(truth)), desc=f"{rounds} rounds", disable=not progress, mininterval=1):
+    for i in progress_bar(
+        range(len(truth)), desc=f"{rounds} rounds", disable=not progress, mininterval=1
+    ):
         result = register(template[i], source[i], iterations=rounds, **kwargs)
         per_round[:, i] = np.stack(result.rounds)
     return [{"round": r + 1, **error_summary(per_round[r], truth)} for r in range(rounds)]

@@ -5,8 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from tqdm.auto import tqdm
 
+from masknet._extras import progress_bar
 from masknet.data.pairs import Pairs
 from masknet.evaluation.registration import (
     batched_errors,
@@ -36,7 +36,7 @@ def run(ctx: BenchmarkContext) -> ExperimentResult:
     pipelines = x_and_mask_x({n: m for n, m in LEARNED.items() if n not in missing})
     timing_pairs = Pairs(*(x[:8] for x in pairs))
     repeats = 3 if ctx.quick else 20
-    for name, kwargs in tqdm(pipelines.items(), desc="networks", disable=not ctx.progress):
+    for name, kwargs in progress_bar(pipelines.items(), desc="networks", disable=not ctx.progress):
         rows.append(ctx.row({"pipeline": name}, _row, pairs, timing_pairs, repeats, kwargs))
     for row in rows:
         for key in ("ms_per_pair", "ms_mask", "ms_register"):

@@ -6,16 +6,9 @@ from pathlib import Path
 
 import numpy as np
 
+from masknet._extras import pyplot
+
 __all__ = ["bar_plot", "error_bars", "line_plot", "panel_plot", "series_by"]
-
-
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def line_plot(
@@ -29,7 +22,7 @@ def line_plot(
 ) -> None:
     """One line per entry of ``lines`` over ``x``: one colour per method X, Mask-X solid and
     plain X dashed; ``baseline`` (label, values) dotted grey."""
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6.4 if len(lines) <= 6 else 7.6, 4.2), dpi=110)
     bases = list(dict.fromkeys(name.removeprefix("Mask-") for name in lines))
     palette = plt.get_cmap("tab10")
@@ -59,7 +52,7 @@ def panel_plot(
 ) -> None:
     """Small multiples: one panel per entry of ``panels`` (title -> lines over ``x``), the
     same lines in the same colours in every panel, one legend."""
-    plt = _pyplot()
+    plt = pyplot()
     cols = min(len(panels), 3)
     rows = -(-len(panels) // cols)
     fig, axes = plt.subplots(rows, cols, figsize=(3.4 * cols, 2.8 * rows + 0.6), dpi=110)
@@ -88,7 +81,7 @@ def bar_plot(
     path: Path, names: list[str], series: dict[str, list[float]], ylabel: str, title: str
 ) -> None:
     """Grouped bars: one group per name, one bar per series."""
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(7.5, 4.2), dpi=110)
     width = 0.8 / len(series)
     for i, (label, values) in enumerate(series.items()):

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from masknet._extras import pyplot
 from masknet.data.pairs import PairConfig, Pairs
 from masknet.evaluation.registration import pair_arrays, pose_errors, summarize_errors
 from masknet.experiments.context import BenchmarkContext, ExperimentResult
@@ -181,10 +182,7 @@ def run(ctx: BenchmarkContext) -> ExperimentResult:
     )
 
     def plot(path: Path) -> None:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
+        plt = pyplot()
 
         names = list(dict.fromkeys(r["set"] for r in rows))
         fig, ax = plt.subplots(figsize=(9, 4))

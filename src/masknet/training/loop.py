@@ -5,7 +5,7 @@ compute the loss and export weights). The loop owns the rest:
 
 * Adam, optional cosine learning-rate decay, fp32 or bf16 autocast;
 * validation on a split held out of the *training* shapes (never the test set);
-* a progress bar with loss and the task's metric;
+* a progress bar with loss and the task's metric (tqdm, the ``train`` extra);
 * an atomic checkpoint every epoch (``checkpoint.safetensors``, nothing pickled,
   :mod:`masknet.training.checkpoint`; written to a temporary
   file then renamed), so a kill at any moment loses at most the current epoch,
@@ -39,9 +39,9 @@ from typing import Any, Literal, Protocol
 import numpy as np
 import torch
 from torch import Tensor, nn
-from tqdm.auto import tqdm
 
 from masknet._atomic import atomic_target
+from masknet._extras import progress_bar
 from masknet.errors import MaskNetError
 from masknet.runtime import default_precision, resolve_device
 from masknet.training.checkpoint import load_checkpoint, save_checkpoint
@@ -286,7 +286,7 @@ def _fit(
         count = 0
         batches = task.train_batches(train_set, config.batch_size, config.seed, epoch)
         total = len(batches) if hasattr(batches, "__len__") else len(train_set) // config.batch_size
-        bar = tqdm(
+        bar = progress_bar(
             batches,
             total=total,
             desc=f"epoch {epoch + 1}/{config.epochs}",
