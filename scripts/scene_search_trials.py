@@ -90,7 +90,7 @@ def main() -> None:
                 "visible_fraction": len(seen) / len(full),
                 "rot_deg": float(rot[0]),
                 "trans": float(trans[0]),
-                "searched": "search_fitness" in result.info,
+                "searched": result.scene is not None,
                 "seconds": seconds,
             }
             rows.append(row)

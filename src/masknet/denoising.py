@@ -24,12 +24,11 @@ from torch import Tensor
 from masknet.errors import MaskNetError, checks_done, warns_once
 from masknet.geometry.clouds import median_spacing, unit_radius
 from masknet.geometry.knn import knn_points
-from masknet.geometry.sampling import farthest_point_sample
+from masknet.geometry.sampling import farthest_point_sample, spread_mask
 from masknet.io_checks import check_cloud
 from masknet.models.masknet import MaskNet
 from masknet.models.refine import RefineMaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
-from masknet.registration.sampling import spread_mask
 
 __all__ = [
     "DenoiseResult",

@@ -170,9 +170,9 @@ class _FixedMask:
         self.mask = mask
         self.calls: list[tuple[np.ndarray, np.ndarray, int | None, float | None]] = []
 
-    def predict_mask(self, template, source, k=None, threshold=None, precision="auto"):
+    def predict_masks(self, template, source, *, k=None, threshold=None, precision="auto"):
         self.calls.append((template.copy(), source.copy(), k, threshold))
-        return self.mask
+        return self.mask, None
 
 
 def test_only_masked_template_points_take_part(pairs):
@@ -280,7 +280,7 @@ def test_open3d_icp_method(pairs, full_pairs, small_masknet):
     theirs = register(
         template, source, method="open3d-icp", relative_fitness=0, relative_rmse=0, **kwargs
     )
-    ours = register(template, source, tolerance=0, **kwargs)
+    ours = register(template, source, relative_rmse=0, **kwargs)
     np.testing.assert_array_equal(theirs.mask, ours.mask)
     # register() runs our ICP in float32 (centred); icp() itself matches Open3D to 1e-15
     # in float64 (tests/registration/test_icp.py).

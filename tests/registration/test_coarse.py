@@ -7,7 +7,7 @@ from pykdtree.kdtree import KDTree
 from scipy.spatial.transform import Rotation
 
 from masknet.registration.coarse import isolated_free, pose_fit, pose_fits
-from masknet.registration.icp_tree import icp_from_starts, icp_single
+from masknet.registration.icp import icp, icp_from_starts
 
 
 def test_isolated_points_are_found_and_a_sparse_cloud_keeps_all():
@@ -40,5 +40,5 @@ def test_icp_from_starts_equals_one_icp_per_start():
     starts[2, :3, :3] = Rotation.from_euler("x", 150, degrees=True).as_matrix()
     batched = icp_from_starts(KDTree(template), template, source, starts, 20)
     for h in range(3):
-        one = icp_single(template, source, starts[h], 20, tolerance=0.0).transform[0].numpy()
+        one = icp(template, source, starts[h], 20, relative_rmse=0.0).transform[0]
         np.testing.assert_allclose(batched[h], one, atol=1e-8)

@@ -1,4 +1,5 @@
-"""Tests for masknet.registration.icp (batched torch ICP) and the Open3D backend."""
+"""Tests for masknet.registration.icp (one ICP: the numpy KD-tree branch for one pair, the
+batched torch branch) and the Open3D backend."""
 
 from __future__ import annotations
 
@@ -9,7 +10,8 @@ from scipy.spatial import cKDTree
 
 from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
 from masknet.geometry import make_transform, so3_exp, transform_points
-from masknet.registration import ICPSolution, icp, open3d_icp
+from masknet.registration.icp import ICPSolution, icp
+from masknet.registration.open3d_icp import open3d_icp
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -31,7 +33,9 @@ def _angle(r1: torch.Tensor, r2: torch.Tensor) -> torch.Tensor:
 
 def test_recovers_known_transform_on_full_overlap(shapes):
     pairs = _pairs(shapes, 4, seed=0, keep_ratio=1.0)
-    sol = icp(pairs.template.double(), pairs.source.double(), max_iterations=50, tolerance=1e-12)
+    sol = icp(
+        pairs.template.double(), pairs.source.double(), max_iterations=50, relative_rmse=1e-12
+    )
     assert isinstance(sol, ICPSolution)
     truth = pairs.transform.double()
     assert (_angle(sol.transform[:, :3, :3], truth[:, :3, :3]) < 1e-4).all()
@@ -72,7 +76,7 @@ def test_shapes_and_dtypes(shapes):
 def test_batched_equals_per_pair(shapes):
     pairs = _pairs(shapes, 3, seed=3, max_angle_deg=30, max_translation=0.3)
     src, tpl = pairs.source.double(), pairs.template.double()
-    kwargs = {"max_iterations": 30, "tolerance": 1e-6, "max_correspondence_distance": 0.2}
+    kwargs = {"max_iterations": 30, "relative_rmse": 5e-7, "max_correspondence_distance": 0.2}
     batched = icp(tpl, src, **kwargs)
     for b in range(3):
         single = icp(tpl[b : b + 1], src[b : b + 1], **kwargs)
@@ -193,7 +197,7 @@ def test_agrees_with_open3d_step_by_step(shapes, max_dist, o3d):
     """Same iterations, same correspondences, same closed-form step: same result."""
     pairs = _pairs(shapes, 2, seed=10, max_angle_deg=30, max_translation=0.3)
     src, tpl = pairs.source.double(), pairs.template.double()
-    ours = icp(tpl, src, max_iterations=5, tolerance=0, max_correspondence_distance=max_dist)
+    ours = icp(tpl, src, max_iterations=5, relative_rmse=0, max_correspondence_distance=max_dist)
     assert (ours.iterations == 5).all()
     for b in range(2):
         theirs = open3d_icp(
@@ -253,8 +257,6 @@ def test_keyword_names_follow_the_template_source_order(shapes):
 
 @pytest.mark.parametrize("distance", [None, 0.1])
 def test_single_pair_kdtree_loop_matches_the_batched_icp(distance):
-    from masknet.registration.icp_tree import icp_single
-
     rng = np.random.default_rng(4)
     template = rng.normal(size=(400, 3))
     angle = np.radians(12)
@@ -263,10 +265,40 @@ def test_single_pair_kdtree_loop_matches_the_batched_icp(distance):
     )
     source = template[:300] @ rot.T + [0.05, -0.02, 0.03]
     options = {"max_iterations": 30, "max_correspondence_distance": distance}
-    single = icp_single(template, source, **options)
+    single = icp(template, source, **options)  # numpy: the KD-tree branch
+    assert isinstance(single.transform, np.ndarray)
     batched = icp(torch.from_numpy(template)[None], torch.from_numpy(source)[None], **options)
-    np.testing.assert_allclose(single.transform.numpy(), batched.transform.numpy(), atol=1e-9)
-    assert int(single.iterations[0]) == int(batched.iterations[0])
+    np.testing.assert_allclose(single.transform, batched.transform.numpy(), atol=1e-9)
+    assert int(single.iterations[0]) == int(batched.iterations[0]) > 1
     assert bool(single.converged[0]) == bool(batched.converged[0])
-    np.testing.assert_allclose(single.fitness.numpy(), batched.fitness.numpy())
-    np.testing.assert_allclose(single.inlier_rmse.numpy(), batched.inlier_rmse.numpy(), atol=1e-9)
+    np.testing.assert_allclose(single.fitness, batched.fitness.numpy())
+    np.testing.assert_allclose(single.inlier_rmse, batched.inlier_rmse.numpy(), atol=1e-9)
+
+
+def test_rejected_source_points_take_no_part_in_a_batch():
+    """A batch keeps one shape, so rejected source points stay in it: ``source_valid``
+    must leave them out of the solve and the fitness, so that each pair of the batch
+    registers exactly as its kept points alone do (they once were filled with repeats of
+    kept points, which then counted twice)."""
+    rng = np.random.default_rng(5)
+    template = rng.normal(size=(2, 300, 3))
+    angle = np.radians(8)
+    rot = np.array(
+        [[np.cos(angle), -np.sin(angle), 0], [np.sin(angle), np.cos(angle), 0], [0, 0, 1]]
+    )
+    source = template[:, :200] @ rot.T + [0.05, -0.02, 0.03]
+    source[:, :40] += rng.normal(scale=2.0, size=(2, 40, 3))  # outliers, rejected below
+    keep = np.ones((2, 200), bool)
+    keep[:, :40] = False
+    keep[1, 40:70] = False  # another count in the second pair
+    batched = icp(
+        torch.from_numpy(template),
+        torch.from_numpy(source),
+        max_iterations=30,
+        source_valid=torch.from_numpy(keep),
+    )
+    for b in range(2):
+        alone = icp(template[b], source[b][keep[b]], max_iterations=30)
+        np.testing.assert_allclose(batched.transform[b].numpy(), alone.transform[0], atol=1e-9)
+        np.testing.assert_allclose(float(batched.fitness[b]), alone.fitness[0])
+        np.testing.assert_allclose(float(batched.inlier_rmse[b]), alone.inlier_rmse[0], atol=1e-9)

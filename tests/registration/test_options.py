@@ -1,4 +1,5 @@
-"""masknet.registration.options: typed options equal the keyword arguments they replace."""
+"""masknet.registration.options: one typed options object per method, checked when made,
+and the same thing as its fields spelled as keywords."""
 
 from __future__ import annotations
 
@@ -7,7 +8,16 @@ import pytest
 
 from masknet import MaskNetError, register
 from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
-from masknet.registration import ICPCriteria, RobustOptions, Rounds, Selection
+from masknet.registration import (
+    FGROptions,
+    ICPCriteria,
+    NetworkOptions,
+    Open3DICPOptions,
+    PointNetLKOptions,
+    RANSACOptions,
+    RobustOptions,
+)
+from masknet.registration.methods import METHOD_TABLE
 
 
 @pytest.fixture(scope="module")
@@ -17,39 +27,72 @@ def pair():
     return pairs.template[0].numpy(), pairs.source[0].numpy()
 
 
-def test_typed_options_equal_their_keywords(pair, small_masknet):
+def test_an_options_object_equals_its_keywords(pair, small_masknet):
     template, source = pair
-    cases = [
-        ({"rounds": Rounds(2, refine=5)}, {"iterations": 2, "refine_iterations": 5}),
-        ({"selection": Selection(threshold=0.4)}, {"threshold": 0.4}),
-        ({"criteria": ICPCriteria(max_iterations=25)}, {"max_iterations": 25}),
-    ]
-    for typed, keywords in cases:
-        a = register(template, source, model=small_masknet, precision="fp32", **typed)
-        b = register(template, source, model=small_masknet, precision="fp32", **keywords)
-        np.testing.assert_array_equal(a.transform, b.transform)
-
-
-def test_typed_and_keyword_options_cannot_both_be_given(pair, small_masknet):
-    template, source = pair
-    with pytest.raises(MaskNetError, match="give iterations= or Rounds, not both"):
-        register(template, source, model=small_masknet, iterations=3, rounds=Rounds(2))
-    with pytest.raises(MaskNetError, match="for method='auto' or 'robust', not 'icp'"):
-        register(template, source, method="icp", robust=RobustOptions(hypotheses=4))
-    with pytest.raises(MaskNetError, match="for method='icp'"):
-        register(template, source, method="robust", criteria=ICPCriteria())
+    typed = register(template, source, model=small_masknet, options=ICPCriteria(max_iterations=25))
+    keywords = register(template, source, model=small_masknet, max_iterations=25)
+    assert typed.method == keywords.method == "icp"  # the options' class names the method
+    np.testing.assert_array_equal(typed.transform, keywords.transform)
+    # ... and the budget is used: 25 iterations end elsewhere than 1
+    one = register(template, source, model=small_masknet, max_iterations=1)
+    assert not np.allclose(one.transform, typed.transform)
 
 
 def test_robust_options_object(pair):
     template, source = pair
-    a = register(
-        template, source, method="robust", robust=RobustOptions(hypotheses=4, candidates=2)
-    )
+    typed = RobustOptions(hypotheses=4, candidates=2)
+    a = register(template, source, method="robust", options=typed)
     b = register(template, source, method="robust", hypotheses=4, candidates=2)
     np.testing.assert_array_equal(a.transform, b.transform)
+    assert register(template, source, options=typed).method == "auto"
 
 
-def test_a_number_for_rounds_is_a_clear_error(pair):
+def test_an_object_and_its_keywords_cannot_both_be_given(pair):
     template, source = pair
-    with pytest.raises(MaskNetError, match=r"rounds= takes a Rounds, got int \(for a number"):
-        register(template, source, rounds=3)
+    with pytest.raises(MaskNetError, match=r"give options=ICPCriteria\(...\) or its fields"):
+        register(template, source, options=ICPCriteria(), max_iterations=3)
+    with pytest.raises(MaskNetError, match="method 'icp' takes options=ICPCriteria"):
+        register(template, source, method="icp", options=RobustOptions())
+    with pytest.raises(MaskNetError, match="NetworkOptions serves dcp, prnet, pcrnet, rpmnet"):
+        register(template, source, options=NetworkOptions())
+    with pytest.raises(MaskNetError, match="unknown option.*'icp': tolerance"):
+        register(template, source, method="icp", tolerance=1e-6)
+
+
+@pytest.mark.parametrize(
+    ("make", "message"),
+    [
+        (lambda: ICPCriteria(max_iterations=-1), "max_iterations must be an integer >= 0"),
+        (lambda: ICPCriteria(max_correspondence_distance=0), "max_correspondence_distance"),
+        (lambda: ICPCriteria(relative_rmse=-1), "relative_rmse must be a number >= 0"),
+        (lambda: Open3DICPOptions(max_iterations=2.5), "max_iterations must be an integer"),
+        (lambda: NetworkOptions(max_iterations=0), "max_iterations must be an integer >= 1"),
+        (lambda: PointNetLKOptions(tolerance=-1), "tolerance must be a number >= 0"),
+        (lambda: RANSACOptions(confidence=2), r"confidence must be in \(0, 1\]"),
+        (lambda: FGROptions(voxel_size=0), "voxel_size must be a positive number"),
+        (lambda: RobustOptions(hypotheses=30), r"hypotheses must be in \[0, 24\]"),
+        (lambda: RobustOptions(max_correspondence_distance=-1), "max_correspondence_distance"),
+    ],
+)
+def test_options_are_checked_when_made(make, message):
+    with pytest.raises(MaskNetError, match=message):
+        make()
+
+
+def test_every_method_has_an_options_class_that_builds_with_defaults():
+    for name, entry in METHOD_TABLE.items():
+        options = entry.options()
+        assert type(options).__name__.endswith(("Options", "Criteria")), name
+        if entry.default_iterations is not None:
+            assert "max_iterations" in {f for f in options.__dataclass_fields__}, name
+
+
+def test_max_correspondence_distance_follows_the_unit(pair):
+    template, source = pair
+    metres = register(template, source, method="icp", max_correspondence_distance=0.05)
+    millimetres = register(
+        1000 * template, 1000 * source, method="icp", max_correspondence_distance=50.0
+    )
+    np.testing.assert_allclose(metres.R, millimetres.R, atol=1e-6)
+    assert float(metres.fitness) == pytest.approx(float(millimetres.fitness))
+    assert float(metres.fitness) < 1  # the cut-off was applied

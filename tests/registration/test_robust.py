@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 from masknet import MaskNetError, register
 from masknet.data import bundled_sample_path, load_modelnet40
 from masknet.evaluation.registration import pose_errors
-from masknet.registration.methods import resolve_method
+from masknet.registration.methods import default_method
 from masknet.registration.robust import hypothesis_rotations
 
 
@@ -123,16 +123,16 @@ def test_robust_options_are_checked(far_pair):
 
 
 def test_options_of_mask_icp_choose_mask_icp():
-    assert resolve_method(None, {"iterations": False, "k": False}) == "auto"
-    assert resolve_method(None, {"iterations": True, "k": False}) == "icp"
-    assert resolve_method("robust", {"iterations": True}) == "robust"
+    assert default_method(None, None, {"iterations": False, "k": False}) == "auto"
+    assert default_method(None, None, {"iterations": True, "k": False}) == "icp"
+    assert default_method("robust", None, {"iterations": True}) == "robust"
 
 
-def test_robust_option_names_match_the_options_table():
+def test_auto_and_robust_take_the_robust_options():
     from masknet.registration import RobustOptions
-    from masknet.registration.methods import OPTIONS
+    from masknet.registration.methods import METHOD_TABLE
 
-    assert set(OPTIONS["robust"]) == set(RobustOptions._fields) == set(OPTIONS["auto"])
+    assert METHOD_TABLE["robust"].options is RobustOptions is METHOD_TABLE["auto"].options
 
 
 def test_trimmed_mean_over_valid_entries():

@@ -8,7 +8,8 @@ import pytest
 from masknet import register
 from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
 from masknet.geometry.clouds import Frame
-from masknet.registration.backends import BACKENDS, BackendRun
+from masknet.registration.backends import BackendRun
+from masknet.registration.backends import icp as icp_backend
 from masknet.registration.refinement import NearestNeighbourMasks
 from masknet.registration.rounds import keep_source_points
 
@@ -44,8 +45,9 @@ class _Spy:
     def __init__(self) -> None:
         self.sources: list[np.ndarray] = []
 
-    def __call__(self, template, source, mask, options) -> BackendRun:
-        self.sources.append(source.copy())
+    def __call__(self, template, source, mask, source_mask, options) -> BackendRun:
+        kept = source if source_mask is None else source[:, source_mask[0]]
+        self.sources.append(kept.copy())
         step = np.tile(np.eye(4), (len(source), 1, 1))
         step[:, :3, 3] = [0.01, 0.0, 0.0]
         return BackendRun(step, {})
@@ -54,7 +56,7 @@ class _Spy:
 @pytest.mark.parametrize("use_mask", [False, True])
 def test_later_rounds_start_from_the_pose_reached(monkeypatch, pairs, use_mask):
     spy = _Spy()
-    monkeypatch.setitem(BACKENDS, "icp", spy)
+    monkeypatch.setattr(icp_backend, "run_icp", spy)
     template, source = pairs.template[0].numpy(), pairs.source[0].numpy()
     result = register(template, source, iterations=3, use_mask=use_mask)
     assert len(spy.sources) == 3
@@ -74,7 +76,7 @@ def test_later_rounds_start_from_the_pose_reached(monkeypatch, pairs, use_mask):
 
 def test_the_papers_loop_recentres_every_round(monkeypatch, pairs):
     spy = _Spy()
-    monkeypatch.setitem(BACKENDS, "icp", spy)
+    monkeypatch.setattr(icp_backend, "run_icp", spy)
     template, source = pairs.template[0].numpy(), pairs.source[0].numpy()
     register(template, source, iterations=2, refine_masks="network")
     # round 2 re-centres: its source centroid sits on the masked template's centroid,
@@ -136,3 +138,38 @@ def test_a_large_pair_loops_on_samples_and_masks_every_point():
     # covers mostly the part the source was cut from
     assert result.source_mask.mean() > 0.95
     assert (template[result.mask][:, 0] > -0.3).mean() > 0.9
+
+
+class _TwoMasks:
+    """Stands in for a two-sided network: fixed template and source masks."""
+
+    def __init__(self, mask: np.ndarray, source_mask: np.ndarray) -> None:
+        self.masks = mask, source_mask
+
+    def predict_masks(self, template, source, *, k=None, threshold=None, precision="auto"):
+        return self.masks
+
+
+def test_a_batch_registers_each_pair_as_its_kept_source_points_alone(pairs):
+    """Rejected source points leave a batch's ICP exactly as they leave a single pair's:
+    they once were replaced by repeats of kept points, which then counted twice."""
+    rng = np.random.default_rng(0)
+    template = pairs.template.numpy().astype(np.float64)
+    source = pairs.source.numpy().astype(np.float64)
+    source = source + rng.normal(scale=0.01, size=source.shape)  # repeats would now weigh
+    source_mask = np.ones(source.shape[:2], bool)
+    for b in range(len(source)):  # a different share of each pair rejected
+        source_mask[b, : 40 + 60 * b] = False
+    mask = np.ones(template.shape[:2], bool)
+    model = _TwoMasks(mask, source_mask)
+    batch = register(template, source, method="icp", model=model, max_iterations=20)
+    for b in range(len(source)):
+        one = register(
+            template[b],
+            source[b],
+            method="icp",
+            model=_TwoMasks(mask[b : b + 1], source_mask[b : b + 1]),
+            max_iterations=20,
+        )
+        np.testing.assert_allclose(batch.transform[b], one.transform, atol=2e-5)
+        np.testing.assert_array_equal(batch.source_mask[b], source_mask[b])

@@ -50,7 +50,7 @@ def test_locate_finds_the_object_and_its_points(scene_pair):
     found = locate(obj, scene)
     rot, trans = pose_errors(found.transform[None], truth[None])
     assert rot[0] < 1.0 and trans[0] < 0.02
-    assert found.fitness > 0.6  # a new sampling of 700 points against 1,024
+    assert found.coverage > 0.6  # a new sampling of 700 points against 1,024
     kept = found.source_mask
     assert kept.shape == (len(scene),)
     assert (kept & on_object).sum() > 0.95 * on_object.sum()  # the object's points...
@@ -77,9 +77,9 @@ def test_register_searches_a_scene_by_default_and_not_a_view(scene_pair):
     assert rot[0] < 1.0 and trans[0] < 0.02
     assert result.source_mask.shape == (len(scene),)
     assert (result.source_mask & on_object).sum() > 0.9 * on_object.sum()
-    assert result.info["search_fitness"] > 0.6 and result.times["search"] > 0
+    assert result.scene.coverage > 0.6 and result.times["search"] > 0
     view = register(obj, obj[:500] + 0.05)
-    assert "search_fitness" not in view.info and "search" not in view.times
+    assert view.scene is None and "search" not in view.times
 
 
 def test_a_large_scene_gets_a_coarser_grid_within_the_budget(scene_pair):
@@ -94,7 +94,7 @@ def test_a_large_scene_gets_a_coarser_grid_within_the_budget(scene_pair):
 def test_scene_search_off_and_bad_uses(scene_pair):
     obj, scene, truth, _ = scene_pair
     plain = register(obj, scene, scene=False)
-    assert "search_fitness" not in plain.info
+    assert plain.scene is None
     assert pose_errors(plain.transform[None], truth[None])[0][0] > 10  # ICP alone is lost
     with pytest.raises(MaskNetError, match="one pair"):
         register(np.stack([obj, obj]), np.stack([obj, obj]), scene=True)
@@ -120,7 +120,7 @@ def test_auto_search_falls_back_where_it_finds_nothing():
     sparse = np.random.default_rng(0).uniform(-10, 10, (500, 3))  # nothing dense enough
     assert is_scene(shapes[0], sparse)
     result = register(shapes[0], sparse)  # registered as it is, no error
-    assert "search_fitness" not in result.info
+    assert result.scene is None
     with pytest.raises(MaskNetError, match="no region"):
         register(shapes[0], sparse, scene=True)
     assert not is_scene(np.zeros((10, 3)), sparse)  # a template with no spread: never

@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from scipy.spatial import cKDTree
 
 from masknet.data import bundled_sample_path, load_modelnet40
 from masknet.data.pairs import PairConfig
@@ -24,7 +23,7 @@ def _scan(name: str, seed: int) -> Scan:
     rng = np.random.default_rng(seed)
     xy = rng.uniform(-2, 2, (2000, 2))
     points = np.column_stack([xy, 0.3 * np.sin(2 * xy[:, 0])]).astype(np.float32)
-    return Scan(name, points, cKDTree(points))
+    return Scan(name, points)
 
 
 def _task(**changes) -> RefineMaskTask:

@@ -23,7 +23,7 @@ from masknet.cli._common import (
     write_all,
 )
 from masknet.errors import MaskNetError
-from masknet.names import METHOD_TITLES, METHODS
+from masknet.registration.methods import METHOD_TITLES, METHODS
 
 # Below this fraction of the template on the scan where a scene search found it, the CLI
 # warns that the object may not be in the scan.
@@ -208,10 +208,13 @@ def run(args: argparse.Namespace) -> None:
         raise MaskNetError("--two-sided and --no-mask exclude each other")
     from masknet.registration.methods import default_method
 
-    given = {"max_iterations": args.max_iterations} if args.max_iterations is not None else {}
-    args.method = default_method(
-        args.method, args.iterations, refine_iterations=args.refine, init=args.init, options=given
-    )
+    rounds_asked = {
+        "iterations": args.iterations != 1,
+        "refine": args.refine != 0,
+        "init": args.init != "centroid",
+        "max_iterations": args.max_iterations is not None,
+    }
+    args.method = default_method(args.method, None, rounds_asked)
     # Nothing named: register() picks the shipped default itself (the paper's MaskNet for
     # one round, the two-sided network for a loop).
     named = args.two_sided or args.weights or args.pretrained
@@ -269,7 +272,7 @@ def run(args: argparse.Namespace) -> None:
         layers = {"template": template, "source": source, "registered": moved}
         if result.mask is not None:
             layers["inliers"] = template[result.mask]
-        if "search_fitness" in result.info:  # a scene: the object and its surroundings
+        if result.scene is not None:  # a scene: the object and its surroundings
             layers = scene_layers(template, moved, result.source_mask)
         elif result.source_mask is not None:
             layers["registered"] = moved[result.source_mask]
@@ -297,14 +300,14 @@ def run(args: argparse.Namespace) -> None:
     )
     if result.mask is not None:
         print(f"inliers: {int(result.mask.sum()):,} of {len(template):,} template points")
-    if "search_fitness" in result.info:
+    if result.scene is not None:
         print(
-            f"scene search: {int(result.info['search_regions'])} regions of SOURCE searched, "
-            f"{float(result.info['search_spacing']):.2g} template radii apart, "
-            f"in {result.times['search']:.1f} s; {100 * float(result.info['search_fitness']):.1f}% "
+            f"scene search: {result.scene.regions} regions of SOURCE searched, "
+            f"{result.scene.spacing:.2g} template radii apart, "
+            f"in {result.times['search']:.1f} s; {100 * result.scene.coverage:.1f}% "
             "of the template lies on the scene where it was found"
         )
-        if float(result.info["search_fitness"]) < LOW_FITNESS:
+        if result.scene.coverage < LOW_FITNESS:
             print(
                 "masknet: warning: under half of TEMPLATE lies on SOURCE where it fits best; "
                 "the object may not be in this scan (or TEMPLATE shows more of it than the "
@@ -334,7 +337,7 @@ def run(args: argparse.Namespace) -> None:
             f"masknet: warning: the result is {check.verdict}: {check.reason}; check it in --html",
             file=sys.stderr,
         )
-    if args.viewpoint is not None and "search_fitness" not in result.info:
+    if args.viewpoint is not None and result.scene is None:
         print(
             "masknet: warning: --viewpoint was not used: it serves the scene search, and none "
             "ran (--scene on forces one)",

@@ -15,7 +15,7 @@ from masknet.cli._common import (
     seed,
 )
 from masknet.errors import MaskNetError
-from masknet.names import NETWORK_METHODS
+from masknet.registration.methods import NETWORK_METHODS
 
 if TYPE_CHECKING:
     from masknet.training import Task

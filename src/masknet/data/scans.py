@@ -19,12 +19,11 @@ import sys
 import warnings
 import zlib
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
-from scipy.spatial import cKDTree
 
 from masknet.data.pairs import Pairs, derive_seed
 from masknet.data.views import ViewConfig, make_view_pairs, normalize_cloud
@@ -47,11 +46,10 @@ SCAN_EXTENSIONS = (".ply", ".pcd", ".xyz", ".txt", ".csv", ".npy", ".bin")
 
 @dataclass
 class Scan:
-    """One real scan: ``points`` (P, 3) float32 in the scan's units, and a KD-tree of them."""
+    """One real scan: ``points`` (P, 3) float32 in the scan's units."""
 
     name: str
     points: np.ndarray
-    tree: cKDTree = field(repr=False)
 
     def __len__(self) -> int:
         return len(self.points)
@@ -123,7 +121,7 @@ def load_scans(
             if not quiet:
                 _warn(f"{path}: {problem}; skipped")
             continue
-        scans.append(Scan(path.stem, points, cKDTree(points)))
+        scans.append(Scan(path.stem, points))
     if not scans:
         raise MaskNetError(
             f"{root}: no usable scan (need {', '.join(SCAN_EXTENSIONS)} files "
@@ -179,8 +177,10 @@ def crop_scan(scan: Scan, crop: ScanCropConfig, rng: np.random.Generator) -> np.
     lo, hi = crop.crop_points
     count = min(int(rng.integers(lo, hi + 1)), len(scan))
     centre = scan.points[rng.integers(len(scan))]
-    _, idx = scan.tree.query(centre, k=count)
-    return normalize_cloud(scan.points[np.atleast_1d(idx)])
+    # One query point: a distance per point and a partial sort beat building a tree.
+    d2 = ((scan.points - centre) ** 2).sum(1)
+    near = np.argpartition(d2, count - 1)[:count] if count < len(d2) else np.arange(len(d2))
+    return normalize_cloud(scan.points[near[np.argsort(d2[near], kind="stable")]])
 
 
 def _crop_config_for(view: ViewConfig, crop: ScanCropConfig) -> ScanCropConfig:

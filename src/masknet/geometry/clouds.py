@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
@@ -10,7 +10,7 @@ from torch import Tensor
 
 from masknet.errors import MaskNetError
 
-__all__ = ["MIN_POINTS", "Frame", "as_cloud_batch", "median_spacing", "unit_radius"]
+__all__ = ["MIN_POINTS", "Frame", "as_cloud_batch", "check_pair", "median_spacing", "unit_radius"]
 
 # The fewest points a template or source may have for MaskNet and the registration networks.
 MIN_POINTS = 3
@@ -19,15 +19,22 @@ MIN_POINTS = 3
 SNAP_RADII = 1e3
 
 
-def unit_radius(points: Tensor) -> Tensor:
-    """Largest distance from each cloud's bounding-box centre: (B, N, 3) -> (B,)."""
-    mid = (points.amax(1, keepdim=True) + points.amin(1, keepdim=True)) / 2
-    return (points - mid).norm(dim=-1).amax(1).clamp_min(1e-12)
+def unit_radius(points: Any) -> Any:
+    """A cloud's radius, the project's one: the largest distance from its bounding-box
+    centre (how the training shapes were scaled). (B, N, 3) -> (B,), or (N, 3) -> (),
+    numpy or torch alike; at least 1e-12."""
+    if isinstance(points, Tensor):
+        mid = (points.amax(-2, keepdim=True) + points.amin(-2, keepdim=True)) / 2
+        return (points - mid).norm(dim=-1).amax(-1).clamp_min(1e-12)
+    points = np.asarray(points, dtype=np.float64)
+    mid = (points.max(-2, keepdims=True) + points.min(-2, keepdims=True)) / 2
+    return np.maximum(np.linalg.norm(points - mid, axis=-1).max(-1), 1e-12)
 
 
-def as_cloud_batch(template: np.ndarray, source: np.ndarray) -> tuple[Tensor, Tensor, bool]:
+def check_pair(template: Any, source: Any) -> tuple[np.ndarray, np.ndarray, bool]:
     """Validate numpy clouds, template (N, 3) or (B, N, 3) and source (M, 3) or (B, M, 3);
-    return batched float32 tensors (B, N, 3), (B, M, 3) and whether the input was one pair.
+    return them as batches (B, N, 3), (B, M, 3) (numpy, as given) and whether the input
+    was one pair.
 
     Raises:
         MaskNetError: mismatched or wrong shapes, different batch sizes, or a cloud that
@@ -54,11 +61,15 @@ def as_cloud_batch(template: np.ndarray, source: np.ndarray) -> tuple[Tensor, Te
             raise MaskNetError(f"{name} must have 3 columns (x, y, z); got shape {a.shape}")
         for i, cloud in enumerate(a):  # the checks of every file read, cloud by cloud
             check_cloud(cloud, name if single else f"{name} {i}")
-    return (
-        torch.from_numpy(np.ascontiguousarray(t, np.float32)),
-        torch.from_numpy(np.ascontiguousarray(s, np.float32)),
-        single,
-    )
+    return t, s, single
+
+
+def as_cloud_batch(template: Any, source: Any) -> tuple[Tensor, Tensor, bool]:
+    """:func:`check_pair`, then the clouds as float32 tensors (B, N, 3), (B, M, 3), moved
+    into torch together in one conversion."""
+    t, s, single = check_pair(template, source)
+    both = torch.from_numpy(np.concatenate([t, s], axis=1).astype(np.float32))
+    return both[:, : t.shape[1]], both[:, t.shape[1] :], single
 
 
 def median_spacing(
@@ -67,12 +78,12 @@ def median_spacing(
     """Median distance from a point of ``points`` (P, 3) to its nearest *distinct*
     neighbour, in the cloud's units. Exact duplicates (merged scans often hold every
     point twice) say nothing of the spacing, so zero distances are skipped. ``tree``: a
-    pykdtree ``KDTree`` of ``points`` built by the caller; ``sample``: ask at most this
+    tree of ``points`` (:func:`masknet.geometry.knn.cloud_tree`) built by the caller; ``sample``: ask at most this
     many points (a seeded random subset; None asks every point). A cloud of one repeated point has spacing 0."""
-    from pykdtree.kdtree import KDTree
+    from masknet.geometry.knn import cloud_tree
 
     cloud = np.ascontiguousarray(points, dtype=np.float64)
-    tree = KDTree(cloud) if tree is None else tree
+    tree = cloud_tree(cloud) if tree is None else tree
     queries = cloud
     if sample is not None and len(cloud) > sample:
         queries = cloud[np.random.default_rng(0).choice(len(cloud), sample, replace=False)]

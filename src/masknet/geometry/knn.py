@@ -14,13 +14,25 @@ they carry gradients to both clouds.
 
 from __future__ import annotations
 
-from typing import Literal, NamedTuple
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 import torch
 from torch import Tensor
 
-__all__ = ["KDTreeIndex", "KNN", "knn_points"]
+__all__ = ["KDTreeIndex", "KNN", "cloud_tree", "knn_points"]
+
+
+def cloud_tree(points: np.ndarray) -> Any:
+    """A KD-tree of one cloud (P, 3), numpy, built once and queried many times: the
+    project's one KD-tree library (pykdtree; ``tree.query(points, k=1,
+    distance_upper_bound=None, sqr_dists=False) -> (distances, indices)``). Float32
+    clouds keep float32; anything else is searched in float64."""
+    from pykdtree.kdtree import KDTree
+
+    points = np.asarray(points)
+    dtype = np.float32 if points.dtype == np.float32 else np.float64
+    return KDTree(np.ascontiguousarray(points, dtype=dtype))
 
 
 class KNN(NamedTuple):
@@ -120,8 +132,6 @@ class KDTreeIndex:
     """
 
     def __init__(self, reference: Tensor, reference_valid: Tensor | None = None) -> None:
-        from pykdtree.kdtree import KDTree
-
         _check_valid(reference, reference_valid)
         self.reference = reference
         self.dtype = np.float64 if reference.dtype == torch.float64 else np.float32
@@ -132,7 +142,7 @@ class KDTreeIndex:
             keep = None if reference_valid is None else np.flatnonzero(reference_valid[i].numpy())
             points = r_np[i] if keep is None else r_np[i][keep]
             self.keep.append(keep)
-            self.trees.append(KDTree(np.ascontiguousarray(points)) if len(points) else None)
+            self.trees.append(cloud_tree(points) if len(points) else None)
 
     def query(self, query: Tensor, k: int = 1) -> KNN:
         """The k nearest reference points of every query point (B, P, 3): as

@@ -14,9 +14,10 @@ from typing import NamedTuple
 
 import fpsample
 import numpy as np
-from scipy.spatial import cKDTree
 
-__all__ = ["FPSResult", "farthest_point_sample"]
+from masknet.geometry.knn import cloud_tree
+
+__all__ = ["FPSResult", "farthest_point_sample", "spread_mask"]
 
 # Above this many points, FPS runs on a seeded uniform random subset of this size
 # first: the result is the same in distribution and the cost stays bounded.
@@ -61,7 +62,7 @@ def farthest_point_sample(
         if len(small):
             j = int(small[0]) + 1
             return FPSResult(pool[order[:j]], float(gaps[j]))
-    radius = float(cKDTree(cloud[order]).query(cloud, k=1)[0].max())
+    radius = float(cloud_tree(cloud[order]).query(cloud, k=1)[0].max())
     return FPSResult(pool[order], radius)
 
 
@@ -74,3 +75,10 @@ def _gaps_in_order(chosen: np.ndarray, block: int = 512) -> np.ndarray:
         d[np.arange(len(rows))[:, None] + start <= np.arange(d.shape[1])[None]] = np.inf
         gaps[start : start + len(rows)] = d.min(1)
     return gaps
+
+
+def spread_mask(template: np.ndarray, sampled: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Give every template point (N, 3) the mask label (K,) of its nearest sampled point
+    (indices (K,)); returns (N,)."""
+    _, nearest = cloud_tree(template[sampled]).query(template, k=1)
+    return mask[nearest.astype(np.int64)]

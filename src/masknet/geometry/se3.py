@@ -19,6 +19,7 @@ Twists ``xi = (omega, v)`` in R^6 put the rotation part first, as PointNetLK doe
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -116,10 +117,15 @@ def invert_transform(transform: Tensor) -> Tensor:
     return make_transform(rot_t, -(rot_t @ trans[..., None])[..., 0])
 
 
-def transform_points(transform: Tensor, points: Tensor) -> Tensor:
-    """Apply (..., 4, 4) transforms to row-vector points (..., N, 3) -> (..., N, 3)."""
+def transform_points(transform: Any, points: Any) -> Any:
+    """Apply (..., 4, 4) transforms to row-vector points (..., N, 3) -> (..., N, 3).
+
+    The one way to apply a transform: numpy arrays stay numpy (float64 where either is),
+    tensors stay tensors (in the points' dtype)."""
+    if isinstance(points, Tensor):
+        transform = torch.as_tensor(transform).to(points.dtype)
     rot, trans = split_transform(transform)
-    return points @ rot.transpose(-1, -2) + trans[..., None, :]
+    return points @ rot.swapaxes(-1, -2) + trans[..., None, :]
 
 
 def random_rotation(

@@ -21,6 +21,7 @@ nearest sampled point).
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import time
 from typing import Any
@@ -30,33 +31,30 @@ import torch
 
 from masknet.errors import MaskNetError, warns_once
 from masknet.geometry.clouds import MIN_POINTS, Frame
+from masknet.geometry.sampling import spread_mask
+from masknet.geometry.se3 import transform_points
 from masknet.models import REGISTRATION_NETWORKS
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
-from masknet.registration.auto import auto_register
-from masknet.registration.backends import run_icp
+from masknet.registration.backends.base import MaskModels
 from masknet.registration.methods import (
-    DEFAULT_ITERATIONS,
     GLOBAL_METHODS,
     INITS,
+    METHOD_TABLE,
     METHOD_TITLES,
     METHODS,
     NETWORK_METHODS,
-    PIPELINES,
+    adapter,
     default_method,
 )
-from masknet.registration.options import (
-    ICPCriteria,
-    RobustOptions,
-    Rounds,
-    Selection,
-    resolve_options,
+from masknet.registration.methods import (
+    method_options as options_for,
 )
+from masknet.registration.options import ICPCriteria
 from masknet.registration.refinement import DEFAULT_REFINER, Refiner, resolve_refiner
 from masknet.registration.result import RegistrationResult
-from masknet.registration.robust import robust_register
-from masknet.registration.rounds import apply_transform, mask_and_register
-from masknet.registration.sampling import fit_to_network, spread_mask
+from masknet.registration.rounds import mask_and_register
+from masknet.registration.sampling import fit_to_network
 from masknet.registration.scene import SceneMatch, SceneSearch, is_scene, locate, polish
 from masknet.registration.validation import (
     as_numpy_batch,
@@ -136,52 +134,64 @@ def _info_out(info: dict, frame: Frame) -> dict:
     return out
 
 
+# Keywords that, with no method named, ask for Mask-ICP's rounds.
+_ICP_FIELDS = ("max_iterations", "relative_rmse", "max_correspondence_distance")
+
+
 @warns_once
 def register(
     template: np.ndarray,
     source: np.ndarray,
+    *,
     method: str | None = None,
+    options: Any | None = None,
     use_mask: bool = True,
     iterations: int = 1,
+    refine_iterations: int = 0,
     model: MaskNet | TwoSidedMaskNet | None = None,
     k: int | None = None,
     threshold: float | None = None,
     precision: str = "auto",
     init: str = "centroid",
-    refine_iterations: int = 0,
     max_points: int = 1024,
-    *,
-    criteria: ICPCriteria | None = None,
-    selection: Selection | None = None,
-    rounds: Rounds | None = None,
-    robust: RobustOptions | None = None,
     scene: bool | SceneSearch | None = None,
     refine_masks: str | Refiner | None = DEFAULT_REFINER,
     drop_nonfinite: bool = False,
-    **options: Any,
+    **method_options: Any,
 ) -> RegistrationResult:
     """Register a partial source to a full template, optionally through MaskNet's mask.
+
+    Everything after the two clouds is keyword-only.
 
     Args:
         template: (N, 3) or (B, N, 3) full template cloud(s), any units.
         source: (M, 3) or (B, M, 3) partial source cloud(s), same units.
-        method: None (default) runs ``"auto"``, or ``"icp"`` when an option only
-            Mask-ICP's rounds take is given (``iterations`` other than 1, ``k``,
-            ``threshold``, ``refine_iterations``, ``init="identity"``, ICP's options).
-            ``"auto"``: one round of Mask-ICP, its fit checked, and ``"robust"`` where
-            the fit says it may be wrong (:mod:`masknet.registration.auto`;
-            ``info["path"]`` says which ran). ``"robust"``: the coarse-to-fine search,
-            FPFH correspondence hypotheses, then the two-sided mask and rotation
-            hypotheses, one score, refinement (:mod:`masknet.registration.coarse`; any
-            rotation, outliers in the source; ``info["ambiguous"]`` and
-            ``info["runner_up"]`` when another pose fits as well). ``"icp"`` (the paper's
-            Mask-ICP: batched torch ICP, or a KD-tree loop for one pair), ``"open3d-icp"``
-            (Open3D's point-to-point ICP, pair by pair), a learned network:
-            ``"pointnetlk"``, ``"dcp"``, ``"prnet"``, ``"pcrnet"`` or ``"rpmnet"`` (the
-            shipped weights unless ``network=`` is given), ``"open3d-ransac"`` or
-            ``"open3d-fgr"`` (Open3D's global registration on FPFH features).
+        method: a name of the method table (:data:`~masknet.registration.methods.METHOD_TABLE`).
+            None (default) runs ``"auto"``, the method of a typed ``options`` object, or
+            ``"icp"`` when an argument only Mask-ICP's rounds take is given
+            (``iterations`` other than 1, ``k``, ``threshold``, ``refine_iterations``,
+            ``init="identity"``, ICP's options). ``"auto"``: one round of Mask-ICP, its
+            fit checked, and ``"robust"`` where the fit says it may be wrong
+            (:mod:`masknet.registration.auto`; ``info["path"]`` says which ran).
+            ``"robust"``: the coarse-to-fine search, FPFH correspondence hypotheses, then
+            the two-sided mask and rotation hypotheses, one score, refinement
+            (:mod:`masknet.registration.coarse`; any rotation, outliers in the source;
+            ``info["ambiguous"]`` and ``info["runner_up"]`` when another pose fits as
+            well). ``"icp"`` (the paper's Mask-ICP: a KD-tree loop for one pair, batched
+            torch ICP for a batch), ``"open3d-icp"`` (Open3D's point-to-point ICP, pair by
+            pair), a learned network: ``"pointnetlk"``, ``"dcp"``, ``"prnet"``,
+            ``"pcrnet"`` or ``"rpmnet"`` (the shipped weights unless ``network=`` is
+            given), ``"open3d-ransac"`` or ``"open3d-fgr"`` (Open3D's global registration
+            on FPFH features).
+        options: the method's typed options (:mod:`masknet.registration.options`):
+            ``ICPCriteria`` (``"icp"``), ``Open3DICPOptions``, ``PointNetLKOptions``,
+            ``NetworkOptions`` (DCP, PRNet, PCRNet, RPM-Net), ``RANSACOptions``,
+            ``FGROptions``, ``RobustOptions`` (``"auto"``, ``"robust"``). Or give its
+            fields as keywords (``**method_options``), not both.
         use_mask: Mask-X (True) or plain X (False).
         iterations: rounds of {mask -> initialise -> register -> move the source}.
+        refine_iterations: after the rounds, this many iterations of plain ICP
+            against the whole template (0: none).
         model: the MaskNet of the first round; None loads shipped weights once: the
             paper's ``masknet_modelnet40`` for one round (and ``"auto"``'s fast path;
             its escalation uses ``masknet2_scans``), the two-sided ``masknet2_scans`` for
@@ -192,17 +202,11 @@ def register(
             top-k with k = M); only with ``use_mask=True``.
         precision: MaskNet's inference precision, as :meth:`MaskNet.predict`
             (``"auto"``: bf16 where the hardware runs it natively).
-        init: ``"centroid"`` (default: translate the source centroid onto the
-            centroid of the template points in use, i.e. the masked ones for Mask-X)
-            or ``"identity"``. PointNetLK centres both clouds itself either way.
-        refine_iterations: after the rounds, this many iterations of plain ICP
-            against the whole template (0: none).
+        init: ``"centroid"`` (default: translate the centroid of the source points in use
+            onto the centroid of the template points in use, i.e. the masked ones for
+            Mask-X) or ``"identity"``. PointNetLK centres both clouds itself either way.
         max_points: single pairs larger than this are subsampled for the method
             (farthest point sampling); batches must already fit.
-        criteria, selection, rounds, robust: typed alternatives to the keyword arguments
-            (:mod:`masknet.registration.options`): ``ICPCriteria`` for the ICP options,
-            ``Selection(k | threshold)``, ``Rounds(n, refine)`` for ``iterations`` and
-            ``refine_iterations``, ``RobustOptions`` for ``method="robust"``.
         scene: find the template, a small object, in a large source scan first
             (:func:`masknet.registration.scene.locate`): True, False, or
             :class:`~masknet.registration.scene.SceneSearch` options (implies True).
@@ -213,9 +217,8 @@ def register(
             found (``init`` is then ``"identity"``), and full-resolution ICP on those
             points from the method's pose and from the search's ends the call, the
             better fit winning (:func:`~masknet.registration.scene.polish`).
-            ``source_mask`` marks the points found; ``info`` gains ``search_fitness``
-            (the share of template points on the scan), ``search_regions`` and
-            ``search_spacing`` (the centre grid, in template radii), while its
+            ``source_mask`` marks the points found and ``result.scene`` holds the
+            search's :class:`~masknet.registration.scene.SceneMatch`; ``info``'s
             ``fitness`` and ``inlier_rmse`` are still the method's, before the polish.
         refine_masks: the masks of rounds >= 2 (``iterations`` > 1, with a mask), taken
             on the pair as the previous round left it, in one frame
@@ -231,19 +234,9 @@ def register(
         drop_nonfinite: drop template and source rows holding NaN or inf (one pair
             only) instead of refusing them, as ``masknet register --drop-nonfinite``;
             ``mask`` and ``source_mask`` still cover every input row, False where dropped.
-        **options: for the method. ``"auto"`` and ``"robust"``: the fields of
-            :class:`~masknet.registration.options.RobustOptions` (they ignore
-            ``iterations``, ``init``, ``k`` and ``threshold``). ``"icp"``: ``max_iterations`` (default 10),
-            ``tolerance``, ``max_correspondence_distance``. ``"open3d-icp"``:
-            ``max_iterations`` (default 10), ``max_correspondence_distance``,
-            ``relative_fitness``, ``relative_rmse``. Learned networks: ``max_iterations``
-            (default: the network's paper's, PointNetLK 10, DCP 1, PRNet 3, PCRNet 8,
-            RPM-Net 5) and ``network`` (a model of :data:`~masknet.models.REGISTRATION_NETWORKS`);
-            PointNetLK also ``tolerance``. ``"open3d-ransac"`` and ``"open3d-fgr"``
-            (Open3D's global registration on FPFH features, pair by pair):
-            ``voxel_size`` (feature scale as a fraction of the template's radius, default
-            0.05); RANSAC also ``max_iterations`` (default 100,000), ``confidence``,
-            ``seed``. They ignore ``init``.
+        **method_options: the fields of the method's options class, spelled inline
+            (``register(a, b, method="icp", max_iterations=30)``). Distances
+            (``max_correspondence_distance``) are in the clouds' units.
 
     Returns:
         RegistrationResult (source -> template, see :mod:`masknet.geometry.se3`).
@@ -252,39 +245,38 @@ def register(
         MaskNetError: bad clouds (shape, batch sizes, or what
             :func:`masknet.io_checks.check_cloud` refuses: NaN/inf, fewer than 3 points,
             a transposed array, identical or collinear points, overflowing coordinates),
-            an unknown method, option or init, bad iterations/k/threshold, or (for
-            ``"open3d-icp"``) no Open3D.
+            an unknown method, option or init, bad iterations/k/threshold or option
+            values, or (for the Open3D methods) no Open3D.
     """
     start = time.perf_counter()
-    typed = any(x is not None for x in (criteria, selection, rounds))
     method = default_method(
-        method, iterations, k, threshold, refine_iterations, init, options, typed
+        method,
+        options,
+        {
+            "iterations": iterations != 1,
+            "k": k is not None,
+            "threshold": threshold is not None,
+            "refine_iterations": refine_iterations != 0,
+            "init": init != "centroid",
+            "icp options": any(f in method_options for f in _ICP_FIELDS),
+        },
     )
-    if any(x is not None for x in (criteria, selection, rounds, robust)):
-        given = {"iterations": iterations, "refine_iterations": refine_iterations}
-        given |= {"k": k, "threshold": threshold, **options}
-        merged = resolve_options(method, given, criteria, selection, rounds, robust)
-        iterations, refine_iterations = merged.pop("iterations"), merged.pop("refine_iterations")
-        k, threshold = merged.pop("k"), merged.pop("threshold")
-        options = {key: v for key, v in merged.items() if v is not None or key in options}
-    check_arguments(
-        method, options, iterations, k, threshold, use_mask, init, refine_iterations, max_points
-    )
+    check_arguments(method, iterations, k, threshold, use_mask, init, refine_iterations, max_points)
+    entry = METHOD_TABLE[method]
+    opts = options_for(method, options, method_options)
     template_rows = source_rows = None
     if drop_nonfinite:
         template, source, template_rows, source_rows = finite_rows(template, source)
     tpl_full, src_full, single = as_numpy_batch(template, source)
     found = _search_scene(tpl_full, src_full, single, scene)
-    auto_scene = False
+    auto_scene = found is not None and method == "auto"
     if found is not None:  # the method registers the object's points, from the pose found
         scene_source = src_full[0]
-        src_full = apply_transform(found.transform[None], scene_source[found.source_mask][None])
+        src_full = transform_points(found.transform, scene_source[found.source_mask])[None]
         init = "identity"  # the search placed them: a centroid shift would undo that
         if method == "auto":  # the search is the global stage: Mask-ICP from its pose
-            method, auto_scene = "icp", True
-            options = {"max_iterations": options.get("max_iterations", DEFAULT_ITERATIONS["icp"])}
-    if method not in GLOBAL_METHODS and method not in PIPELINES:
-        options.setdefault("max_iterations", DEFAULT_ITERATIONS[method])
+            method, entry = "icp", METHOD_TABLE["icp"]
+            opts = ICPCriteria(max_iterations=method_options.get("max_iterations", 10))
     # A loop and robust mask with the two-sided network by default (it rejects outliers).
     two_sided_default = method == "robust" or iterations > 1
     search_model = None  # auto's escalation: the two-sided network masks both clouds
@@ -299,46 +291,25 @@ def register(
         model = _default_two_sided() if two_sided_default else _default_model()
     # Refined rounds exist only in a loop (robust and auto refine by ICP with a cut-off).
     refiner = resolve_refiner(refine_masks, model if use_mask and iterations > 1 else None)
-    if method in NETWORK_METHODS and options.get("network") is None:
-        options["network"] = _default_network(method)
+    if entry.kind == "network" and opts.network is None:
+        opts = dataclasses.replace(opts, network=_default_network(method))
 
     # Everything runs in one frame (the template's centroid, its RMS radius): the result
     # does not depend on the unit or the origin. Distances given in input units follow.
     frame, tpl_input = Frame.of(tpl_full, src_full), tpl_full
     tpl_full, src_full = frame.points_in(tpl_full), frame.points_in(src_full)
-    if options.get("max_correspondence_distance") is not None:
-        options["max_correspondence_distance"] = (
-            options["max_correspondence_distance"] / frame.scale
+    if getattr(opts, "max_correspondence_distance", None) is not None:
+        opts = dataclasses.replace(
+            opts, max_correspondence_distance=opts.max_correspondence_distance / frame.scale
         )
     times = {"sample": 0.0, "mask": 0.0, "register": 0.0, "refine": 0.0}
     tic = time.perf_counter()
     tpl, src, template_index, source_index = fit_to_network(tpl_full, src_full, single, max_points)
     times["sample"] = time.perf_counter() - tic
 
-    if method in PIPELINES:  # full resolution; the networks see the sampled clouds
-        if method == "robust":  # model: the two-sided network unless one was given
-            run = robust_register(
-                tpl_full,
-                src_full,
-                tpl,
-                src,
-                model if use_mask else None,
-                RobustOptions(**options),
-                times,
-                precision,
-            )
-        else:
-            run = auto_register(
-                tpl_full,
-                src_full,
-                tpl,
-                src,
-                model if use_mask else None,
-                search_model,
-                RobustOptions(**options),
-                times,
-                precision,
-            )
+    if entry.kind == "pipeline":  # full resolution; the networks see the sampled clouds
+        models = MaskModels(model if use_mask else None, search_model)
+        run = adapter(method)(tpl_full, src_full, tpl, src, models, opts, times, precision)
         template_index = source_index = None  # its masks cover the full clouds already
         total, mask, source_mask, info = run
         inliers, rounds = None, [total[0] if single else total]
@@ -349,7 +320,7 @@ def register(
             method,
             model if use_mask else None,
             iterations,
-            options,
+            opts,
             times,
             k=k,
             threshold=threshold,
@@ -362,8 +333,9 @@ def register(
         rounds = [r[0] if single else r for r in state.rounds]
     if refine_iterations:
         tic = time.perf_counter()
-        refine_options = {"max_iterations": refine_iterations}
-        total = run_icp(tpl, apply_transform(total, src), None, refine_options).transform @ total
+        moved = transform_points(total, src)
+        run = adapter("icp")(tpl, moved, None, None, ICPCriteria(max_iterations=refine_iterations))
+        total = run.transform @ total
         times["refine"] = time.perf_counter() - tic
 
     total = frame.transforms_out(total)
@@ -379,13 +351,12 @@ def register(
         total = polish(tpl_input[0], on_object, [total[0], found.transform], search_options)[None]
         times["refine"] += time.perf_counter() - tic
         rounds = [r @ found.transform for r in rounds]
+        if "runner_up" in info:  # also back to the whole scene
+            info["runner_up"] = info["runner_up"] @ found.transform
         on_object = found.source_mask.copy()
         if source_mask is not None:
             on_object[on_object] = source_mask[0]
         source_mask = on_object[None]
-        info = {**info, "search_fitness": np.array([found.fitness])}
-        info["search_regions"] = np.array([found.regions])
-        info["search_spacing"] = np.array([found.spacing])
         if auto_scene:
             info["path"] = np.array(["scene search"])
         times["search"] = found.seconds
@@ -416,4 +387,6 @@ def register(
         sampled=(tpl.shape[1], src.shape[1]) if single else None,
         correspondence_inliers=None if inliers is None else out(inliers),
         source_mask=None if source_mask is None else out(source_mask),
+        method=method,
+        scene=found,
     )

@@ -37,6 +37,7 @@ from typing import NamedTuple
 import numpy as np
 
 from masknet.geometry.clouds import median_spacing
+from masknet.geometry.se3 import transform_points
 from masknet.registration.coarse import rotation_between_deg
 from masknet.registration.evaluation import DEFAULT_SPACINGS
 from masknet.registration.validation import as_numpy_batch, as_rigid_transforms
@@ -108,10 +109,9 @@ def assess_registration(
         MaskNetError: bad clouds (shape, NaN/inf, too few points), a batch, or a
             transform that is not rigid.
     """
-    from pykdtree.kdtree import KDTree
-
     from masknet.errors import MaskNetError
-    from masknet.registration.icp_tree import icp_single
+    from masknet.geometry.knn import cloud_tree
+    from masknet.registration.icp import icp
 
     template_b, source_b, single = as_numpy_batch(template, source)
     if not single:
@@ -130,28 +130,24 @@ def assess_registration(
     if not limit > 0:
         raise MaskNetError("every point of a cloud is the same point: no spacing to measure by")
     template_pts, source_pts = _subset(full_template, 0), _subset(full_source, 1)
-    template_tree = KDTree(np.ascontiguousarray(full_template))
+    template_tree = cloud_tree(full_template)
 
     def moved_by(pose: np.ndarray) -> np.ndarray:
-        return source_pts @ pose[:3, :3].T + pose[:3, 3]
+        return transform_points(pose, source_pts)
 
-    refined = (
-        icp_single(
-            full_template,
-            source_pts,
-            init=tf,
-            max_iterations=20,
-            max_correspondence_distance=NEAR * limit,
-            template_tree=template_tree,
-        )
-        .transform[0]
-        .numpy()
-    )
+    refined = icp(
+        full_template,
+        source_pts,
+        init=tf,
+        max_iterations=20,
+        max_correspondence_distance=NEAR * limit,
+        template_tree=template_tree,
+    ).transform[0]
     moved, nearest = moved_by(tf), moved_by(refined)
     _, fitness, overlap = _overlap_fit(template_tree, moved, limit)
     # The fit of the nearest fitting pose: the surfaces there, not a few spacings off.
     source_fit, _, _ = _overlap_fit(template_tree, nearest, limit)
-    template_fit, _, _ = _overlap_fit(KDTree(np.ascontiguousarray(nearest)), template_pts, limit)
+    template_fit, _, _ = _overlap_fit(cloud_tree(nearest), template_pts, limit)
     overlap_fit = min(source_fit, template_fit)
     nearby_deg = rotation_between_deg(refined, tf)
     radius = np.sqrt(((moved - moved.mean(0)) ** 2).sum(1).mean())

@@ -2,7 +2,7 @@
 
 1. **Fast path.** One round of the paper's Mask-ICP (MaskNet's template mask, the source
    centroid onto the masked template's centroid, 10 iterations of ICP), then ICP with
-   pairs cut at ``inlier_distance`` template spacings: a geometric inlier mask, once the
+   pairs cut at ``max_correspondence_distance`` (1.5 template spacings): a geometric inlier mask, once the
    clouds are close (the nearest-neighbour refinement rule).
 2. **Check.** The fit of the result: the share of the source's non-isolated points within
    1.5 template spacings of the template (:func:`masknet.registration.coarse.pose_fit`).
@@ -22,9 +22,10 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from pykdtree.kdtree import KDTree
 
 from masknet.geometry.clouds import median_spacing
+from masknet.geometry.knn import cloud_tree
+from masknet.geometry.se3 import transform_points
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
 from masknet.registration.coarse import (
@@ -37,10 +38,9 @@ from masknet.registration.coarse import (
     random_subset,
     rotation_between_deg,
 )
-from masknet.registration.icp_tree import icp_single
-from masknet.registration.methods import DEFAULT_MAX_ITERATIONS
-from masknet.registration.options import RobustOptions
-from masknet.registration.robust import RobustRun, robust_register
+from masknet.registration.icp import icp
+from masknet.registration.options import ICPCriteria, RobustOptions
+from masknet.registration.robust import PipelineRun, robust_register
 from masknet.registration.rounds import mask_and_register
 
 __all__ = ["auto_register"]
@@ -56,13 +56,12 @@ def auto_register(
     options: RobustOptions,
     times: dict[str, float],
     precision: str = "auto",
-) -> RobustRun:
+) -> PipelineRun:
     """The pipeline of the module docstring for template (B, N, 3) and source (B, M, 3),
     float64, pair by pair, at full resolution; the networks see template_net (B, n, 3) and
     source_net (B, m, 3), the clouds sampled to their size. ``model`` masks the fast path
     (None: plain ICP), ``search_model`` the escalation (None: no mask). Masks are over the
     full clouds."""
-    options.check()
     runs = []
     for b in range(template.shape[0]):
         nets = (template_net[b : b + 1], source_net[b : b + 1])
@@ -74,7 +73,7 @@ def auto_register(
     def stacked(parts: list) -> np.ndarray | None:
         return None if any(p is None for p in parts) else np.concatenate(parts)
 
-    return RobustRun(
+    return PipelineRun(
         np.concatenate([r.transform for r in runs]),
         stacked([r.mask for r in runs]),
         stacked([r.source_mask for r in runs]),
@@ -91,43 +90,43 @@ def _one(
     options: RobustOptions,
     times: dict[str, float],
     precision: str,
-) -> RobustRun:
+) -> PipelineRun:
     """One pair: template (N, 3), source (M, 3); ``nets`` the (1, n, 3) and (1, m, 3)
     clouds the networks see."""
-    icp_options = {"max_iterations": DEFAULT_MAX_ITERATIONS}  # the paper's Mask-ICP
+    icp_options = ICPCriteria()  # the paper's Mask-ICP: 10 iterations, all pairs
     fast = mask_and_register(*nets, "icp", model, 1, icp_options, times, precision=precision)
     tic = time.perf_counter()
-    tree = KDTree(template)
+    tree = cloud_tree(template)
     spacing = median_spacing(template, tree, sample=4096) or 1.0
     fine = random_subset(source, options.fine_points)
     surface = isolated_free(fine, SURFACE_SPACINGS * spacing)
     source_mask = None
     if fast.source_mask is not None:  # a two-sided network: its kept points, spread
-        near_net = KDTree(nets[1][0]).query(source, k=1)[1].astype(np.int64)
+        near_net = cloud_tree(nets[1][0]).query(source, k=1)[1].astype(np.int64)
         source_mask = fast.source_mask[0][near_net]
-        near_fine = KDTree(nets[1][0]).query(fine, k=1)[1].astype(np.int64)
+        near_fine = cloud_tree(nets[1][0]).query(fine, k=1)[1].astype(np.int64)
         kept_fine = fast.source_mask[0][near_fine] & surface
         surface = kept_fine if kept_fine.sum() >= 3 else surface
     kept = fine[surface]
-    sol = icp_single(
+    sol = icp(
         template,
         kept,
         fast.transform[0],
         options.inlier_iterations,
         REFINE_TOLERANCE,
-        max_correspondence_distance=options.inlier_distance * spacing,
+        max_correspondence_distance=options.cut(spacing),
         template_tree=tree,
     )
-    transform = sol.transform[0].numpy()
+    transform = sol.transform[0]
     fit = pose_fit(tree, kept, transform, FIT_SPACINGS * spacing)
     times["fast"] = times.get("fast", 0.0) + time.perf_counter() - tic
     if fit.fitness >= options.accept_fitness:
         mask = None
         if model is not None:  # the template points the moved source covers
-            moved = kept @ transform[:3, :3].T + transform[:3, 3]
-            mask = (KDTree(moved).query(template, k=1)[0] <= FIT_SPACINGS * spacing)[None]
+            moved = transform_points(transform, kept)
+            mask = (cloud_tree(moved).query(template, k=1)[0] <= FIT_SPACINGS * spacing)[None]
         info = _info("fast", fit, np.nan)
-        return RobustRun(
+        return PipelineRun(
             transform[None], mask, None if source_mask is None else source_mask[None], info
         )
     known = None  # the fast path's network is the search's: its masks serve again
@@ -156,11 +155,11 @@ def _one(
                 info["runner_up_fitness"] = np.array([other_fitness])
                 info["runner_up_score"] = np.array([other_score])
                 break
-        return RobustRun(transform[None], run.mask, run.source_mask, info)
+        return PipelineRun(transform[None], run.mask, run.source_mask, info)
     info = dict(run.info)
     info["path"] = np.array([f"robust/{run.info['path'][0]}"])
     info["escalated_fitness"] = np.array([fit.fitness])
-    return RobustRun(run.transform, run.mask, run.source_mask, info)
+    return PipelineRun(run.transform, run.mask, run.source_mask, info)
 
 
 def _info(path: str, fit: PoseFit, escalated: float) -> dict[str, np.ndarray]:

@@ -22,9 +22,9 @@ places, scores them all with one fit, and refines only the best:
 4. **One score** for every hypothesis: the fitness of the kept source points against the
    whole template, from one KD-tree built once, ties broken by the inlier RMSE.
 5. **Refinement of the best ``candidates``**: ``inlier_iterations`` of ICP on the kept
-   source with pairs cut at ``inlier_distance`` template spacings; rescored, the best wins.
+   source with pairs cut at ``max_correspondence_distance`` (1.5 template spacings); rescored, the best wins.
 6. **Ambiguity.** When answers fit within ``ambiguity_margin`` of the best, each is first
-   refined as far as it goes (pairs cut at twice ``inlier_distance``, then at it) and
+   refined as far as it goes (pairs cut at twice ``max_correspondence_distance``, then at it) and
    scored again; among those still alike, the least rotation from the pose as given
    wins. When a pose at least ``distinct_deg`` away still fits within the margin (a
    symmetric shape), the result says so (``info["ambiguous"]``, with the runner-up's
@@ -44,15 +44,14 @@ from __future__ import annotations
 import functools
 import time
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
-import torch
-from pykdtree.kdtree import KDTree
 from scipy.spatial.transform import Rotation
 
 from masknet.geometry.clouds import median_spacing
-from masknet.geometry.se3 import rotation_error_deg
+from masknet.geometry.knn import cloud_tree
+from masknet.geometry.se3 import transform_points
 from masknet.registration.correspondences import (
     FeatureCloud,
     feature_cloud,
@@ -61,7 +60,7 @@ from masknet.registration.correspondences import (
     voxel_for,
 )
 from masknet.registration.evaluation import DEFAULT_SPACINGS
-from masknet.registration.icp_tree import icp_from_starts, icp_single
+from masknet.registration.icp import icp, icp_from_starts
 from masknet.registration.options import RobustOptions
 
 __all__ = [
@@ -81,7 +80,7 @@ FIT_SPACINGS = DEFAULT_SPACINGS
 SURFACE_SPACINGS = 2.0
 # The refinement's ICP stops once its mean squared error changes by less than this
 # fraction: finer steps move a pose by far less than its error.
-REFINE_TOLERANCE = 1e-5
+REFINE_TOLERANCE = 5e-6
 
 
 class CoarseRun(NamedTuple):
@@ -103,7 +102,7 @@ class CoarseRun(NamedTuple):
 def isolated_free(points: np.ndarray, radius: float) -> np.ndarray:
     """(P,) bool: points of ``points`` (P, 3) with another point within ``radius``. All
     True where that would keep under half of them (a cloud sparser than the radius)."""
-    tree = KDTree(points)
+    tree = cloud_tree(points)
     d, _ = tree.query(points, k=min(len(points), 2))
     d = np.asarray(d).reshape(len(points), -1)
     keep = d[:, -1] <= radius
@@ -139,17 +138,17 @@ class PoseFit(NamedTuple):
 SCORE_TRUNCATION = 3.0  # the score's cap, in units of the inlier distance
 
 
-def pose_fit(tree: KDTree, points: np.ndarray, transform: np.ndarray, limit: float) -> PoseFit:
+def pose_fit(tree: Any, points: np.ndarray, transform: np.ndarray, limit: float) -> PoseFit:
     """Fit of ``points`` (P, 3) moved by ``transform`` (4, 4) against the cloud in ``tree``."""
     return pose_fits(tree, points, transform[None], limit)[0]
 
 
-def pose_fits(tree: KDTree, points: np.ndarray, transforms: np.ndarray, limit: float) -> list:
+def pose_fits(tree: Any, points: np.ndarray, transforms: np.ndarray, limit: float) -> list:
     """:func:`pose_fit` for each of ``transforms`` (H, 4, 4), with one KD-tree query."""
     h, p = len(transforms), len(points)
     if h == 0:
         return []
-    moved = points @ transforms[:, :3, :3].transpose(0, 2, 1) + transforms[:, None, :3, 3]
+    moved = transform_points(transforms, points[None])
     d2, _ = tree.query(moved.reshape(h * p, 3), k=1, sqr_dists=True)
     d2 = d2.reshape(h, p)
     inlier = d2 <= limit**2
@@ -166,9 +165,8 @@ def pose_fits(tree: KDTree, points: np.ndarray, transforms: np.ndarray, limit: f
 
 def rotation_between_deg(a: np.ndarray, b: np.ndarray) -> float:
     """The angle in degrees between the rotations of transforms ``a`` and ``b`` (4, 4)."""
-    return float(
-        rotation_error_deg(torch.from_numpy(a[:3, :3].copy()), torch.from_numpy(b[:3, :3].copy()))
-    )
+    cos = (np.trace(a[:3, :3].T @ b[:3, :3]) - 1) / 2
+    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
 
 
 def random_subset(points: np.ndarray, count: int, seed: int = 0) -> np.ndarray:
@@ -195,7 +193,6 @@ def coarse_to_fine(
     ``predict_masks(template, source)`` gives the network's masks over the clouds it is
     given ((N,) and (M,) bool: the template's overlap, the source's kept points); None
     searches without masks."""
-    options.check()
     full_source = source
     source = random_subset(full_source, options.fine_points)
 
@@ -205,7 +202,7 @@ def coarse_to_fine(
         return now
 
     tic = time.perf_counter()
-    tree = KDTree(template)
+    tree = cloud_tree(template)
     spacing = median_spacing(template, tree, sample=4096) or 1.0
     limit = FIT_SPACINGS * spacing
     radius = float(np.linalg.norm(template - template.mean(0), axis=1).max())
@@ -216,25 +213,21 @@ def coarse_to_fine(
     scored: list[Scored] = []
 
     def refine(pose: np.ndarray, points: np.ndarray, kind: str, loose: bool = False) -> Scored:
-        """ICP from ``pose`` with pairs cut at ``inlier_distance`` (first at twice that
+        """ICP from ``pose`` with pairs cut at ``max_correspondence_distance`` (first at twice that
         with ``loose``), scored on ``points``. The tight cut-off alone can stop a few
         degrees short: from 3 degrees off a clean pair it settled 1.1 degrees off, where
         a looser one first reaches the exact pose."""
         tf = pose
-        for cut in ((2 * options.inlier_distance,) if loose else ()) + (options.inlier_distance,):
-            tf = (
-                icp_single(
-                    template,
-                    points,
-                    tf,
-                    options.inlier_iterations,
-                    REFINE_TOLERANCE,
-                    max_correspondence_distance=cut * spacing,
-                    template_tree=tree,
-                )
-                .transform[0]
-                .numpy()
-            )
+        for cut in ((2 * options.cut(spacing),) if loose else ()) + (options.cut(spacing),):
+            tf = icp(
+                template,
+                points,
+                tf,
+                options.inlier_iterations,
+                REFINE_TOLERANCE,
+                max_correspondence_distance=cut,
+                template_tree=tree,
+            ).transform[0]
         return Scored(*pose_fit(tree, points, tf, limit), tf, kind)
 
     # 1. Correspondence hypotheses at each grid, fine first, scored as RANSAC left them;
@@ -306,7 +299,7 @@ def coarse_to_fine(
         whole_small = random_subset(template, options.hypothesis_points)
         if scored:
             poses = icp_from_starts(
-                KDTree(whole_small),
+                cloud_tree(whole_small),
                 whole_small,
                 src_small,
                 np.stack([s.pose for s in scored]),
@@ -320,7 +313,7 @@ def coarse_to_fine(
             scored[:] = [Scored(*f, p, k) for f, p, k in zip(fits, both, kinds, strict=True)]
         # The clouds as they are: consecutive scans often start close.
         as_given = icp_from_starts(
-            KDTree(whole_small), whole_small, src_small, np.eye(4)[None], options.max_iterations
+            cloud_tree(whole_small), whole_small, src_small, np.eye(4)[None], options.max_iterations
         )
         both = np.concatenate([np.eye(4)[None], as_given])
         fits = pose_fits(tree, points, both, limit)
@@ -334,7 +327,7 @@ def coarse_to_fine(
             starts[:, :3, :3] = rotations
             starts[:, :3, 3] = tgt_centre - rotations @ src_centre
             poses = icp_from_starts(
-                KDTree(target_small), target_small, src_small, starts, options.max_iterations
+                cloud_tree(target_small), target_small, src_small, starts, options.max_iterations
             )
             fits = pose_fits(tree, points, poses, limit)
             scored.extend(Scored(*f, p, "rotation") for f, p in zip(fits, poses, strict=True))
@@ -376,11 +369,11 @@ def coarse_to_fine(
     transform = winner.pose
     if predict_masks is not None:  # the template points the moved kept source covers
         # (also after an early exit, where the network never ran)
-        moved = kept_source @ transform[:3, :3].T + transform[:3, 3]
-        mask = KDTree(moved).query(template, k=1)[0] <= limit
+        moved = transform_points(transform, kept_source)
+        mask = cloud_tree(moved).query(template, k=1)[0] <= limit
     if source_mask is not None and len(source) < len(full_source):
         # Each point of the whole source takes the label of its nearest subset point.
-        _, nearest = KDTree(source).query(full_source, k=1)
+        _, nearest = cloud_tree(source).query(full_source, k=1)
         source_mask = source_mask[nearest.astype(np.int64)]
     info = {
         "path": "correspondences" if early is not None else "search",
@@ -426,7 +419,7 @@ def _has_open3d() -> bool:
 
 def _voxel_labels(voxels: np.ndarray, points: np.ndarray, keep: np.ndarray) -> np.ndarray:
     """(V,) bool: whether the input point nearest each voxel centre (V, 3) is kept."""
-    _, nearest = KDTree(points).query(voxels, k=1)
+    _, nearest = cloud_tree(points).query(voxels, k=1)
     return keep[nearest.astype(np.int64)]
 
 

@@ -24,6 +24,7 @@ from typing import NamedTuple
 import numpy as np
 
 from masknet.geometry.align import rigid_transforms_numpy
+from masknet.geometry.se3 import transform_points
 from masknet.io import require_open3d
 
 # Neighbours per FPFH, within 5 voxels. Open3D's tutorial takes 100; 50 costs a third
@@ -146,7 +147,7 @@ def ransac_poses(
         consistent &= edges_s.min(1) > threshold  # a degenerate sample fixes no rotation
         if consistent.any():
             poses = rigid_transforms_numpy(s[consistent], t[consistent])
-            moved = source @ poses[:, :3, :3].transpose(0, 2, 1) + poses[:, None, :3, 3]
+            moved = transform_points(poses, source[None])
             near = ((moved - template) ** 2).sum(-1) <= threshold**2  # (H, K)
             all_poses.append(poses)
             all_near.append(near)

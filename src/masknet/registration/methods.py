@@ -1,82 +1,160 @@
-"""The methods :func:`masknet.register` runs: names, display titles, options and defaults."""
+"""The method table: every method :func:`masknet.register` runs, in one place.
+
+Each entry gives a method's name, its title (X of "Mask-X"), its adapter (imported when
+first used, so that this module, and the command line's choices, need no torch), its
+typed options, its default ``max_iterations`` and whether ``init`` applies. The facade,
+the command line, the benchmark and the docs all read it; a test checks that they list
+exactly its methods.
+
+To add a method: write an adapter module under :mod:`masknet.registration.backends`
+(``(template, source, template_mask, source_mask, options) -> BackendRun``, see
+:mod:`~masknet.registration.backends.base`), give it an options class in
+:mod:`~masknet.registration.options`, and add one :class:`Method` below.
+"""
 
 from __future__ import annotations
 
-from masknet.models import REGISTRATION_NETWORKS
-from masknet.names import GLOBAL_METHODS, METHOD_TITLES, METHODS, NETWORK_METHODS
-from masknet.registration.options import RobustOptions
+import importlib
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+from masknet.registration.options import (
+    FGROptions,
+    ICPCriteria,
+    NetworkOptions,
+    Open3DICPOptions,
+    PointNetLKOptions,
+    RANSACOptions,
+    RobustOptions,
+)
 
 __all__ = [
-    "DEFAULT_ITERATIONS",
     "GLOBAL_METHODS",
     "INITS",
     "METHODS",
+    "METHOD_TABLE",
     "METHOD_TITLES",
     "NETWORK_METHODS",
-    "OPTIONS",
     "PIPELINES",
+    "Method",
+    "adapter",
     "default_method",
-    "resolve_method",
+    "method_options",
 ]
 
-# The options (``**options`` of register) each method accepts.
-OPTIONS = {
-    "icp": ("max_iterations", "tolerance", "max_correspondence_distance"),
-    "auto": RobustOptions._fields,
-    "robust": RobustOptions._fields,
-    "open3d-icp": (
-        "max_iterations",
-        "max_correspondence_distance",
-        "relative_fitness",
-        "relative_rmse",
-    ),
-    "pointnetlk": ("max_iterations", "tolerance", "network"),
-    **{name: ("max_iterations", "network") for name in NETWORK_METHODS if name != "pointnetlk"},
-    "open3d-ransac": ("max_iterations", "voxel_size", "confidence", "seed", "repeatable"),
-    "open3d-fgr": ("max_iterations", "voxel_size"),
-}
-DEFAULT_MAX_ITERATIONS = 10  # the paper's budget for ICP and PointNetLK
-# Each method's default max_iterations; each learned network its paper's: DCP 1, PRNet 3, ...
-DEFAULT_ITERATIONS = {
-    **{m: DEFAULT_MAX_ITERATIONS for m in METHODS},
-    **{name: cls.default_iterations for name, cls in REGISTRATION_NETWORKS.items()},
-}
-INITS = ("centroid", "identity")
-# Methods that run the coarse-to-fine pipeline and ignore the round options.
-PIPELINES = ("auto", "robust")
+
+class Method(NamedTuple):
+    """One entry of :data:`METHOD_TABLE`.
+
+    name: what ``register(method=...)`` and ``masknet register --method`` take.
+    title: the display name, X of "Mask-X".
+    adapter: ``"module:function"``, imported on first use. A back-end's adapter runs one
+        round on a batch (:data:`~masknet.registration.backends.base.Backend`); a
+        pipeline's runs a whole call at full resolution
+        (:data:`~masknet.registration.backends.base.Pipeline`).
+    options: its typed options class (:mod:`masknet.registration.options`).
+    default_iterations: ``max_iterations`` when none is given (None: the options' own).
+    uses_init: whether ``init`` (the centroid start) applies.
+    kind: ``"backend"`` (runs inside the rounds), ``"network"`` (a learned back-end, the
+        shipped weights by default) or ``"pipeline"`` (a whole coarse-to-fine call).
+    """
+
+    name: str
+    title: str
+    adapter: str
+    options: type
+    default_iterations: int | None
+    uses_init: bool
+    kind: str
 
 
-def default_method(
-    method: str | None,
-    iterations: int = 1,
-    k: int | None = None,
-    threshold: float | None = None,
-    refine_iterations: int = 0,
-    init: str = "centroid",
-    options: dict | None = None,
-    typed: bool = False,
-) -> str:
-    """:func:`resolve_method` from register's own arguments (``typed``: an ICPCriteria,
-    Selection or Rounds was given); the command line calls it too."""
-    return resolve_method(
-        method,
-        {
-            "iterations": iterations != 1,
-            "k": k is not None,
-            "threshold": threshold is not None,
-            "refine_iterations": refine_iterations != 0,
-            "init": init != "centroid",
-            "icp options": any(key in OPTIONS["icp"] for key in options or {}),
-            "typed": typed,
-        },
+_BACKENDS = "masknet.registration.backends"
+METHOD_TABLE: dict[str, Method] = {
+    m.name: m
+    for m in (
+        Method("auto", "ICP (auto)", f"{_BACKENDS}.pipelines:run_auto", RobustOptions, None, False, "pipeline"),
+        Method("icp", "ICP", f"{_BACKENDS}.icp:run_icp", ICPCriteria, 10, True, "backend"),
+        Method("robust", "ICP (robust)", f"{_BACKENDS}.pipelines:run_robust", RobustOptions, None, False, "pipeline"),
+        Method("open3d-icp", "Open3D-ICP", f"{_BACKENDS}.icp:run_open3d_icp", Open3DICPOptions, 10, True, "backend"),
+        Method("pointnetlk", "PointNetLK", f"{_BACKENDS}.network:run_network", PointNetLKOptions, 10, True, "network"),
+        Method("dcp", "DCP", f"{_BACKENDS}.network:run_network", NetworkOptions, 1, True, "network"),
+        Method("prnet", "PRNet", f"{_BACKENDS}.network:run_network", NetworkOptions, 3, True, "network"),
+        Method("pcrnet", "PCRNet", f"{_BACKENDS}.network:run_network", NetworkOptions, 8, True, "network"),
+        Method("rpmnet", "RPM-Net", f"{_BACKENDS}.network:run_network", NetworkOptions, 5, True, "network"),
+        Method("open3d-ransac", "Open3D-RANSAC", f"{_BACKENDS}.open3d_global:run_ransac", RANSACOptions, None, False, "backend"),
+        Method("open3d-fgr", "Open3D-FGR", f"{_BACKENDS}.open3d_global:run_fgr", FGROptions, None, False, "backend"),
     )
+}  # fmt: skip
+
+# Views of the table, for the places that need one list.
+METHODS = tuple(METHOD_TABLE)
+METHOD_TITLES = {name: m.title for name, m in METHOD_TABLE.items()}
+NETWORK_METHODS = tuple(name for name, m in METHOD_TABLE.items() if m.kind == "network")
+PIPELINES = tuple(name for name, m in METHOD_TABLE.items() if m.kind == "pipeline")
+# Global registration: no iteration budget, no init.
+GLOBAL_METHODS = tuple(
+    name for name, m in METHOD_TABLE.items() if m.kind == "backend" and not m.uses_init
+)
+INITS = ("centroid", "identity")
 
 
-def resolve_method(method: str | None, round_options: dict) -> str:
-    """``method``, or for None the default: ``"auto"``, unless ``round_options`` (the
-    arguments only Mask-ICP's rounds take: ``iterations`` other than 1, ``k``,
-    ``threshold``, ``refine_iterations``, ``init="identity"``, ICP's options) ask for
-    Mask-ICP itself, which is then what runs."""
+def adapter(name: str) -> Callable[..., Any]:
+    """The adapter of method ``name``, imported on first use."""
+    module, function = METHOD_TABLE[name].adapter.split(":")
+    return getattr(importlib.import_module(module), function)
+
+
+def method_options(name: str, given: Any | None, keywords: dict[str, Any]) -> Any:
+    """Method ``name``'s typed options: ``given`` (an instance of its options class, or
+    None) with ``keywords`` (its fields, spelled inline) set, checked on construction.
+    MaskNetError for an unknown field, a wrong options class, or a field given twice."""
+    from masknet.errors import MaskNetError
+    from masknet.registration.options import as_dict
+
+    kind = METHOD_TABLE[name].options
+    if given is not None and not isinstance(given, kind):
+        raise MaskNetError(
+            f"method {name!r} takes options={kind.__name__}(...), got {type(given).__name__}"
+        )
+    fields = as_dict(kind()) if given is None else as_dict(given)
+    unknown = sorted(set(keywords) - set(fields))
+    if unknown:
+        raise MaskNetError(
+            f"unknown option(s) for method {name!r}: {', '.join(unknown)} "
+            f"(accepted: {', '.join(fields)})"
+        )
+    if given is not None and keywords:
+        raise MaskNetError(
+            f"give options={kind.__name__}(...) or its fields as keywords "
+            f"({', '.join(sorted(keywords))}), not both"
+        )
+    if given is not None:
+        return given
+    values = dict(keywords)
+    if "max_iterations" in fields and values.get("max_iterations") is None:
+        default = METHOD_TABLE[name].default_iterations
+        if default is not None:
+            values["max_iterations"] = default
+    return kind(**values)
+
+
+def default_method(method: str | None, options: Any | None, round_options: dict) -> str:
+    """``method``, or for None the default: the method whose options class ``options`` is
+    (``ICPCriteria`` -> ``"icp"``); else ``"auto"``, unless ``round_options`` (the arguments
+    only Mask-ICP's rounds take: ``iterations`` other than 1, ``k``, ``threshold``,
+    ``refine_iterations``, ``init="identity"``, ICP's options) ask for Mask-ICP itself,
+    which is then what runs."""
     if method is not None:
         return method
+    if options is not None:
+        from masknet.errors import MaskNetError
+
+        names = [n for n, entry in METHOD_TABLE.items() if type(options) is entry.options]
+        if not names:
+            raise MaskNetError(f"options= takes a method's options, got {type(options).__name__}")
+        if len(names) > 1 and names[0] != "auto":  # NetworkOptions: DCP, PRNet, ...
+            raise MaskNetError(
+                f"{type(options).__name__} serves {', '.join(names)}: name the method"
+            )
+        return names[0]  # RobustOptions: "auto", the default that escalates to "robust"
     return "icp" if any(round_options.values()) else "auto"

@@ -1,55 +1,170 @@
-"""Typed options of :func:`masknet.register`, in the style of Open3D's
-``ICPConvergenceCriteria``: small immutable objects that name what they set.
+"""Typed options of :func:`masknet.register`, one small immutable object per method, in the
+style of Open3D's ``ICPConvergenceCriteria``. Each checks its values when it is made:
 
-    >>> register(template, source, rounds=Rounds(3, refine=10), selection=Selection(threshold=0.5))
-    >>> register(template, source, criteria=ICPCriteria(max_iterations=30))
-    >>> register(template, source, method="robust", robust=RobustOptions(hypotheses=12))
+    >>> register(template, source, options=ICPCriteria(max_iterations=30))
+    >>> register(template, source, method="robust", options=RobustOptions(hypotheses=12))
 
-Each is the same as the keyword arguments it replaces (``iterations`` and
-``refine_iterations``; ``k`` and ``threshold``; the ICP options); giving both is an error.
+Keywords are the same thing spelled inline: ``register(template, source, method="icp",
+max_iterations=30)`` builds ``ICPCriteria(max_iterations=30)``. Giving the object and one
+of its keywords is an error.
+
+One name per idea, as Open3D names it: ``max_correspondence_distance`` is the pair cut-off
+(in the clouds' units) everywhere, ``relative_rmse`` the stopping rule, ``max_iterations``
+the updates within one round (rounds are :func:`register`'s ``iterations``).
 """
 
 from __future__ import annotations
 
-from typing import NamedTuple
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
 
 from masknet.errors import MaskNetError
 
-__all__ = ["ICPCriteria", "Rounds", "RobustOptions", "Selection", "resolve_options"]
+__all__ = [
+    "FGROptions",
+    "ICPCriteria",
+    "NetworkOptions",
+    "Open3DICPOptions",
+    "PointNetLKOptions",
+    "RANSACOptions",
+    "RobustOptions",
+    "as_dict",
+]
+
+# The robust pipeline's pair cut-off when none is given, in template point spacings (the
+# median distance of a template point to its nearest neighbour): unit-free, and tight
+# enough that ``fitness`` separates right poses from wrong ones (docs/RESULTS.md).
+DEFAULT_CUT_SPACINGS = 1.5
 
 
-class ICPCriteria(NamedTuple):
-    """ICP's budget and rules (``method="icp"``).
+def as_dict(options: Any) -> dict[str, Any]:
+    """An options object's fields by name (shallow: a ``network`` stays the same object)."""
+    return {f.name: getattr(options, f.name) for f in dataclasses.fields(options)}
 
-    max_iterations: updates per round. tolerance: stop once the mean squared error
-    changes by at most this fraction of itself. max_correspondence_distance: pairs
-    farther apart (in the clouds' units) are not used; None keeps all.
+
+def _integer(name: str, value: Any, low: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or value < low:
+        raise MaskNetError(f"{name} must be an integer >= {low}, got {value!r}")
+
+
+def _positive(name: str, value: Any, allow_none: bool = True) -> None:
+    if value is None and allow_none:
+        return
+    if isinstance(value, bool) or not isinstance(value, int | float) or not value > 0:
+        raise MaskNetError(f"{name} must be a positive number, got {value!r}")
+
+
+def _non_negative(name: str, value: Any) -> None:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not value >= 0:
+        raise MaskNetError(f"{name} must be a number >= 0, got {value!r}")
+
+
+@dataclass(frozen=True)
+class ICPCriteria:
+    """Mask-ICP's rule within one round (``method="icp"``).
+
+    max_iterations: updates per round (0 evaluates the start).
+    relative_rmse: stop once the inlier RMSE changes by at most this fraction of itself
+        (relative, unlike Open3D's absolute change, so that the stop is unit-free).
+    max_correspondence_distance: pairs farther apart (in the clouds' units) are not used;
+        None keeps every pair.
     """
 
     max_iterations: int = 10
-    tolerance: float = 1e-6
+    relative_rmse: float = 5e-7
     max_correspondence_distance: float | None = None
 
-
-class Selection(NamedTuple):
-    """Which template points the mask keeps: top-``k`` (default k = M, the number of
-    source points) or scores >= ``threshold``; at most one of the two."""
-
-    k: int | None = None
-    threshold: float | None = None
+    def __post_init__(self) -> None:
+        _integer("max_iterations", self.max_iterations, 0)
+        _non_negative("relative_rmse", self.relative_rmse)
+        _positive("max_correspondence_distance", self.max_correspondence_distance)
 
 
-class Rounds(NamedTuple):
-    """``n`` rounds of {mask -> initialise -> register -> move the source}, then
-    ``refine`` iterations of plain ICP against the whole template."""
+@dataclass(frozen=True)
+class Open3DICPOptions:
+    """Open3D's point-to-point ICP (``method="open3d-icp"``), with Open3D's criteria:
+    ``relative_fitness`` and ``relative_rmse`` are Open3D's absolute changes."""
 
-    n: int = 1
-    refine: int = 0
+    max_iterations: int = 10
+    max_correspondence_distance: float | None = None
+    relative_fitness: float = 1e-6
+    relative_rmse: float = 1e-6
+
+    def __post_init__(self) -> None:
+        _integer("max_iterations", self.max_iterations, 0)
+        _positive("max_correspondence_distance", self.max_correspondence_distance)
+        _non_negative("relative_fitness", self.relative_fitness)
+        _non_negative("relative_rmse", self.relative_rmse)
 
 
-class RobustOptions(NamedTuple):
-    """The options of ``method="robust"`` (``register(..., method="robust", **options)``),
-    the coarse-to-fine pipeline of :mod:`masknet.registration.coarse`.
+@dataclass(frozen=True)
+class NetworkOptions:
+    """A learned registration network (DCP, PRNet, PCRNet, RPM-Net).
+
+    max_iterations: passes of the network per round; None: its paper's (DCP 1, PRNet 3,
+        PCRNet 8, RPM-Net 5, from the method table).
+    network: a model of :data:`masknet.models.REGISTRATION_NETWORKS`; None: the shipped
+        weights.
+    """
+
+    max_iterations: int | None = None
+    network: Any = None
+
+    def __post_init__(self) -> None:
+        if self.max_iterations is not None:
+            _integer("max_iterations", self.max_iterations, 1)
+
+
+@dataclass(frozen=True)
+class PointNetLKOptions(NetworkOptions):
+    """PointNetLK: as :class:`NetworkOptions`, and ``tolerance``: a pair stops once its
+    update's twist (rotation in radians, translation in template radii) has a norm
+    below this."""
+
+    tolerance: float = 1e-5
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _non_negative("tolerance", self.tolerance)
+
+
+@dataclass(frozen=True)
+class RANSACOptions:
+    """Open3D's RANSAC on FPFH features (``method="open3d-ransac"``).
+
+    voxel_size: feature scale as a fraction of the template's radius. max_iterations,
+    confidence: Open3D's RANSAC criteria. seed: Open3D's random seed. repeatable: one
+    thread, so that a seed gives one answer."""
+
+    voxel_size: float = 0.05
+    max_iterations: int = 100_000
+    confidence: float = 0.999
+    seed: int = 0
+    repeatable: bool = True
+
+    def __post_init__(self) -> None:
+        _positive("voxel_size", self.voxel_size, allow_none=False)
+        _integer("max_iterations", self.max_iterations, 1)
+        if not 0 < self.confidence <= 1:
+            raise MaskNetError(f"confidence must be in (0, 1], got {self.confidence!r}")
+
+
+@dataclass(frozen=True)
+class FGROptions:
+    """Open3D's fast global registration on FPFH features (``method="open3d-fgr"``):
+    ``voxel_size`` as a fraction of the template's radius."""
+
+    voxel_size: float = 0.05
+
+    def __post_init__(self) -> None:
+        _positive("voxel_size", self.voxel_size, allow_none=False)
+
+
+@dataclass(frozen=True)
+class RobustOptions:
+    """The options of ``method="auto"`` and ``"robust"``, the coarse-to-fine pipeline of
+    :mod:`masknet.registration.coarse`.
 
     feature_points: template points left by each FPFH voxel grid, finest first (the counts
         set the voxels, so the unit does not matter; a template of N > 1,024 points gets
@@ -58,14 +173,15 @@ class RobustOptions(NamedTuple):
     ransac_trials: minimal samples of 3 matches per RANSAC run.
     correspondence_hypotheses: distinct poses each RANSAC run returns.
     accept_fitness: stop after the correspondence hypotheses when the best one's fitness
-        (at 1.5 template spacings) reaches this; 1.01 never stops early.
+        reaches this; 1.01 never stops early.
     hypotheses: starting rotations of the learned side (the 24 rotations of the cube,
         nearest the identity first; 0 skips them).
     hypothesis_points: points per cloud in the rotation hypotheses' ICP.
     max_iterations: ICP iterations per hypothesis.
     candidates: best-scoring distinct hypotheses refined at full resolution.
     inlier_iterations: ICP iterations of that refinement.
-    inlier_distance: its pair cut-off, in template spacings.
+    max_correspondence_distance: its pair cut-off, in the clouds' units; None: 1.5
+        template point spacings (unit-free).
     fine_points: source points (a seeded random subset of larger clouds) in the fit and
         the ICP refinement; the features see every point.
     distinct_deg: poses at least this far apart are different answers.
@@ -82,13 +198,12 @@ class RobustOptions(NamedTuple):
     max_iterations: int = 8
     candidates: int = 3
     inlier_iterations: int = 60
-    inlier_distance: float = 1.5
+    max_correspondence_distance: float | None = None
     fine_points: int = 4096
     distinct_deg: float = 10.0
     ambiguity_margin: float = 0.02
 
-    def check(self) -> None:
-        """Raise MaskNetError for an option out of range."""
+    def __post_init__(self) -> None:
         grids = tuple(self.feature_points)
         if not grids or min(*grids, self.hypothesis_points, self.fine_points) < 16:
             raise MaskNetError(
@@ -104,52 +219,12 @@ class RobustOptions(NamedTuple):
             )
         if not 0 <= self.accept_fitness <= 1.01 or not 0 <= self.ambiguity_margin <= 1:
             raise MaskNetError("robust: accept_fitness in [0, 1.01], ambiguity_margin in [0, 1]")
-        if not self.inlier_distance > 0 or not 0 < self.distinct_deg <= 180:
-            raise MaskNetError("robust: inlier_distance > 0 and distinct_deg in (0, 180]")
+        if not 0 < self.distinct_deg <= 180:
+            raise MaskNetError("robust: distinct_deg in (0, 180]")
+        _positive("max_correspondence_distance", self.max_correspondence_distance)
 
-
-def resolve_options(
-    method: str,
-    keywords: dict,
-    criteria: ICPCriteria | None,
-    selection: Selection | None,
-    rounds: Rounds | None,
-    robust: RobustOptions | None,
-) -> dict:
-    """``keywords`` (register's iterations, refine_iterations, k, threshold and
-    **options) with the typed objects merged in; MaskNetError where both set a value."""
-    for name, obj, kind in (
-        ("criteria", criteria, ICPCriteria),
-        ("selection", selection, Selection),
-        ("rounds", rounds, Rounds),
-        ("robust", robust, RobustOptions),
-    ):
-        if obj is not None and not isinstance(obj, kind):
-            raise MaskNetError(
-                f"{name}= takes a {kind.__name__}, got {type(obj).__name__}"
-                + (" (for a number of rounds, pass iterations=)" if name == "rounds" else "")
-            )
-    out = dict(keywords)
-
-    def merge(obj: NamedTuple | None, names: dict[str, str], defaults: dict) -> None:
-        if obj is None:
-            return
-        for field, key in names.items():
-            if key in out and out[key] != defaults.get(key):
-                raise MaskNetError(f"give {key}= or {type(obj).__name__}, not both")
-            out[key] = getattr(obj, field)
-
-    defaults = {"iterations": 1, "refine_iterations": 0, "k": None, "threshold": None}
-    merge(rounds, {"n": "iterations", "refine": "refine_iterations"}, defaults)
-    merge(selection, {"k": "k", "threshold": "threshold"}, defaults)
-    if criteria is not None:
-        if method != "icp":
-            raise MaskNetError(f"criteria= (ICPCriteria) is for method='icp', not {method!r}")
-        merge(criteria, {f: f for f in ICPCriteria._fields}, {})
-    if robust is not None:
-        if method not in ("auto", "robust"):
-            raise MaskNetError(
-                f"robust= (RobustOptions) is for method='auto' or 'robust', not {method!r}"
-            )
-        merge(robust, {f: f for f in RobustOptions._fields}, {})
-    return out
+    def cut(self, spacing: float) -> float:
+        """The pair cut-off in the clouds' units, for a template of this point spacing."""
+        if self.max_correspondence_distance is not None:
+            return float(self.max_correspondence_distance)
+        return DEFAULT_CUT_SPACINGS * spacing

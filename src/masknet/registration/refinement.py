@@ -79,9 +79,9 @@ class NearestNeighbourMasks:
         return np.stack([p[0] for p in pairs]), np.stack([p[1] for p in pairs])
 
     def _pair(self, template: np.ndarray, source: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        from pykdtree.kdtree import KDTree
+        from masknet.geometry.knn import cloud_tree
 
-        t_tree = KDTree(template)
+        t_tree = cloud_tree(template)
         t_spacing = median_spacing(template, t_tree)
         d_source = t_tree.query(source, k=1)[0]
         cut = max(self.source_spacings * t_spacing, self.source_median_factor * np.median(d_source))
@@ -90,7 +90,7 @@ class NearestNeighbourMasks:
             source_mask[:] = True
         kept = source[source_mask]
         k = int(np.clip(len(kept), 3, len(template)))
-        d_template = KDTree(kept).query(template, k=1)[0]
+        d_template = cloud_tree(kept).query(template, k=1)[0]
         template_mask = np.zeros(len(template), bool)
         template_mask[np.argsort(d_template, kind="stable")[:k]] = True
         return template_mask, source_mask

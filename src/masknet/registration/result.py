@@ -4,8 +4,12 @@ names (``transformation``, ``fitness``, ``inlier_rmse``) beside masknet's own.""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from masknet.registration.scene import SceneMatch
 
 __all__ = ["RegistrationResult"]
 
@@ -51,6 +55,11 @@ class RegistrationResult:
             kept in the last round, or a refiner's at the pose the rounds reached (for a
             large single pair, each point takes the label of its nearest sampled point);
             None for one round of the paper's MaskNet and without a mask.
+        method: the method that ran (the default resolved: ``"auto"``, or ``"icp"`` from a
+            scene search's pose).
+        scene: the scene search's :class:`~masknet.registration.scene.SceneMatch` where one
+            ran (its pose, the scene points on the object, ``coverage``, ``regions``,
+            ``spacing``, ``seconds``), else None.
     """
 
     R: np.ndarray
@@ -63,6 +72,8 @@ class RegistrationResult:
     sampled: tuple[int, int] | None = None
     correspondence_inliers: np.ndarray | None = None
     source_mask: np.ndarray | None = None
+    method: str = ""
+    scene: SceneMatch | None = None
 
     # Open3D's names (``RegistrationResult`` of ``open3d.pipelines.registration``).
     @property

@@ -13,15 +13,12 @@ Example::
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import numpy as np
-import torch
-from pykdtree.kdtree import KDTree
 
-from masknet.geometry.knn import knn_points
+from masknet.geometry.knn import cloud_tree
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
+from masknet.registration.backends.base import PipelineRun
 from masknet.registration.coarse import MaskFunction, coarse_to_fine, hypothesis_rotations
 from masknet.registration.options import RobustOptions
 
@@ -33,19 +30,6 @@ __all__ = [
     "trimmed_mean",
     "trimmed_order",
 ]
-
-
-class RobustRun(NamedTuple):
-    """transform: (B, 4, 4) source -> template. mask: (B, N) template points the moved
-    source covers (None without a model). source_mask: (B, M) the two-sided MaskNet's
-    kept source points (None without it, or where the early exit skipped it). info:
-    (B,) arrays of :class:`~masknet.registration.coarse.CoarseRun`'s info, and
-    ``runner_up`` (B, 4, 4), NaN where there is none."""
-
-    transform: np.ndarray
-    mask: np.ndarray | None
-    source_mask: np.ndarray | None
-    info: dict[str, np.ndarray]
 
 
 def trimmed_order(
@@ -77,8 +61,13 @@ def trimmed_mean(d2: np.ndarray, trim: float, valid: np.ndarray | None = None) -
 def trimmed_fit(query: np.ndarray, reference: np.ndarray, trim: float) -> np.ndarray:
     """Mean squared distance of the best ``trim`` fraction of query points (B, P, 3) to
     their nearest reference point (B, R, 3): (B,)."""
-    d2 = knn_points(torch.from_numpy(query), torch.from_numpy(reference), 1).dists[..., 0]
-    return trimmed_mean(d2.numpy(), trim)
+    d2 = np.stack(
+        [
+            cloud_tree(r).query(q, k=1, sqr_dists=True)[0]
+            for q, r in zip(query, reference, strict=True)
+        ]
+    )
+    return trimmed_mean(d2, trim)
 
 
 def network_masks(
@@ -96,15 +85,13 @@ def network_masks(
 
     def predict(template: np.ndarray, source: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         if known is not None:
-            t_mask = known[0]
-            s_mask = np.ones(len(source_net), bool) if known[1] is None else known[1]
-        elif isinstance(model, TwoSidedMaskNet):
-            t_mask, s_mask = model.predict_masks(template_net, source_net, precision=precision)
+            t_mask, s_mask = known
         else:
-            t_mask = model.predict_mask(template_net, source_net, precision=precision)
+            t_mask, s_mask = model.predict_masks(template_net, source_net, precision=precision)
+        if s_mask is None:  # a one-sided network keeps every source point
             s_mask = np.ones(len(source_net), bool)
-        t_near = KDTree(template_net).query(template, k=1)[1].astype(np.int64)
-        s_near = KDTree(source_net).query(source, k=1)[1].astype(np.int64)
+        t_near = cloud_tree(template_net).query(template, k=1)[1].astype(np.int64)
+        s_near = cloud_tree(source_net).query(source, k=1)[1].astype(np.int64)
         return t_mask[t_near], s_mask[s_near]
 
     return predict
@@ -120,13 +107,12 @@ def robust_register(
     times: dict[str, float],
     precision: str = "auto",
     known: tuple[np.ndarray, np.ndarray | None] | None = None,
-) -> RobustRun:
+) -> PipelineRun:
     """The coarse-to-fine pipeline for template (B, N, 3) and source (B, M, 3), float64,
     one pair at a time, at full resolution; the network (``model``, None: no masks) sees
     template_net (B, n, 3) and source_net (B, m, 3), the clouds sampled to its size.
     ``known``: its masks of those clouds, (B, n) and (B, m) or None, already predicted.
     Masks are over the full clouds. Stage times are summed into ``times``."""
-    options.check()
     runs = []
     for b in range(template.shape[0]):
         masks = None
@@ -158,7 +144,7 @@ def robust_register(
             for r in runs
         ]
     )
-    return RobustRun(
+    return PipelineRun(
         np.stack([r.transform for r in runs]),
         None if any(m is None for m in masks) else np.stack(masks),
         None if any(m is None for m in source_masks) else np.stack(source_masks),

@@ -1,15 +1,14 @@
-"""Large single pairs brought to the network's size, and the mask spread back to every point."""
+"""Large single pairs brought to the network's size (the mask goes back to every point by
+:func:`masknet.geometry.sampling.spread_mask`)."""
 
 from __future__ import annotations
 
 import numpy as np
-import torch
 
 from masknet.errors import MaskNetError
-from masknet.geometry.knn import knn_points
 from masknet.geometry.sampling import farthest_point_sample
 
-__all__ = ["fit_to_network", "spread_mask"]
+__all__ = ["fit_to_network"]
 
 
 def fit_to_network(
@@ -31,11 +30,3 @@ def fit_to_network(
     # (top-k selection uses it).
     src_idx = farthest_point_sample(source[0], max_points, min_spacing=kept.radius).indices
     return template[:, kept.indices], source[:, src_idx], kept.indices, src_idx
-
-
-def spread_mask(template: np.ndarray, sampled: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Give every template point (N, 3) the mask label (K,) of its nearest sampled point
-    (indices (K,)); returns (N,)."""
-    full = torch.from_numpy(template)[None]
-    nearest = knn_points(full, full[:, sampled], 1).idx[0, :, 0].numpy()
-    return mask[nearest]

@@ -51,22 +51,21 @@ from typing import NamedTuple
 
 import numpy as np
 import torch
-from scipy.spatial import cKDTree
 
 from masknet.errors import MaskNetError
-from masknet.geometry.align import rigid_align
+from masknet.geometry.align import rigid_transforms_numpy
 from masknet.geometry.clouds import MIN_POINTS, median_spacing, unit_radius
-from masknet.geometry.knn import KDTreeIndex
+from masknet.geometry.knn import cloud_tree
 from masknet.geometry.normals import estimate_normals
 from masknet.geometry.sampling import farthest_point_sample
-from masknet.registration.icp_tree import icp_single
+from masknet.geometry.se3 import transform_points
+from masknet.registration.icp import icp
 from masknet.registration.robust import (
     hypothesis_rotations,
     trimmed_fit,
     trimmed_mean,
     trimmed_order,
 )
-from masknet.registration.rounds import apply_transform
 
 __all__ = ["SceneSearch", "SceneMatch", "is_scene", "locate", "polish"]
 
@@ -140,9 +139,9 @@ class SceneMatch(NamedTuple):
     """What :func:`locate` finds.
 
     transform: (4, 4) scene -> template. source_mask: (P,) bool, the scene points on the
-    object. fitness: fraction of template points (those facing the sensor, with a
-    viewpoint) within the inlier distance of the scene at
-    the found pose. inlier_rmse: RMS distance of those points, in the input's units.
+    object. coverage: fraction of template points (those facing the sensor, with a
+    viewpoint) within the inlier distance of the scene at the found pose (a share of the
+    template, unlike ``fitness`` elsewhere, which counts source points). inlier_rmse: RMS distance of those points, in the input's units.
     regions: candidate regions searched. hypotheses: placements run in the batched stage.
     seconds: the search's time. spacing: the centre grid used, in template radii (the
     option's, or coarser where the scene exceeded ``max_placements``).
@@ -150,7 +149,7 @@ class SceneMatch(NamedTuple):
 
     transform: np.ndarray
     source_mask: np.ndarray
-    fitness: float
+    coverage: float
     inlier_rmse: float
     regions: int
     hypotheses: int
@@ -160,7 +159,7 @@ class SceneMatch(NamedTuple):
 
 def _radius(points: np.ndarray) -> float:
     """The project's unit radius of one cloud (P, 3) (:func:`unit_radius`), a float."""
-    return float(unit_radius(torch.from_numpy(np.asarray(points, np.float64))[None])[0])
+    return float(unit_radius(points))
 
 
 def _spread(points: np.ndarray) -> float:
@@ -193,15 +192,15 @@ def _inlier_distance(unit_template: np.ndarray, options: SceneSearch) -> float:
 
 
 def _nearest(
-    poses: np.ndarray, points: np.ndarray, index: KDTreeIndex
+    poses: np.ndarray, points: np.ndarray, cloud: np.ndarray, tree: object
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``points`` (P, 3) moved by each of ``poses`` (B, 4, 4): the moved points (B, P, 3),
-    their nearest points of the one cloud in ``index`` (B, P, 3), squared distances (B, P)."""
-    batch = np.ascontiguousarray(np.broadcast_to(points, (len(poses), *points.shape)))
-    moved = apply_transform(poses, batch)
-    near = index.query(torch.from_numpy(moved.reshape(1, -1, 3).astype(np.float32)), 1)
-    matched = index.reference[0, near.idx[0, :, 0]].double().numpy().reshape(moved.shape)
-    return moved, matched, near.dists[0, :, 0].double().numpy().reshape(moved.shape[:2])
+    their nearest points of ``cloud`` (searched in ``tree``, float32) (B, P, 3), and the
+    squared distances (B, P)."""
+    moved = transform_points(poses, points[None])
+    _, idx = tree.query(moved.reshape(-1, 3).astype(np.float32), k=1)
+    matched = cloud[idx.astype(np.int64)].reshape(moved.shape)
+    return moved, matched, ((moved - matched) ** 2).sum(-1)
 
 
 def _outward_normals(points: np.ndarray) -> np.ndarray:
@@ -246,15 +245,10 @@ def _seen(
 ) -> np.ndarray:
     """(P,) bool: the template points facing the sensor at ``pose`` (all without one, or
     where fewer than 3 would)."""
-    facing = _facing(pose[None], _apply(pose, points)[None], normals, sensor)
+    facing = _facing(pose[None], transform_points(pose, points)[None], normals, sensor)
     if facing is None or facing[0].sum() < MIN_POINTS:
         return np.ones(len(points), bool)
     return facing[0]
-
-
-def _apply(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """One (4, 4) transform applied to points (P, 3): :func:`apply_transform` of one pair."""
-    return apply_transform(transform[None], points[None])[0]
 
 
 def locate(
@@ -278,16 +272,18 @@ def locate(
     # 1-2. Thinned scene and candidate centres (those with enough scene around them).
     thin = _voxel_thin(scn, opts.voxel)
     # Nearest neighbours in the hot loop, in float32 (the refinement is float64).
-    thin_index = KDTreeIndex(torch.from_numpy(thin[None].astype(np.float32)))
-    thin_balls = cKDTree(thin)  # ball queries: regions around centres and poses
+    thin_tree = cloud_tree(thin.astype(np.float32))
     # A scene too large for the budget is searched on a coarser grid (less reliably).
     spacing = opts.spacing
     centres = _voxel_thin(thin, spacing)
     while len(centres) * opts.hypotheses > opts.max_placements:
         spacing *= 1.25
         centres = _voxel_thin(thin, spacing)
-    counts = np.array([len(m) for m in thin_balls.query_ball_point(centres, opts.crop)])
-    centres = centres[counts >= opts.min_region_points]
+    # A region is large enough when its min_region_points-th nearest point lies within it.
+    need = min(opts.min_region_points, len(thin))
+    kth, _ = thin_tree.query(centres.astype(np.float32), k=need, distance_upper_bound=opts.crop)
+    enough = np.isfinite(np.asarray(kth).reshape(len(centres), need)[:, -1])
+    centres = centres[enough if need >= opts.min_region_points else np.zeros(len(centres), bool)]
     if not len(centres):
         raise MaskNetError(
             f"scene search: no region of the scene holds {opts.min_region_points} points "
@@ -306,7 +302,7 @@ def locate(
     poses[:, :3, :3] = np.tile(rotations, (len(centres), 1, 1))
     poses[:, :3, 3] = np.repeat(centres, len(rotations), axis=0)
     for iteration in range(opts.iterations):
-        moved, matched, d2 = _nearest(poses, small, thin_index)
+        moved, matched, d2 = _nearest(poses, small, thin, thin_tree)
         facing = _facing(poses, moved, small_normals, sensor)
         if iteration and iteration % PRUNE_EVERY == 0:
             # Placements that fit worst are dropped as they go: the right one fits early.
@@ -316,14 +312,11 @@ def locate(
             facing = None if facing is None else facing[keep]
         # Trimmed ICP: only the best ``trim`` of each placement's pairs move it, so the
         # template's parts that the scan does not see do not pull it.
-        weights = torch.from_numpy(_trim_weights(d2, facing, opts.trim))
-        rot, trans = rigid_align(torch.from_numpy(moved), torch.from_numpy(matched), weights)
-        update = np.tile(np.eye(4), (len(poses), 1, 1))
-        update[:, :3, :3], update[:, :3, 3] = rot.numpy(), trans.numpy()
-        poses = update @ poses
+        weights = _trim_weights(d2, facing, opts.trim)
+        poses = rigid_transforms_numpy(moved, matched, weights) @ poses
 
     # 4. Trimmed fit of every placement: the best few go on.
-    moved, _, d2 = _nearest(poses, small, thin_index)
+    moved, _, d2 = _nearest(poses, small, thin, thin_tree)
     scores = _scores(d2, _facing(poses, moved, small_normals, sensor), opts.trim)
     best = np.argsort(scores, kind="stable")[: opts.candidates]
 
@@ -332,45 +325,40 @@ def locate(
     fine, fine_normals = tpl[pick], None if normals is None else normals[pick]
     refined = []
     for pose in poses[best]:
-        around = thin[thin_balls.query_ball_point(pose[:3, 3], opts.crop + 1.0)]
+        around = thin[np.linalg.norm(thin - pose[:3, 3], axis=1) <= opts.crop + 1.0]
         for _ in range(1 if sensor is None else 2):  # the side facing the sensor moves
             seen = _seen(pose, fine, fine_normals, sensor)
-            run = icp_single(
+            run = icp(
                 around,
                 fine[seen],
                 pose,
                 max_iterations=2 * opts.iterations,
                 max_correspondence_distance=opts.refine_distance,
             )
-            pose = run.transform[0].numpy()
+            pose = run.transform[0]
         seen = _seen(pose, fine, fine_normals, sensor)
-        fit = trimmed_fit(_apply(pose, fine[seen])[None], around[None], opts.trim)[0]
+        fit = trimmed_fit(transform_points(pose, fine[seen])[None], around[None], opts.trim)[0]
         refined.append((fit if seen.mean() >= MIN_FACING else np.inf, pose))
     pose = min(refined, key=lambda item: item[0])[1]
 
     # Last: the full template against the full-resolution scene around the object.
     tolerance = _inlier_distance(tpl, opts)
-    full_tree = cKDTree(scn)
-    around = scn[full_tree.query_ball_point(pose[:3, 3], 1.0 + opts.refine_distance)]
+    around = scn[np.linalg.norm(scn - pose[:3, 3], axis=1) <= 1.0 + opts.refine_distance]
     seen = _seen(pose, tpl, normals, sensor)
     if len(around) >= MIN_POINTS:
-        pose = (
-            icp_single(
-                around,
-                tpl[seen],
-                pose,
-                max_iterations=2 * opts.iterations,
-                max_correspondence_distance=tolerance,
-            )
-            .transform[0]
-            .numpy()
-        )
-    moved_tpl = _apply(pose, tpl[_seen(pose, tpl, normals, sensor)])
-    dist, _ = full_tree.query(moved_tpl, k=1)
+        pose = icp(
+            around,
+            tpl[seen],
+            pose,
+            max_iterations=2 * opts.iterations,
+            max_correspondence_distance=tolerance,
+        ).transform[0]
+    moved_tpl = transform_points(pose, tpl[_seen(pose, tpl, normals, sensor)])
+    dist, _ = cloud_tree(scn).query(moved_tpl, k=1)
     close = dist <= tolerance
-    fitness = float(close.mean())
+    coverage = float(close.mean())
     rmse = float(np.sqrt(np.square(dist[close]).mean())) * radius if close.any() else 0.0
-    near = cKDTree(moved_tpl).query(scn, k=1, distance_upper_bound=tolerance)[0]
+    near = cloud_tree(moved_tpl).query(scn, k=1, distance_upper_bound=tolerance)[0]
     source_mask = np.isfinite(near)  # (P,) bool: scene points on the moved template
 
     # pose maps unit-frame template -> unit-frame scene; invert and leave the unit frame:
@@ -380,7 +368,7 @@ def locate(
     transform[:3, :3] = inverse[:3, :3]
     transform[:3, 3] = centre + radius * inverse[:3, 3] - inverse[:3, :3] @ centre
     seconds = time.perf_counter() - tic
-    return SceneMatch(transform, source_mask, fitness, rmse, len(centres), count, seconds, spacing)
+    return SceneMatch(transform, source_mask, coverage, rmse, len(centres), count, seconds, spacing)
 
 
 def polish(
@@ -405,15 +393,15 @@ def polish(
     cut = radius * _inlier_distance((template - template.mean(0)) / radius, opts)
     best, best_fit = starts[0], np.inf
     for start in starts:
-        run = icp_single(
+        run = icp(
             template,
             points,
             start,
             max_iterations=2 * opts.iterations,
             max_correspondence_distance=cut,
         )
-        pose = run.transform[0].numpy().astype(np.float64)
-        fit = trimmed_fit(_apply(pose, points)[None], template[None], opts.trim)[0]
+        pose = run.transform[0]
+        fit = trimmed_fit(transform_points(pose, points)[None], template[None], opts.trim)[0]
         if fit < best_fit:
             best, best_fit = pose, fit
     return best

@@ -7,9 +7,9 @@ from typing import Any
 import numpy as np
 
 from masknet.errors import MaskNetError
-from masknet.geometry.clouds import MIN_POINTS, as_cloud_batch
+from masknet.geometry.clouds import MIN_POINTS, check_pair
 from masknet.io_checks import check_cloud, over_rows
-from masknet.registration.methods import INITS, METHODS, OPTIONS
+from masknet.registration.methods import INITS, METHODS
 
 __all__ = [
     "as_numpy_batch",
@@ -22,7 +22,6 @@ __all__ = [
 
 def check_arguments(
     method: str,
-    options: dict,
     iterations: Any,
     k: Any,
     threshold: Any,
@@ -31,16 +30,11 @@ def check_arguments(
     refine_iterations: Any,
     max_points: Any,
 ) -> None:
-    """Raise :class:`MaskNetError` for an unknown method, option or init, or bad
-    iterations, refine_iterations, max_points, k or threshold."""
+    """Raise :class:`MaskNetError` for an unknown method or init, or bad iterations,
+    refine_iterations, max_points, k or threshold (a method's own options check
+    themselves: :mod:`masknet.registration.options`)."""
     if method not in METHODS:
         raise MaskNetError(f"unknown registration method {method!r}; choose from {METHODS}")
-    unknown = sorted(set(options) - set(OPTIONS[method]))
-    if unknown:
-        raise MaskNetError(
-            f"unknown option(s) for method {method!r}: {', '.join(unknown)} "
-            f"(accepted: {', '.join(OPTIONS[method])})"
-        )
     for name, value, low in (
         ("iterations", iterations, 1),
         ("refine_iterations", refine_iterations, 0),
@@ -60,10 +54,8 @@ def check_arguments(
 
 def as_numpy_batch(template: Any, source: Any) -> tuple[np.ndarray, np.ndarray, bool]:
     """Validate as :meth:`MaskNet.predict` does; return float64 (B, N, 3), (B, M, 3), single."""
-    t, s = np.asarray(template), np.asarray(source)
-    _, _, single = as_cloud_batch(t, s)
-    t, s = t.astype(np.float64), s.astype(np.float64)
-    return (t[None], s[None], True) if single else (t, s, False)
+    t, s, single = check_pair(template, source)
+    return t.astype(np.float64), s.astype(np.float64), single
 
 
 def as_rigid_transforms(transform: np.ndarray, b: int) -> np.ndarray:

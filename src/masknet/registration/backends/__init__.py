@@ -1,23 +1,10 @@
-"""Back-end adapters of :func:`masknet.register`: each runs one method on a batch of pairs,
-``(template, source, mask, options) -> BackendRun`` (see :mod:`.base`).
-
-To add a method: write its adapter here, add it to :data:`BACKENDS`, and give it a name,
-title and options in :mod:`masknet.registration.methods`.
+"""Adapters of the method table (:mod:`masknet.registration.methods`), one module per
+family: :mod:`.icp` (ICP, Open3D's ICP), :mod:`.network` (the learned networks),
+:mod:`.open3d_global` (Open3D's RANSAC and FGR) and :mod:`.pipelines` (``auto`` and
+``robust``). :mod:`.base` says what each takes and returns. The table imports each on
+first use.
 """
 
-from masknet.registration.backends.base import Backend, BackendRun
-from masknet.registration.backends.icp import run_icp, run_open3d_icp
-from masknet.registration.backends.network import run_network
-from masknet.registration.backends.open3d_global import open3d_global_backend
-from masknet.registration.methods import NETWORK_METHODS
+from masknet.registration.backends.base import Backend, BackendRun, Pipeline, PipelineRun
 
-__all__ = ["BACKENDS", "Backend", "BackendRun", "run_icp"]
-
-# Method name -> its adapter.
-BACKENDS: dict[str, Backend] = {
-    "icp": run_icp,
-    "open3d-icp": run_open3d_icp,
-    **{name: run_network for name in NETWORK_METHODS},
-    "open3d-ransac": open3d_global_backend("open3d-ransac"),
-    "open3d-fgr": open3d_global_backend("open3d-fgr"),
-}
+__all__ = ["Backend", "BackendRun", "Pipeline", "PipelineRun"]

@@ -9,23 +9,30 @@ from masknet.errors import MaskNetError
 from masknet.geometry.clouds import MIN_POINTS, unit_radius
 from masknet.geometry.sampling import farthest_point_sample
 from masknet.registration.backends.base import BackendRun
+from masknet.registration.options import NetworkOptions, PointNetLKOptions
+from masknet.registration.rounds import keep_source_points, usable
 
 __all__ = ["run_network"]
 
 
 @torch.inference_mode()
 def run_network(
-    template: np.ndarray, source: np.ndarray, mask: np.ndarray | None, options: dict
+    template: np.ndarray,
+    source: np.ndarray,
+    mask: np.ndarray | None,
+    source_mask: np.ndarray | None,
+    options: NetworkOptions,
 ) -> BackendRun:
-    """A learned network (``options["network"]``) on each pair's template points in use
-    (all, or the masked ones). template (B, N, 3), source (B, M, 3), mask (B, N) or None."""
-    network = options["network"]
+    """A learned network (``options.network``) on each pair's template points in use (all,
+    or the masked ones) and kept source points. template (B, N, 3), source (B, M, 3), mask
+    (B, N) and source_mask (B, M) bool or None."""
+    source = keep_source_points(source, usable(source_mask))
     if mask is None or len(set(mask.sum(1).tolist())) == 1:
         # Every pair keeps the same number of points (top-k masks): one batched call.
         index = None if mask is None else np.stack([np.flatnonzero(m) for m in mask])
-        return _network_batch(network, template, source, index, options)
+        return _network_batch(template, source, index, options)
     parts = [  # threshold masks: sizes differ, so pair by pair
-        _network_batch(network, template[i : i + 1], source[i : i + 1], idx[None], options)
+        _network_batch(template[i : i + 1], source[i : i + 1], idx[None], options)
         for i, idx in enumerate(np.flatnonzero(m) for m in mask)
     ]
     inliers = (
@@ -38,11 +45,10 @@ def run_network(
 
 
 def _network_batch(
-    network: torch.nn.Module,
     template: np.ndarray,
     source: np.ndarray,
     index: np.ndarray | None,
-    options: dict,
+    options: NetworkOptions,
 ) -> BackendRun:
     """Run ``network`` on template[:, index] (B, K, 3) and source (B, M, 3), scaled to unit
     radius; clouds above the network's ``input_points`` are farthest-point sampled first."""
@@ -57,6 +63,7 @@ def _network_batch(
             f"the mask kept {index.shape[1]} template point(s); a registration network needs "
             f"at least {MIN_POINTS} (lower the threshold, or use top-k)"
         )
+    network = options.network
     limit = getattr(network, "config", {}).get("input_points")
     n_used, m = index.shape[1], source.shape[1]
     if limit and (n_used > limit or m > limit):
@@ -76,9 +83,9 @@ def _network_batch(
     radius = unit_radius(tpl)[:, None, None]
     used = torch.gather(tpl, 1, torch.from_numpy(np.array(index))[..., None].expand(-1, -1, 3))
     device = next(network.parameters()).device
-    kwargs = {"max_iterations": options["max_iterations"]}
-    if "tolerance" in options:
-        kwargs["tolerance"] = options["tolerance"]
+    kwargs = {"max_iterations": options.max_iterations}
+    if isinstance(options, PointNetLKOptions):
+        kwargs["tolerance"] = options.tolerance
     was_training = network.training
     network.eval()  # e.g. PRNet samples Gumbel noise in training mode
     try:
