@@ -528,3 +528,32 @@ def test_result_carries_open3d_names_and_converged_is_none_where_not_reported(on
     np.testing.assert_allclose(float(icp.inlier_rmse), np.sqrt(np.mean(distance**2)), rtol=1e-6)
     dcp = register(template, source, method="dcp", use_mask=False)
     assert dcp.converged is None and dcp.fitness is None
+
+
+def test_a_default_call_crosses_between_numpy_and_torch_twice(monkeypatch, pairs):
+    """The default call stays in numpy but for the network: the clouds enter torch in one
+    conversion and the mask leaves it in one. Every other stage (frame, ICP, the fit
+    check, the mask spread back) is numpy."""
+    template, source = pairs.template[0].numpy(), pairs.source[0].numpy()
+    assert register(template, source).info["path"] == "fast"  # warm, and the fast path
+    crossings: list[str] = []
+    for name in ("from_numpy", "as_tensor", "tensor", "asarray"):
+        original = getattr(torch, name)
+
+        def counted(*args, _original=original, _name=name, **kwargs):
+            if _name == "from_numpy" or (args and isinstance(args[0], np.ndarray)):
+                crossings.append(_name)
+            return _original(*args, **kwargs)
+
+        monkeypatch.setattr(torch, name, counted)
+    for name in ("numpy", "__array__"):
+        original = getattr(torch.Tensor, name)
+
+        def counted_out(self, *args, _original=original, _name=name, **kwargs):
+            crossings.append(_name)
+            return _original(self, *args, **kwargs)
+
+        monkeypatch.setattr(torch.Tensor, name, counted_out)
+    result = register(template, source)
+    assert result.info["path"] == "fast"
+    assert crossings == ["from_numpy", "numpy"], crossings

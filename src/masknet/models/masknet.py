@@ -262,19 +262,36 @@ class MaskNet(SafetensorsWeights, nn.Module):
         Returns:
             scores (N,) or (B, N), float32 in [0, 1].
         """
+        scores, single = self._scores(
+            template, source, precision, chunk_size, normalize, pairs_per_call
+        )
+        out = scores.numpy()
+        return out[0] if single else out
+
+    def _scores(
+        self,
+        template: np.ndarray,
+        source: np.ndarray,
+        precision: Precision | Literal["auto"],
+        chunk_size: int | None = 8192,
+        normalize: bool = True,
+        pairs_per_call: int = PAIRS_PER_CALL,
+    ) -> tuple[Tensor, bool]:
+        """:meth:`predict`'s scores as a CPU tensor (B, N), and whether one pair was given:
+        the clouds enter torch in one conversion, and callers take out only what they need."""
         device = next(self.parameters()).device
         t, s, single, precision = prepare_inputs(template, source, normalize, precision, device)
         fused = self.fused(precision)
         step = max(1, pairs_per_call)
-        out = torch.cat(
+        scores = torch.cat(
             [
                 fused(t[i : i + step].to(device), s[i : i + step].to(device), chunk_size)
                 .float()
                 .cpu()
                 for i in range(0, t.shape[0], step)
             ]
-        ).numpy()
-        return out[0] if single else out
+        )
+        return scores, single
 
     def predict_mask(
         self,
@@ -296,6 +313,9 @@ class MaskNet(SafetensorsWeights, nn.Module):
         ``return_scores`` is deprecated (it changed the return type): use
         :meth:`predict_mask_with_scores`.
         """
+        if return_scores is None:  # the mask alone leaves torch: one conversion
+            mask, _, single = self._mask(template, source, k, threshold, precision, normalize)
+            return mask.numpy()[0] if single else mask.numpy()
         scored = self.predict_mask_with_scores(
             template, source, k=k, threshold=threshold, precision=precision, normalize=normalize
         )
@@ -324,12 +344,25 @@ class MaskNet(SafetensorsWeights, nn.Module):
         """:meth:`predict_mask`'s mask and the scores it was selected from, from one
         forward pass: ``ScoredMask(mask, scores)``, the mask (N,) or (B, N) bool and the
         scores as :meth:`predict` gives them."""
-        scores = self.predict(template, source, precision=precision, normalize=normalize)
-        batch = torch.from_numpy(np.atleast_2d(scores))
+        mask, scores, single = self._mask(template, source, k, threshold, precision, normalize)
+        mask, scores = mask.numpy(), scores.numpy()
+        return ScoredMask(mask[0], scores[0]) if single else ScoredMask(mask, scores)
+
+    @torch.inference_mode()
+    def _mask(
+        self,
+        template: np.ndarray,
+        source: np.ndarray,
+        k: int | None,
+        threshold: float | None,
+        precision: Precision | Literal["auto"],
+        normalize: bool,
+    ) -> tuple[Tensor, Tensor, bool]:
+        """The mask (B, N) and scores (B, N) as tensors, and whether one pair was given."""
+        scores, single = self._scores(template, source, precision, normalize=normalize)
         if threshold is None and k is None:
-            k = np.asarray(source).shape[-2]
-        mask = select_mask(batch, k=k, threshold=threshold).numpy()
-        return ScoredMask(mask[0] if scores.ndim == 1 else mask, scores)
+            k = np.shape(source)[-2]
+        return select_mask(scores, k=k, threshold=threshold), scores, single
 
     def predict_masks(
         self,
