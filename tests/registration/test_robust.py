@@ -9,8 +9,8 @@ from scipy.spatial.transform import Rotation
 from masknet import MaskNetError, register
 from masknet.data import bundled_sample_path, load_modelnet40
 from masknet.evaluation.registration import pose_errors
+from masknet.geometry.se3 import hypothesis_rotations
 from masknet.registration.methods import default_method
-from masknet.registration.robust import hypothesis_rotations
 
 
 def _pair(shape: np.ndarray, degrees: float, outliers: int, seed: int = 0):
@@ -136,7 +136,7 @@ def test_auto_and_robust_take_the_robust_options():
 
 
 def test_trimmed_mean_over_valid_entries():
-    from masknet.registration.robust import trimmed_mean
+    from masknet.geometry.trimmed import trimmed_mean
 
     d2 = np.array([[4.0, 1.0, 9.0, 2.0], [5.0, 7.0, 3.0, 1.0]])
     np.testing.assert_allclose(trimmed_mean(d2, 0.5), [1.5, 2.0])

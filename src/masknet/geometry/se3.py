@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -37,6 +38,7 @@ __all__ = [
     "rotation_angle",
     "rotation_error_deg",
     "translation_error",
+    "hypothesis_rotations",
 ]
 
 
@@ -167,3 +169,17 @@ def rotation_error_deg(r_pred: Tensor, r_true: Tensor) -> Tensor:
 def translation_error(t_pred: Tensor, t_true: Tensor) -> Tensor:
     """Euclidean distance between translations (..., 3) x2 -> (...), in point units."""
     return (t_pred - t_true).norm(dim=-1)
+
+
+def hypothesis_rotations(count: int) -> np.ndarray:
+    """(count, 3, 3) starting rotations: the 24 rotations of the cube, nearest the
+    identity first, then seeded random rotations."""
+    from scipy.spatial.transform import Rotation
+
+    cube = Rotation.create_group("O").as_matrix()
+    angles = np.arccos(np.clip((np.trace(cube, axis1=1, axis2=2) - 1) / 2, -1, 1))
+    cube = cube[np.argsort(angles, kind="stable")]
+    if count <= len(cube):
+        return cube[:count]
+    extra = Rotation.random(count - len(cube), random_state=0).as_matrix()
+    return np.concatenate([cube, extra])

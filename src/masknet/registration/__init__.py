@@ -9,36 +9,18 @@
 * :mod:`.validation` and :mod:`.sampling`: argument checks, large clouds to network size;
 * :mod:`.rounds`: the rounds of Mask-X; :mod:`.backends`: one adapter per method;
 * :mod:`.icp`, :mod:`.open3d_icp`, :mod:`.open3d_global`: the algorithms (ICP, Open3D's
-  ICP, Open3D's RANSAC / FGR on FPFH); :mod:`.scene`: finding an object in a scan.
+  ICP, Open3D's RANSAC / FGR on FPFH); :mod:`.scene`: finding an object in a scan;
+  :mod:`.auto`, :mod:`.robust`, :mod:`.coarse`: the default and the coarse-to-fine search.
 
 Names load on first use, so that the method table (and ``masknet --help``) needs no torch.
 """
 
 from typing import TYPE_CHECKING
 
-__all__ = [
-    "Assessment",
-    "FGROptions",
-    "ICPCriteria",
-    "ICPSolution",
-    "METHODS",
-    "METHOD_TABLE",
-    "METHOD_TITLES",
-    "NetworkOptions",
-    "Open3DICPOptions",
-    "PointNetLKOptions",
-    "RANSACOptions",
-    "RegistrationQuality",
-    "RegistrationResult",
-    "RobustOptions",
-    "SceneMatch",
-    "SceneSearch",
-    "assess_registration",
-    "evaluate_registration",
-    "icp",
-    "open3d_icp",
-    "register",
-]
+# The method table and the options are torch-free: loaded with the package.
+from masknet.registration import options as _options
+from masknet.registration.methods import METHOD_TABLE, METHOD_TITLES, METHODS  # noqa: F401
+from masknet.registration.options import *  # noqa: F403 (one options class per method)
 
 _LAZY = {
     "register": "api",
@@ -48,45 +30,18 @@ _LAZY = {
     "RegistrationQuality": "evaluation",
     "evaluate_registration": "evaluation",
     "ICPSolution": "icp",
-    "icp": "icp",
-    "METHODS": "methods",
-    "METHOD_TABLE": "methods",
-    "METHOD_TITLES": "methods",
-    "open3d_icp": "open3d_icp",
     "SceneMatch": "scene",
     "SceneSearch": "scene",
-    **{
-        name: "options"
-        for name in (
-            "FGROptions",
-            "ICPCriteria",
-            "NetworkOptions",
-            "Open3DICPOptions",
-            "PointNetLKOptions",
-            "RANSACOptions",
-            "RobustOptions",
-        )
-    },
 }
+__all__ = sorted(["METHODS", "METHOD_TABLE", "METHOD_TITLES", *_options.__all__, *_LAZY])
 
-if TYPE_CHECKING:
-    from masknet.registration.api import register
-    from masknet.registration.assessment import Assessment, assess_registration
-    from masknet.registration.evaluation import RegistrationQuality, evaluate_registration
-    from masknet.registration.icp import ICPSolution, icp
-    from masknet.registration.methods import METHOD_TABLE, METHOD_TITLES, METHODS
-    from masknet.registration.open3d_icp import open3d_icp
-    from masknet.registration.options import (
-        FGROptions,
-        ICPCriteria,
-        NetworkOptions,
-        Open3DICPOptions,
-        PointNetLKOptions,
-        RANSACOptions,
-        RobustOptions,
-    )
-    from masknet.registration.result import RegistrationResult
-    from masknet.registration.scene import SceneMatch, SceneSearch
+if TYPE_CHECKING:  # noqa: F401 below: names of __all__, loaded on first use
+    from masknet.registration.api import register  # noqa: F401
+    from masknet.registration.assessment import Assessment, assess_registration  # noqa: F401
+    from masknet.registration.evaluation import RegistrationQuality, evaluate_registration  # noqa: F401
+    from masknet.registration.icp import ICPSolution  # noqa: F401
+    from masknet.registration.result import RegistrationResult  # noqa: F401
+    from masknet.registration.scene import SceneMatch, SceneSearch  # noqa: F401
 
 
 def __getattr__(name: str):

@@ -47,11 +47,10 @@ from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from masknet.geometry.clouds import median_spacing
 from masknet.geometry.knn import cloud_tree
-from masknet.geometry.se3 import transform_points
+from masknet.geometry.se3 import hypothesis_rotations, transform_points
 from masknet.registration.correspondences import (
     FeatureCloud,
     feature_cloud,
@@ -110,18 +109,6 @@ def isolated_free(points: np.ndarray, radius: float) -> np.ndarray:
 
 
 @functools.cache
-def hypothesis_rotations(count: int) -> np.ndarray:
-    """(count, 3, 3) starting rotations: the 24 rotations of the cube, nearest the
-    identity first, then seeded random rotations."""
-    cube = Rotation.create_group("O").as_matrix()
-    angles = np.arccos(np.clip((np.trace(cube, axis1=1, axis2=2) - 1) / 2, -1, 1))
-    cube = cube[np.argsort(angles, kind="stable")]
-    if count <= len(cube):
-        return cube[:count]
-    extra = Rotation.random(count - len(cube), random_state=0).as_matrix()
-    return np.concatenate([cube, extra])
-
-
 class PoseFit(NamedTuple):
     """fitness: fraction of points within the distance. rmse: their RMS distance.
     score: 1 - the mean of the squared distances capped at 3 times the distance, over that

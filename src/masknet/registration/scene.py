@@ -58,14 +58,9 @@ from masknet.geometry.clouds import MIN_POINTS, median_spacing, unit_radius
 from masknet.geometry.knn import cloud_tree
 from masknet.geometry.normals import estimate_normals
 from masknet.geometry.sampling import farthest_point_sample
-from masknet.geometry.se3 import transform_points
+from masknet.geometry.se3 import hypothesis_rotations, transform_points
+from masknet.geometry.trimmed import trimmed_fit, trimmed_mean, trimmed_order
 from masknet.registration.icp import icp
-from masknet.registration.robust import (
-    hypothesis_rotations,
-    trimmed_fit,
-    trimmed_mean,
-    trimmed_order,
-)
 
 __all__ = ["SceneSearch", "SceneMatch", "is_scene", "locate", "polish"]
 
