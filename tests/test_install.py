@@ -107,7 +107,8 @@ def _ply_without_open3d(tmp_path, monkeypatch):
     ],
 )
 def test_missing_extra_is_one_line(tmp_path, monkeypatch, package, extra, call):
-    monkeypatch.setitem(sys.modules, package, None)
+    for name in [package, *(n for n in sys.modules if n.startswith(package + "."))]:
+        monkeypatch.setitem(sys.modules, name, None)  # as if never installed
     with pytest.raises(MaskNetError) as info:
         call(tmp_path, monkeypatch)
     message = str(info.value)

@@ -13,6 +13,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from masknet._atomic import write_all
 from masknet._extras import PICTURES, require
 from masknet.errors import MaskNetError
 
@@ -352,67 +353,3 @@ def check_html(path: str | None) -> list[Path]:
         raise MaskNetError(f"{html}: the viewer is an .html file; give a name ending in .html")
     require(*PICTURES)  # for the PNG; refused now, not after the computing
     return [html, html.with_suffix(".png")]
-
-
-def write_all(
-    writers: list[tuple[Path, Callable[[Path], None]]], stale: list[Path] = ()
-) -> list[Path]:
-    """Write every output or none, and never lose a file that was there before.
-
-    Each output is written to a temporary file beside its target; only when all have
-    been written are they moved into place, each earlier file kept aside until every
-    move has succeeded, and put back if one fails. ``stale``: side files this run owns but
-    did not write this time (an earlier run's); those that exist are removed in the same
-    transaction, so no earlier output looks like part of this one. Returns them.
-    """
-    staged: list[tuple[str, Path]] = []
-    kept: list[tuple[str, Path]] = []  # (earlier file moved aside, its path)
-    removed: list[Path] = []
-    placed: list[Path] = []
-    try:
-        for path, write in writers:
-            if path.is_dir():
-                raise MaskNetError(f"{path}: is a directory, not a file")
-            path.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(
-                prefix=f".{path.name}.part", suffix=path.suffix, dir=path.parent
-            )
-            os.close(fd)
-            staged.append((tmp, path))
-            try:
-                write(Path(tmp))
-            except MaskNetError as exc:  # name the user's file, not the temporary one
-                raise MaskNetError(str(exc).replace(tmp, str(path))) from exc
-        for tmp, path in staged:
-            if path.exists():
-                aside = f"{tmp}.earlier"
-                os.replace(path, aside)
-                kept.append((aside, path))
-            os.replace(tmp, path)
-            placed.append(path)
-        written = {path.resolve() for path, _ in writers}
-        for path in stale:
-            if path.exists() and path.resolve() not in written:
-                aside = f"{path.parent / ('.' + path.name)}.stale"
-                os.replace(path, aside)
-                kept.append((aside, path))
-                removed.append(path)
-    except BaseException as exc:
-        for path in placed:
-            with contextlib.suppress(OSError):
-                path.unlink()
-        for aside, path in kept:
-            with contextlib.suppress(OSError):
-                os.replace(aside, path)
-        if isinstance(exc, OSError):
-            name = exc.filename or "output"
-            raise MaskNetError(f"{name}: cannot write ({exc.strerror or exc})") from exc
-        raise
-    finally:
-        for tmp, _ in staged:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
-    for aside, _ in kept:
-        with contextlib.suppress(OSError):
-            os.unlink(aside)
-    return removed
