@@ -27,7 +27,7 @@ import numpy as np
 
 from masknet.evaluation.registration import pose_errors
 from masknet.experiments.context import BenchmarkContext, ExperimentResult
-from masknet.experiments.scans import _load_pair, scans_folder
+from masknet.experiments.scans import load_pair, scans_folder
 from masknet.registration.api import register
 
 __all__ = ["consensus_pose", "open3d_tutorial", "run"]
@@ -100,7 +100,7 @@ def run(ctx: BenchmarkContext) -> ExperimentResult:
     """Every pipeline on the 3DMatch pair and the rooms, in metres and millimetres."""
     folder = scans_folder()
     pairs = {
-        "3DMatch pair": _load_pair(
+        "3DMatch pair": load_pair(
             folder,
             "geotransformer_demo_ref.npy",
             "geotransformer_demo_src.npy",
@@ -110,13 +110,13 @@ def run(ctx: BenchmarkContext) -> ExperimentResult:
     voxels = {"3DMatch pair": VOXELS_M}
     notes = []
     if not ctx.quick and CARTON_TRUTH.exists():
-        template, source, _ = _load_pair(
+        template, source, _ = load_pair(
             folder, "milk.pcd", "milk_cartoon_all_small_clorox.pcd", None
         )
         pairs["carton in the Kinect scene"] = (template, source, np.loadtxt(CARTON_TRUTH))
         voxels["carton in the Kinect scene"] = CARTON_VOXELS_M
     if not ctx.quick:
-        template, source, _ = _load_pair(folder, "room_scan1.pcd", "room_scan2.pcd", None)
+        template, source, _ = load_pair(folder, "room_scan1.pcd", "room_scan2.pcd", None)
         pose, text = consensus_pose(template, source)
         pairs["two room scans"] = (template, source, pose)
         voxels["two room scans"] = VOXELS_M

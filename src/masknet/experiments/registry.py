@@ -16,6 +16,7 @@ from masknet.experiments import (
     denoising,
     generalization,
     iterations,
+    methods,
     networks,
     noise,
     outliers,
@@ -53,6 +54,7 @@ EXPERIMENTS: dict[str, Callable[[BenchmarkContext], ExperimentResult]] = {
     "scans": scans.run,
     "robust": robust.run,
     "real-pairs": real_pairs.run,
+    "methods": methods.run,
     "success": success.run,
     "startup": startup.run,
 }

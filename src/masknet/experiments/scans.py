@@ -57,7 +57,7 @@ def scans_folder() -> Path:
     return Path(os.environ.get("MASKNET_SCANS", "../shared/data/scans"))
 
 
-def _load_pair(
+def load_pair(
     folder: Path, template_file: str, source_file: str, truth_file: str | None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """Template (N, 3), source (M, 3) and the true (4, 4) transform (or None)."""
@@ -89,7 +89,7 @@ def run(ctx: BenchmarkContext) -> ExperimentResult:
     rows = []
     pairs = SCAN_PAIRS[:1] + SCAN_PAIRS[-1:] if ctx.quick else SCAN_PAIRS
     for title, *files in pairs:
-        template, source, truth = _load_pair(folder, *files)
+        template, source, truth = load_pair(folder, *files)
         for name, kwargs in PIPELINES.items():
             result = register(template, source, **kwargs)
             row = {
