@@ -8,13 +8,11 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from masknet.geometry import (
-    centroid,
-    centroid_alignment,
     random_rotation,
     rigid_align,
     transform_points,
 )
-from masknet.geometry.align import rigid_transform_numpy, rigid_transforms_numpy
+from masknet.geometry.align import rigid_transforms_numpy
 from masknet.geometry.se3 import make_transform, so3_exp
 
 
@@ -113,31 +111,17 @@ def test_bad_shapes_raise():
         rigid_align(source, target, torch.ones(2, 9))
 
 
-def test_centroid_alignment_moves_the_source_centroid_onto_the_valid_template_points():
-    g = torch.Generator().manual_seed(3)
-    template = torch.randn(2, 20, 3, generator=g, dtype=torch.float64)
-    source = torch.randn(2, 12, 3, generator=g, dtype=torch.float64) + 5.0
-    valid = torch.rand(2, 20, generator=g) < 0.5
-    transform = centroid_alignment(template=template, source=source, template_valid=valid)
-    assert transform.shape == (2, 4, 4) and transform.dtype == torch.float64
-    moved = transform_points(transform, source)
-    torch.testing.assert_close(moved.mean(1), centroid(template, valid))
-    torch.testing.assert_close(transform, centroid_alignment(template, source, valid))
-
-
 def test_numpy_rigid_transform_matches_rigid_align_and_never_reflects():
-    from masknet.geometry.align import rigid_transform_numpy
-
     rng = np.random.default_rng(7)
     source = rng.normal(size=(50, 3))
     target = source @ so3_exp(torch.tensor([0.4, -0.3, 1.1])).numpy().T + [1.0, -2.0, 0.5]
     target += rng.normal(0, 0.01, target.shape)
     rot, trans = rigid_align(torch.from_numpy(source)[None], torch.from_numpy(target)[None])
-    transform = rigid_transform_numpy(source, target)
+    transform = rigid_transforms_numpy(source[None], target[None])[0]
     np.testing.assert_allclose(transform[:3, :3], rot[0].numpy(), atol=1e-10)
     np.testing.assert_allclose(transform[:3, 3], trans[0].numpy(), atol=1e-10)
     mirrored = source * [1, 1, -1]  # the best orthogonal map is a reflection
-    assert np.linalg.det(rigid_transform_numpy(source, mirrored)[:3, :3]) > 0
+    assert np.linalg.det(rigid_transforms_numpy(source[None], mirrored[None])[0, :3, :3]) > 0
 
 
 def test_batched_numpy_solve_equals_the_torch_solve_and_recovers_the_motion():
@@ -150,8 +134,6 @@ def test_batched_numpy_solve_equals_the_torch_solve_and_recovers_the_motion():
     np.testing.assert_allclose(batched[:, :3, :3], torch_rot.numpy(), atol=1e-10)
     np.testing.assert_allclose(batched[:, :3, 3], torch_t.numpy(), atol=1e-10)
     np.testing.assert_allclose(batched[:, :3, :3], rot, atol=1e-10)
-    single = rigid_transform_numpy(source[0], target[0])
-    np.testing.assert_allclose(single, batched[0], atol=1e-12)
 
 
 def test_weights_drop_rows_and_no_weight_gives_the_identity():

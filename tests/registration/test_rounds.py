@@ -173,3 +173,20 @@ def test_a_batch_registers_each_pair_as_its_kept_source_points_alone(pairs):
         )
         np.testing.assert_allclose(batch.transform[b], one.transform, atol=2e-5)
         np.testing.assert_array_equal(batch.source_mask[b], source_mask[b])
+
+
+def test_the_start_moves_the_kept_source_centroid_onto_the_masked_template_centroid():
+    from masknet.registration.rounds import initial_transform
+
+    rng = np.random.default_rng(3)
+    template = rng.normal(size=(2, 20, 3))
+    source = rng.normal(size=(2, 12, 3)) + 5.0
+    mask = rng.random((2, 20)) < 0.5
+    keep = rng.random((2, 12)) < 0.7
+    start = initial_transform("centroid", template, source, mask, keep)
+    for b in range(2):
+        moved = source[b] + start[b, :3, 3]
+        np.testing.assert_allclose(moved[keep[b]].mean(0), template[b][mask[b]].mean(0))
+    np.testing.assert_array_equal(
+        initial_transform("identity", template, source, mask)[0], np.eye(4)
+    )

@@ -1,7 +1,7 @@
 """Geometry: the SE(3) module, the k-NN helper, rigid alignment, and clouds as the networks
 take them (validated batches, unit radius)."""
 
-from masknet.geometry.align import centroid, centroid_alignment, rigid_align
+from masknet.geometry.align import centroid, rigid_align
 from masknet.geometry.clouds import MIN_POINTS, as_cloud_batch, median_spacing, unit_radius
 from masknet.geometry.knn import KNN, knn_points
 from masknet.geometry.se3 import (
@@ -21,7 +21,6 @@ __all__ = [
     "MIN_POINTS",
     "as_cloud_batch",
     "centroid",
-    "centroid_alignment",
     "knn_points",
     "invert_transform",
     "make_transform",

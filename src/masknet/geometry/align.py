@@ -10,13 +10,9 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from masknet.geometry.se3 import make_transform
-
 __all__ = [
     "centroid",
-    "centroid_alignment",
     "rigid_align",
-    "rigid_transform_numpy",
     "rigid_transforms_numpy",
 ]
 
@@ -30,20 +26,6 @@ def centroid(points: Tensor, valid: Tensor | None = None) -> Tensor:
         return points.mean(1)
     w = valid.to(points.dtype)[..., None]
     return (points * w).sum(1) / w.sum(1).clamp_min(1)
-
-
-def centroid_alignment(
-    template: Tensor, source: Tensor, template_valid: Tensor | None = None
-) -> Tensor:
-    """The translation-only transform (B, 4, 4), float64, that moves each source
-    centroid onto its (valid) template centroid: a registration initialisation.
-
-    Arguments in masknet's order: template (B, N, 3), source (B, M, 3), and
-    ``template_valid`` (B, N) bool selecting the template points that count.
-    """
-    shift = centroid(template.double(), template_valid) - centroid(source.double())
-    eye = torch.eye(3, dtype=torch.float64, device=source.device).expand(len(shift), 3, 3)
-    return make_transform(eye, shift)
 
 
 def rigid_align(
@@ -95,13 +77,6 @@ def rigid_align(
     rot = torch.where(has_weight[:, None, None], rot, eye)
     trans = y_mean - (rot @ s_mean[..., None])[..., 0]
     return rot.to(source.dtype), trans.to(source.dtype)
-
-
-def rigid_transform_numpy(source: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """:func:`rigid_align` for one pair in numpy float64, as a (4, 4) transform:
-    source (P, 3) onto target (P, 3), P >= 1, unweighted. For loops over a single pair on
-    the CPU, where torch's per-call cost would dominate a 3x3 solve."""
-    return rigid_transforms_numpy(source[None], target[None])[0]
 
 
 def rigid_transforms_numpy(

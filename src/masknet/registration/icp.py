@@ -163,7 +163,7 @@ def _icp_pair(
     total = max(len(source), 1)
 
     def match(tf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
-        moved = source @ tf[:3, :3].T + tf[:3, 3]
+        moved = transform_points(tf, source)
         d2, idx = tree.query(moved, k=1, sqr_dists=True)
         inlier = np.ones(len(d2), bool) if limit is None else d2 <= limit
         count = int(inlier.sum())
