@@ -72,12 +72,19 @@ def warns_once(function: F) -> F:
     return wrapper  # type: ignore[return-value]
 
 
+def clouds_checked() -> bool:
+    """True within :func:`checks_done`: the clouds were checked already."""
+    return _CHECKED.get()
+
+
 @contextlib.contextmanager
 def checks_done() -> Iterator[None]:
-    """Within: no :class:`MaskNetWarning` is issued. For an entry point that has checked
-    its clouds under their own names (``noisy``) and then hands them to stages that check
-    them again under theirs (``template``, ``source``): the warnings were given once,
-    rightly named. Errors are not touched; per thread and task, as :func:`warns_once`."""
+    """Within: the clouds were checked, so no :class:`MaskNetWarning` is issued and the
+    stages skip the cloud checks (:func:`masknet.geometry.clouds.check_pair`). For an entry
+    point that has checked its clouds under their own names (``noisy``) and then hands them
+    to stages that would check them again under theirs (``template``, ``source``): checked
+    once, the warnings given once, rightly named. Per thread and task, as
+    :func:`warns_once`."""
     token = _CHECKED.set(True)
     try:
         yield

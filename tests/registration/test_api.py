@@ -557,3 +557,25 @@ def test_a_default_call_crosses_between_numpy_and_torch_twice(monkeypatch, pairs
     result = register(template, source)
     assert result.info["path"] == "fast"
     assert crossings == ["from_numpy", "numpy"], crossings
+
+
+def test_each_cloud_is_checked_once(monkeypatch, pairs):
+    """register validates at the facade; the network it calls does not check again."""
+    import masknet.io_checks as io_checks
+
+    template, source = pairs.template[0].numpy(), pairs.source[0].numpy()
+    checked: list[str] = []
+    original = io_checks.check_cloud
+
+    def counted(cloud, name, *args, **kwargs):
+        checked.append(name)
+        return original(cloud, name, *args, **kwargs)
+
+    monkeypatch.setattr(io_checks, "check_cloud", counted)
+    register(template, source)
+    assert checked == ["template", "source"]
+    checked.clear()
+    with pytest.raises(MaskNetError, match="source: 1 row contains NaN"):
+        bad = source.copy()
+        bad[3] = np.nan
+        register(template, bad)

@@ -44,6 +44,7 @@ def check_pair(template: Any, source: Any) -> tuple[np.ndarray, np.ndarray, bool
     Warns:
         MaskNetWarning: a cloud of 3-10 points, or one point far out.
     """
+    from masknet.errors import clouds_checked
     from masknet.io_checks import check_cloud
 
     t, s = np.asarray(template), np.asarray(source)
@@ -59,6 +60,8 @@ def check_pair(template: Any, source: Any) -> tuple[np.ndarray, np.ndarray, bool
     for name, a in (("template", t), ("source", s)):
         if a.shape[-1] != 3 and not (a.shape[1] == 3 and a.shape[-1] > 3):
             raise MaskNetError(f"{name} must have 3 columns (x, y, z); got shape {a.shape}")
+        if clouds_checked():  # an entry point checked them already (errors.checks_done)
+            continue
         for i, cloud in enumerate(a):  # the checks of every file read, cloud by cloud
             check_cloud(cloud, name if single else f"{name} {i}")
     return t, s, single

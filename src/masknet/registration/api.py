@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from masknet.errors import MaskNetError, warns_once
+from masknet.errors import MaskNetError, checks_done, warns_once
 from masknet.geometry.clouds import MIN_POINTS, Frame
 from masknet.geometry.sampling import spread_mask
 from masknet.geometry.se3 import transform_points
@@ -268,125 +268,136 @@ def register(
     if drop_nonfinite:
         template, source, template_rows, source_rows = finite_rows(template, source)
     tpl_full, src_full, single = as_numpy_batch(template, source)
-    found = _search_scene(tpl_full, src_full, single, scene)
-    auto_scene = found is not None and method == "auto"
-    if found is not None:  # the method registers the object's points, from the pose found
-        scene_source = src_full[0]
-        src_full = transform_points(found.transform, scene_source[found.source_mask])[None]
-        init = "identity"  # the search placed them: a centroid shift would undo that
-        if method == "auto":  # the search is the global stage: Mask-ICP from its pose
-            method, entry = "icp", METHOD_TABLE["icp"]
-            opts = ICPCriteria(max_iterations=method_options.get("max_iterations", 10))
-    # A loop and robust mask with the two-sided network by default (it rejects outliers).
-    two_sided_default = method == "robust" or iterations > 1
-    search_model = None  # auto's escalation: the two-sided network masks both clouds
-    if use_mask and method == "auto":
-        search_model = model if isinstance(model, TwoSidedMaskNet) else _default_two_sided()
-    if use_mask and model is None:
-        # One round is the paper's Mask-X (auto's fast path too: with the two-sided
-        # network there, fewer clean pairs pass the check and it is slower; with it given
-        # as model=, the escalation reuses its masks). A loop starts from the two-sided
-        # network, which also rejects source outliers; its clean-pair cost after one round
-        # is recovered by the refined rounds (docs/RESULTS.md, masks per round).
-        model = _default_two_sided() if two_sided_default else _default_model()
-    # Refined rounds exist only in a loop (robust and auto refine by ICP with a cut-off).
-    refiner = resolve_refiner(refine_masks, model if use_mask and iterations > 1 else None)
-    if entry.kind == "network" and opts.network is None:
-        opts = dataclasses.replace(opts, network=_default_network(method))
+    # Checked once, here: the stages (the networks check clouds given to them) do not
+    # check or warn again.
+    with checks_done():
+        found = _search_scene(tpl_full, src_full, single, scene)
+        auto_scene = found is not None and method == "auto"
+        if found is not None:  # the method registers the object's points, from the pose found
+            scene_source = src_full[0]
+            src_full = transform_points(found.transform, scene_source[found.source_mask])[None]
+            init = "identity"  # the search placed them: a centroid shift would undo that
+            if method == "auto":  # the search is the global stage: Mask-ICP from its pose
+                method, entry = "icp", METHOD_TABLE["icp"]
+                opts = ICPCriteria(max_iterations=method_options.get("max_iterations", 10))
+        # A loop and robust mask with the two-sided network by default (it rejects outliers).
+        two_sided_default = method == "robust" or iterations > 1
+        search_model = None  # auto's escalation: the two-sided network masks both clouds
+        if use_mask and method == "auto":
+            search_model = model if isinstance(model, TwoSidedMaskNet) else _default_two_sided()
+        if use_mask and model is None:
+            # One round is the paper's Mask-X (auto's fast path too: with the two-sided
+            # network there, fewer clean pairs pass the check and it is slower; with it given
+            # as model=, the escalation reuses its masks). A loop starts from the two-sided
+            # network, which also rejects source outliers; its clean-pair cost after one round
+            # is recovered by the refined rounds (docs/RESULTS.md, masks per round).
+            model = _default_two_sided() if two_sided_default else _default_model()
+        # Refined rounds exist only in a loop (robust and auto refine by ICP with a cut-off).
+        refiner = resolve_refiner(refine_masks, model if use_mask and iterations > 1 else None)
+        if entry.kind == "network" and opts.network is None:
+            opts = dataclasses.replace(opts, network=_default_network(method))
 
-    # Everything runs in one frame (the template's centroid, its RMS radius): the result
-    # does not depend on the unit or the origin. Distances given in input units follow.
-    frame, tpl_input = Frame.of(tpl_full, src_full), tpl_full
-    tpl_full, src_full = frame.points_in(tpl_full), frame.points_in(src_full)
-    if getattr(opts, "max_correspondence_distance", None) is not None:
-        opts = dataclasses.replace(
-            opts, max_correspondence_distance=opts.max_correspondence_distance / frame.scale
-        )
-    times = {"sample": 0.0, "mask": 0.0, "register": 0.0, "refine": 0.0}
-    tic = time.perf_counter()
-    tpl, src, template_index, source_index = fit_to_network(tpl_full, src_full, single, max_points)
-    times["sample"] = time.perf_counter() - tic
-
-    if entry.kind == "pipeline":  # full resolution; the networks see the sampled clouds
-        models = MaskModels(model if use_mask else None, search_model)
-        run = adapter(method)(tpl_full, src_full, tpl, src, models, opts, times, precision)
-        template_index = source_index = None  # its masks cover the full clouds already
-        total, mask, source_mask, info = run
-        inliers, rounds = None, [total[0] if single else total]
-    else:
-        state = mask_and_register(
-            tpl,
-            src,
-            method,
-            model if use_mask else None,
-            iterations,
-            opts,
-            times,
-            k=k,
-            threshold=threshold,
-            precision=precision,
-            init=init,
-            refiner=refiner,
-        )
-        total, mask, source_mask = state.transform, state.mask, state.source_mask
-        info, inliers = state.run.info, state.run.correspondence_inliers
-        rounds = [r[0] if single else r for r in state.rounds]
-    if refine_iterations:
+        # Everything runs in one frame (the template's centroid, its RMS radius): the result
+        # does not depend on the unit or the origin. Distances given in input units follow.
+        frame, tpl_input = Frame.of(tpl_full, src_full), tpl_full
+        tpl_full, src_full = frame.points_in(tpl_full), frame.points_in(src_full)
+        if getattr(opts, "max_correspondence_distance", None) is not None:
+            opts = dataclasses.replace(
+                opts, max_correspondence_distance=opts.max_correspondence_distance / frame.scale
+            )
+        times = {"sample": 0.0, "mask": 0.0, "register": 0.0, "refine": 0.0}
         tic = time.perf_counter()
-        moved = transform_points(total, src)
-        run = adapter("icp")(tpl, moved, None, None, ICPCriteria(max_iterations=refine_iterations))
-        total = run.transform @ total
-        times["refine"] = time.perf_counter() - tic
+        tpl, src, template_index, source_index = fit_to_network(
+            tpl_full, src_full, single, max_points
+        )
+        times["sample"] = time.perf_counter() - tic
 
-    total = frame.transforms_out(total)
-    rounds = [frame.transforms_out(r[None] if single else r)[0 if single else ...] for r in rounds]
-    info = _info_out(info, frame)
-    if source_index is not None and source_mask is not None:
-        source_mask = spread_mask(src_full[0], source_index, source_mask[0])[None]
-    if found is not None:  # back to the whole scene, then full-resolution ICP on the object
-        total = total @ found.transform
-        tic = time.perf_counter()
-        search_options = scene if isinstance(scene, SceneSearch) else None
-        on_object = scene_source[found.source_mask]
-        total = polish(tpl_input[0], on_object, [total[0], found.transform], search_options)[None]
-        times["refine"] += time.perf_counter() - tic
-        rounds = [r @ found.transform for r in rounds]
-        if "runner_up" in info:  # also back to the whole scene
-            info["runner_up"] = info["runner_up"] @ found.transform
-        on_object = found.source_mask.copy()
-        if source_mask is not None:
-            on_object[on_object] = source_mask[0]
-        source_mask = on_object[None]
-        if auto_scene:
-            info["path"] = np.array(["scene search"])
-        times["search"] = found.seconds
-    if template_index is not None:
-        if mask is not None:
-            mask = spread_mask(tpl_full[0], template_index, mask[0])[None]
-        if inliers is not None:  # points the network never saw are not inliers
-            full = np.zeros(tpl_full.shape[:2], bool)
-            full[:, template_index] = inliers
-            inliers = full
+        if entry.kind == "pipeline":  # full resolution; the networks see the sampled clouds
+            models = MaskModels(model if use_mask else None, search_model)
+            run = adapter(method)(tpl_full, src_full, tpl, src, models, opts, times, precision)
+            template_index = source_index = None  # its masks cover the full clouds already
+            total, mask, source_mask, info = run
+            inliers, rounds = None, [total[0] if single else total]
+        else:
+            state = mask_and_register(
+                tpl,
+                src,
+                method,
+                model if use_mask else None,
+                iterations,
+                opts,
+                times,
+                k=k,
+                threshold=threshold,
+                precision=precision,
+                init=init,
+                refiner=refiner,
+            )
+            total, mask, source_mask = state.transform, state.mask, state.source_mask
+            info, inliers = state.run.info, state.run.correspondence_inliers
+            rounds = [r[0] if single else r for r in state.rounds]
+        if refine_iterations:
+            tic = time.perf_counter()
+            moved = transform_points(total, src)
+            run = adapter("icp")(
+                tpl, moved, None, None, ICPCriteria(max_iterations=refine_iterations)
+            )
+            total = run.transform @ total
+            times["refine"] = time.perf_counter() - tic
 
-    if template_rows is not None:  # dropped rows are neither inliers nor kept
-        mask, inliers = (spread_rows(m, template_rows) for m in (mask, inliers))
-        source_mask = spread_rows(source_mask, source_rows)
+        total = frame.transforms_out(total)
+        rounds = [
+            frame.transforms_out(r[None] if single else r)[0 if single else ...] for r in rounds
+        ]
+        info = _info_out(info, frame)
+        if source_index is not None and source_mask is not None:
+            source_mask = spread_mask(src_full[0], source_index, source_mask[0])[None]
+        if found is not None:  # back to the whole scene, then full-resolution ICP on the object
+            total = total @ found.transform
+            tic = time.perf_counter()
+            search_options = scene if isinstance(scene, SceneSearch) else None
+            on_object = scene_source[found.source_mask]
+            total = polish(tpl_input[0], on_object, [total[0], found.transform], search_options)[
+                None
+            ]
+            times["refine"] += time.perf_counter() - tic
+            rounds = [r @ found.transform for r in rounds]
+            if "runner_up" in info:  # also back to the whole scene
+                info["runner_up"] = info["runner_up"] @ found.transform
+            on_object = found.source_mask.copy()
+            if source_mask is not None:
+                on_object[on_object] = source_mask[0]
+            source_mask = on_object[None]
+            if auto_scene:
+                info["path"] = np.array(["scene search"])
+            times["search"] = found.seconds
+        if template_index is not None:
+            if mask is not None:
+                mask = spread_mask(tpl_full[0], template_index, mask[0])[None]
+            if inliers is not None:  # points the network never saw are not inliers
+                full = np.zeros(tpl_full.shape[:2], bool)
+                full[:, template_index] = inliers
+                inliers = full
 
-    def out(a: np.ndarray) -> np.ndarray:
-        return a[0] if single else a
+        if template_rows is not None:  # dropped rows are neither inliers nor kept
+            mask, inliers = (spread_rows(m, template_rows) for m in (mask, inliers))
+            source_mask = spread_rows(source_mask, source_rows)
 
-    times["total"] = time.perf_counter() - start
-    return RegistrationResult(
-        R=out(total[:, :3, :3].copy()),
-        t=out(total[:, :3, 3].copy()),
-        transform=out(total),
-        mask=None if mask is None else out(mask),
-        times=times,
-        info={key: out(value) for key, value in info.items()},
-        rounds=rounds,
-        sampled=(tpl.shape[1], src.shape[1]) if single else None,
-        correspondence_inliers=None if inliers is None else out(inliers),
-        source_mask=None if source_mask is None else out(source_mask),
-        method=method,
-        scene=found,
-    )
+        def out(a: np.ndarray) -> np.ndarray:
+            return a[0] if single else a
+
+        times["total"] = time.perf_counter() - start
+        return RegistrationResult(
+            R=out(total[:, :3, :3].copy()),
+            t=out(total[:, :3, 3].copy()),
+            transform=out(total),
+            mask=None if mask is None else out(mask),
+            times=times,
+            info={key: out(value) for key, value in info.items()},
+            rounds=rounds,
+            sampled=(tpl.shape[1], src.shape[1]) if single else None,
+            correspondence_inliers=None if inliers is None else out(inliers),
+            source_mask=None if source_mask is None else out(source_mask),
+            method=method,
+            scene=found,
+        )
