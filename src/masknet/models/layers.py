@@ -1,7 +1,10 @@
-"""Building blocks shared by the learned registration networks (DCP, PRNet, RPM-Net, PCRNet).
+"""Building blocks shared by the networks: the learned registration networks (DCP, PRNet,
+RPM-Net, PCRNet) and the mask networks.
 
 Everything is channels-last: clouds are (B, N, 3), per-point features (B, N, C).
 
+* :func:`linear_stack`, :func:`mlp`, :func:`mlp_pool`: linear layers between given
+  widths, run with ReLU between them (and max-pooled over neighbours).
 * :class:`EdgeConvEncoder`: DGCNN (Wang et al., 2019), dynamic k-NN graph, per-point features.
 * :class:`CrossAttention`: DCP's attention step, each cloud's features conditioned on the other's.
 * :func:`soft_assignment` and :func:`sinkhorn`: correspondences from feature similarities.
@@ -31,6 +34,9 @@ __all__ = [
     "centred_registration",
     "gather_points",
     "he_init",
+    "linear_stack",
+    "mlp",
+    "mlp_pool",
     "neighbour_index",
     "sinkhorn",
     "soft_assignment",
@@ -67,6 +73,28 @@ def he_init(modules: Iterable[nn.Module]) -> None:
             nn.init.kaiming_normal_(module.weight, nonlinearity="relu")
             if module.bias is not None:
                 nn.init.zeros_(module.bias)
+
+
+def linear_stack(dims: Sequence[int], bias: bool = True) -> nn.ModuleList:
+    """``nn.Linear`` layers from each width in ``dims`` to the next: (C0, C1, ..., Ck) ->
+    k layers."""
+    return nn.ModuleList(
+        nn.Linear(a, b, bias=bias) for a, b in zip(dims[:-1], dims[1:], strict=True)
+    )
+
+
+def mlp(layers: nn.ModuleList, x: Tensor) -> Tensor:
+    """Linear layers with ReLU between them (none after the last): (..., C) -> (..., C')."""
+    for i, layer in enumerate(layers):
+        x = layer(x)
+        x = torch.relu(x) if i < len(layers) - 1 else x
+    return x
+
+
+def mlp_pool(layers: nn.ModuleList, x: Tensor) -> Tensor:
+    """A shared MLP over (B, P, k, C) neighbour features, max-pooled over k, then ReLU
+    -> (B, P, C')."""
+    return torch.relu(mlp(layers, x).amax(dim=2))
 
 
 def gather_points(values: Tensor, idx: Tensor) -> Tensor:

@@ -40,6 +40,7 @@ import torch
 from torch import Tensor, nn
 
 from masknet.geometry.clouds import MIN_POINTS, as_cloud_batch, unit_radius
+from masknet.models.layers import linear_stack
 from masknet.models.pointnet import PointNetEncoder, fold_batchnorm
 from masknet.models.weights import SafetensorsWeights
 from masknet.runtime import default_precision
@@ -191,8 +192,7 @@ class MaskNet(SafetensorsWeights, nn.Module):
         # The first head layer on [template feature; global source feature], split in two.
         self.head_template = nn.Linear(feat, head_channels[0])
         self.head_global = nn.Linear(feat, head_channels[0], bias=False)
-        dims = [*head_channels, 1]
-        self.head = nn.ModuleList(nn.Linear(a, b) for a, b in zip(dims[:-1], dims[1:], strict=True))
+        self.head = linear_stack([*head_channels, 1])
         self._fused_cache: dict = {}
 
     # ------------------------------------------------------------------ forward paths

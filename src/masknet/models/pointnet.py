@@ -7,6 +7,8 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor, nn
 
+from masknet.models.layers import linear_stack
+
 __all__ = ["PointNetEncoder", "fold_batchnorm"]
 
 
@@ -31,9 +33,7 @@ class PointNetEncoder(nn.Module):
     ):
         super().__init__()
         dims = [in_channels, *channels]
-        self.linears = nn.ModuleList(
-            nn.Linear(a, b, bias=not batch_norm) for a, b in zip(dims[:-1], dims[1:], strict=True)
-        )
+        self.linears = linear_stack(dims, bias=not batch_norm)
         self.norms = nn.ModuleList(
             nn.BatchNorm1d(c) if batch_norm else nn.Identity() for c in channels
         )

@@ -39,7 +39,7 @@ import torch
 from torch import Tensor, nn
 
 from masknet.geometry.knn import knn_points
-from masknet.models.layers import gather_points
+from masknet.models.layers import gather_points, linear_stack, mlp, mlp_pool
 from masknet.models.masknet import PAIRS_PER_CALL, predict_two_masks, select_mask
 from masknet.models.weights import SafetensorsWeights
 
@@ -57,19 +57,6 @@ def kth_spacing(points: Tensor, k: int) -> tuple[Tensor, Tensor]:
         found = knn_points(points.float(), points.float(), k + 1)
     d = found.dists[:, :, -1].clamp_min(0).sqrt()
     return d.median(dim=1).values.clamp_min(1e-9), found.idx[:, :, 1:]
-
-
-def _mlp(layers: nn.ModuleList, x: Tensor) -> Tensor:
-    """Linear layers with ReLU between them (none after the last): (..., C) -> (..., C')."""
-    for i, layer in enumerate(layers):
-        x = layer(x)
-        x = torch.relu(x) if i < len(layers) - 1 else x
-    return x
-
-
-def _mlp_pool(layers: nn.ModuleList, x: Tensor) -> Tensor:
-    """A shared MLP over (B, P, k, C) neighbour features, max-pooled over k -> (B, P, C')."""
-    return torch.relu(_mlp(layers, x).amax(dim=2))
 
 
 def cross_offsets(
@@ -115,16 +102,12 @@ class RefineMaskNet(SafetensorsWeights, nn.Module):
             "head_channels": list(head_channels),
         }
         self.k = k
-
-        def mlp(dims: Sequence[int]) -> nn.ModuleList:
-            return nn.ModuleList(nn.Linear(a, b) for a, b in zip(dims[:-1], dims[1:], strict=True))
-
-        self.own = mlp([4, *local_channels])
-        self.cross = mlp([6, *local_channels])
-        self.point = mlp([2 * local_channels[-1], *point_channels])
+        self.own = linear_stack([4, *local_channels])
+        self.cross = linear_stack([6, *local_channels])
+        self.point = linear_stack([2 * local_channels[-1], *point_channels])
         feat = point_channels[-1]
-        self.template_head = mlp([3 * feat, *head_channels, 1])
-        self.source_head = mlp([3 * feat, *head_channels, 1])
+        self.template_head = linear_stack([3 * feat, *head_channels, 1])
+        self.source_head = linear_stack([3 * feat, *head_channels, 1])
 
     @classmethod
     def pretrained(
@@ -141,8 +124,8 @@ class RefineMaskNet(SafetensorsWeights, nn.Module):
         offsets = gather_points(points, idx) - points[:, :, None, :]
         length = offsets.norm(dim=-1, keepdim=True)
         unit = spacing[:, None, None, None]
-        local = _mlp_pool(self.own, torch.cat([offsets, length], dim=-1) / unit)
-        cross = _mlp_pool(self.cross, cross_offsets(points, other, self.k, other_spacing, spacing))
+        local = mlp_pool(self.own, torch.cat([offsets, length], dim=-1) / unit)
+        cross = mlp_pool(self.cross, cross_offsets(points, other, self.k, other_spacing, spacing))
         x = torch.cat([local, cross], dim=-1)
         for layer in self.point:
             x = torch.relu(layer(x))
@@ -152,7 +135,7 @@ class RefineMaskNet(SafetensorsWeights, nn.Module):
     def _head(layers: nn.ModuleList, x: Tensor, g_own: Tensor, g_other: Tensor) -> Tensor:
         b, p, _ = x.shape
         x = torch.cat([x, g_own[:, None].expand(b, p, -1), g_other[:, None].expand(b, p, -1)], -1)
-        return _mlp(layers, x).squeeze(-1)
+        return mlp(layers, x).squeeze(-1)
 
     def forward(
         self, template: Tensor, source: Tensor, logits: bool = False

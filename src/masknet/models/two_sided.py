@@ -40,7 +40,7 @@ import torch
 from torch import Tensor, nn
 
 from masknet.geometry.knn import knn_points
-from masknet.models.layers import gather_points
+from masknet.models.layers import gather_points, linear_stack, mlp_pool
 from masknet.models.masknet import (
     PAIRS_PER_CALL,
     MaskNet,
@@ -101,18 +101,12 @@ class TwoSidedMaskNet(SafetensorsWeights, nn.Module):
         # The paper's network: the encoder and the template branch.
         self.masknet = MaskNet(encoder_channels, head_channels)
         feat = self.masknet.encoder.out_channels
-        dims = [4, *local_channels]
-        self.local = nn.ModuleList(
-            nn.Linear(a, b) for a, b in zip(dims[:-1], dims[1:], strict=True)
-        )
+        self.local = linear_stack([4, *local_channels])
         hidden = source_channels[0]
         self.source_point = nn.Linear(feat, hidden)
         self.source_local = nn.Linear(local_channels[-1], hidden, bias=False)
         self.source_global = nn.Linear(feat, hidden, bias=False)
-        dims = [*source_channels, 1]
-        self.source_head = nn.ModuleList(
-            nn.Linear(a, b) for a, b in zip(dims[:-1], dims[1:], strict=True)
-        )
+        self.source_head = linear_stack([*source_channels, 1])
         if frozen:
             self.masknet.requires_grad_(False)
 
@@ -142,11 +136,7 @@ class TwoSidedMaskNet(SafetensorsWeights, nn.Module):
         return self
 
     def _local_context(self, source: Tensor) -> Tensor:
-        x = local_offsets(source, self.k)
-        for i, layer in enumerate(self.local):
-            x = layer(x)
-            x = torch.relu(x) if i < len(self.local) - 1 else x
-        return torch.relu(x.amax(dim=2))  # (B, M, C)
+        return mlp_pool(self.local, local_offsets(source, self.k))  # (B, M, C)
 
     def forward(
         self, template: Tensor, source: Tensor, logits: bool = False, template_branch: bool = True
