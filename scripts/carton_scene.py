@@ -32,6 +32,7 @@ from masknet.evaluation.registration import pose_errors
 from masknet.io import read_points, require_open3d, write_text_atomic
 from masknet.models import TwoSidedMaskNet
 from masknet.registration.scene import SceneSearch
+from masknet.viewer import scene_layers, write_views
 
 
 def open3d_ground_truth(
@@ -127,8 +128,6 @@ def main() -> None:
             f"{r['rot_from_best_deg']:.2f} deg / {1e3 * r['trans_from_best_m']:.1f} mm from the best",
             flush=True,
         )
-    from masknet.cli._common import scene_layers, write_views
-
     moved = model @ model_to_scene[:3, :3].T + model_to_scene[:3, 3]
     # The scene points on the carton: within 3 mm of the ground-truth carton.
     scene_truth = np.isfinite(cKDTree(moved).query(scene, k=1, distance_upper_bound=0.003)[0])

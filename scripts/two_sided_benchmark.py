@@ -17,7 +17,6 @@ and the source points it drops.
 from __future__ import annotations
 
 import argparse
-import functools
 import json
 import time
 
@@ -30,11 +29,8 @@ from masknet.denoising import denoise, open3d_statistical_outlier_removal
 from masknet.evaluation.registration import pair_arrays, paired_difference, pose_errors
 from masknet.io import write_text_atomic
 from masknet.metrics import outlier_removal_metrics
-from masknet.models import REGISTRATION_NETWORKS, MaskNet
+from masknet.models import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
-from masknet.registration.api import DEFAULT_ITERATIONS
-from masknet.registration.backends import BACKENDS
-from masknet.registration.rounds import apply_transform, initial_transform, keep_source_points
 
 
 def denoise_rows(model: TwoSidedMaskNet, points: np.ndarray, ratio: float, args) -> list[dict]:
@@ -64,23 +60,27 @@ def denoise_rows(model: TwoSidedMaskNet, points: np.ndarray, ratio: float, args)
     return out
 
 
-@functools.cache
-def pointnetlk_network() -> torch.nn.Module:
-    """The shipped PointNetLK, as ``register`` uses it, loaded once."""
-    return REGISTRATION_NETWORKS["pointnetlk"].pretrained().eval()
+class GivenMasks:
+    """A mask network, to ``register``, whose masks were computed beforehand: the
+    template mask (P, N) and the source points kept (P, M), or None for every one."""
+
+    def __init__(self, template_mask: np.ndarray, source_keep: np.ndarray | None) -> None:
+        self.masks = (template_mask, source_keep)
+
+    def predict_masks(self, template, source, **options):
+        return self.masks
 
 
 def one_round(tpl, src, method, template_mask, source_keep) -> np.ndarray:
-    """(P, 4, 4): one round of Mask-X with the given masks, as ``register`` runs it
-    (centroid shift, then the method on the kept source points)."""
-    options = {"max_iterations": DEFAULT_ITERATIONS[method]}
-    if method == "pointnetlk":
-        options["network"] = pointnetlk_network()
-    src = src if source_keep is None else keep_source_points(src, source_keep)
-    start = initial_transform("centroid", src, tpl, template_mask)
-    return (
-        BACKENDS[method](tpl, apply_transform(start, src), template_mask, options).transform @ start
+    """(P, 4, 4): one round of Mask-X with the given masks, run by ``register`` itself."""
+    result = register(
+        tpl,
+        src,
+        method=method,
+        model=GivenMasks(template_mask, source_keep),
+        max_points=max(tpl.shape[1], src.shape[1]),  # the masks are for the clouds as given
     )
+    return result.transform
 
 
 def decompose_rows(masks: dict, points: np.ndarray, ratio: float, args) -> list[dict]:

@@ -27,9 +27,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from masknet._atomic import atomic_target
 from masknet.data import load_modelnet40
 from masknet.data.pairs import PairConfig, make_test_pairs
+from masknet.io import write_text_atomic
 from masknet.models import MaskNet, TwoSidedMaskNet
 from masknet.models.masknet import select_mask
 from masknet.models.weights import read_metadata, shipped_weights_path
@@ -125,21 +125,20 @@ def write_fp16(report_path: Path) -> None:
             )
             continue
         model = KINDS[name].from_file(path)
-        key = model._config_key()
-        model.save(path, {k: v for k, v in meta.items() if k != key}, storage="fp16")
+        # save() writes the model's config itself (the metadata keys ending in "config")
+        kept = {k: v for k, v in meta.items() if not k.endswith("config")}
+        model.save(path, kept, storage="fp16")
         text = storage_text(name, row, report["pairs"])
         card = path.with_suffix(".json")
         if card.exists():
             data = json.loads(card.read_text())
             data["storage"] = {"dtype": "fp16", **row, "pairs": report["pairs"]}
-            with atomic_target(card) as tmp:
-                Path(tmp).write_text(json.dumps(data, indent=2) + "\n")
+            write_text_atomic(card, json.dumps(data, indent=2) + "\n")
         markdown = path.with_suffix(".md")
         lines = markdown.read_text().splitlines()
         first = next(i for i, line in enumerate(lines) if line.startswith("## "))
         lines[first:first] = ["## Storage", "", text, ""]
-        with atomic_target(markdown) as tmp:
-            Path(tmp).write_text("\n".join(lines) + "\n")
+        write_text_atomic(markdown, "\n".join(lines) + "\n")
         print(f"{name}: stored in fp16, card updated")
 
 
@@ -164,8 +163,7 @@ def main() -> None:
         pairs = noisy if name in NOISY else clean
         model = cls.from_file(shipped_weights_path(f"{name}.safetensors"))
         report["files"][name] = compare(model, pairs, pairs.mask.numpy().astype(bool))
-    with atomic_target(args.out) as tmp:
-        Path(tmp).write_text(json.dumps(report, indent=1))
+    write_text_atomic(args.out, json.dumps(report, indent=1))
 
 
 if __name__ == "__main__":

@@ -4,6 +4,10 @@
 of plain JavaScript that draw them on a 2D canvas with perspective: drag to
 rotate, wheel (or +/-) to zoom, one checkbox per layer, a point-size slider.
 It opens from disk in any browser, without network access.
+
+:func:`write_views` writes that file and its static PNG twin (:mod:`masknet.viz`, the
+``viz`` extra) together, both or neither, as the commands' ``--html`` does;
+:func:`scene_layers` gives the layers of an object found in a scene.
 """
 
 from __future__ import annotations
@@ -11,16 +15,25 @@ from __future__ import annotations
 import html
 import json
 import os
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 import numpy as np
 
+from masknet._atomic import write_all
 from masknet.errors import MaskNetError
 from masknet.io import write_text_atomic
-from masknet.viz import display_points, point_count_label
+from masknet.viz import display_points, plot_clouds, point_count_label
 
-__all__ = ["Layer", "write_viewer", "LAYER_COLOURS", "layer_colour"]
+__all__ = [
+    "Layer",
+    "write_viewer",
+    "write_views",
+    "view_writers",
+    "scene_layers",
+    "LAYER_COLOURS",
+    "layer_colour",
+]
 
 # Colour per usual layer name; others cycle through the palette.
 LAYER_COLOURS = {
@@ -89,6 +102,52 @@ def write_viewer(
     path = Path(path)
     write_text_atomic(path, page)
     return path
+
+
+def view_writers(
+    path: str | os.PathLike, layers: Mapping[str, np.ndarray | Layer], title: str
+) -> list[tuple[Path, Callable[[Path], object]]]:
+    """Writers, (target, write(temporary path)) for :func:`masknet._atomic.write_all`, of
+    the HTML viewer at ``path`` and its static PNG twin beside it (``.png``), to write
+    them with other outputs all-or-nothing. Layers as :func:`write_viewer`'s."""
+    # The PNG takes each layer's colour as the viewer does, so the two agree.
+    coloured = {
+        name: layer if isinstance(layer, tuple) else (layer, layer_colour(name, i))
+        for i, (name, layer) in enumerate(layers.items())
+    }
+    return [
+        (Path(path), lambda p: write_viewer(p, layers, title=title)),
+        (Path(path).with_suffix(".png"), lambda p: plot_clouds(coloured, p, title=title)),
+    ]
+
+
+def write_views(
+    path: str | os.PathLike, layers: Mapping[str, np.ndarray | Layer], title: str = "masknet"
+) -> list[Path]:
+    """Write the HTML viewer at ``path`` and its PNG twin (both or neither); returns
+    their paths. The PNG needs matplotlib (``pip install 'masknet[viz]'``)."""
+    writers = view_writers(path, layers, title)
+    write_all(writers)
+    return [p for p, _ in writers]
+
+
+def scene_layers(
+    template: np.ndarray, moved_scene: np.ndarray, on_object: np.ndarray, reach: float = 2.0
+) -> dict[str, Layer]:
+    """Viewer layers for an object found in a scene: the scene (P, 3, already in the
+    template frame) within ``reach`` template radii of the template (N, 3), the template,
+    and the scene points on the object (``on_object``, (P,) bool), drawn in that order."""
+    centre = template.mean(0)
+    limit = reach * np.linalg.norm(template - centre, axis=1).max()
+    rest = moved_scene[~on_object]
+    return {
+        f"scene within {reach:g} template radii": (
+            rest[np.linalg.norm(rest - centre, axis=1) <= limit],
+            "#b0b0b0",
+        ),
+        "template": (template, "#1f77b4"),
+        "found on the object": (moved_scene[on_object], "#d62728"),
+    }
 
 
 _TEMPLATE = """<!DOCTYPE html>

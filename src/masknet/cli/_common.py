@@ -13,7 +13,8 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from masknet._atomic import write_all
+# write_all: the commands write their outputs all-or-nothing with it
+from masknet._atomic import write_all as write_all
 from masknet._extras import PICTURES, require
 from masknet.errors import MaskNetError
 
@@ -199,48 +200,20 @@ def load_model(args: argparse.Namespace, two_sided: bool = False) -> MaskNet:
 def view_writers(
     path: str, layers: dict[str, np.ndarray | tuple], title: str
 ) -> list[tuple[Path, Callable[[Path], None]]]:
-    """Writers (for :func:`write_all`) of the HTML viewer and its static PNG twin.
-    Layers: (P, 3) each, or (points, colour)."""
-    from masknet.viewer import layer_colour, write_viewer
-    from masknet.viz import plot_clouds
+    """:func:`masknet.viewer.view_writers`, imported on first use (numpy stays out of
+    ``masknet --help``)."""
+    from masknet.viewer import view_writers
 
-    # The PNG takes each layer's colour as the viewer does, so the two agree.
-    coloured = {
-        name: layer if isinstance(layer, tuple) else (layer, layer_colour(name, i))
-        for i, (name, layer) in enumerate(layers.items())
-    }
-    return [
-        (Path(path), lambda p: write_viewer(p, layers, title=title)),
-        (Path(path).with_suffix(".png"), lambda p: plot_clouds(coloured, p, title=title)),
-    ]
+    return view_writers(path, layers, title)
 
 
 def scene_layers(
     template: np.ndarray, moved_scene: np.ndarray, on_object: np.ndarray, reach: float = 2.0
 ) -> dict[str, tuple[np.ndarray, str]]:
-    """Viewer layers for an object found in a scene: the scene (P, 3, already in the
-    template frame) within ``reach`` template radii of the template (N, 3), the template,
-    and the scene points on the object (``on_object``, (P,) bool), drawn in that order."""
-    import numpy as np  # numpy stays out of ``masknet --help``
+    """:func:`masknet.viewer.scene_layers`, imported on first use."""
+    from masknet.viewer import scene_layers
 
-    centre = template.mean(0)
-    limit = reach * np.linalg.norm(template - centre, axis=1).max()
-    rest = moved_scene[~on_object]
-    return {
-        f"scene within {reach:g} template radii": (
-            rest[np.linalg.norm(rest - centre, axis=1) <= limit],
-            "#b0b0b0",
-        ),
-        "template": (template, "#1f77b4"),
-        "found on the object": (moved_scene[on_object], "#d62728"),
-    }
-
-
-def write_views(path: str, layers: dict[str, np.ndarray | tuple], title: str) -> list[Path]:
-    """Write the HTML viewer and its PNG twin (both or neither); returns their paths."""
-    writers = view_writers(path, layers, title)
-    write_all(writers)
-    return [p for p, _ in writers]
+    return scene_layers(template, moved_scene, on_object, reach)
 
 
 PROGRESS_AFTER_S = 2.0  # steps that take longer say so on stderr

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from masknet.cli._common import add_file_options, check_html, check_outputs, write_views
+from masknet.cli._common import add_file_options, check_html, check_outputs
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -23,6 +23,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> None:
     """One layer per file, named by its stem (primed where two stems agree)."""
     from masknet.io import read_points
+    from masknet.viewer import write_views
 
     check_outputs(check_html(args.output), inputs=args.clouds)
     layers: dict = {}

@@ -1,0 +1,104 @@
+"""The helper scripts (scripts/*.py) use only masknet's public API, and still run."""
+
+from __future__ import annotations
+
+import ast
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+SCRIPTS = sorted((Path(__file__).parents[1] / "scripts").glob("*.py"))
+
+# Internal modules that hold no public API, beside every module or name with a leading _.
+INTERNAL = ("masknet.registration.rounds", "masknet.registration.backends")
+
+
+def _private(module: str, names: list[str]) -> list[str]:
+    """What an import of ``names`` from ``module`` (a masknet module) reaches that is
+    private: a module path part or a name with a leading underscore, or an internal
+    module (or anything under it)."""
+    found = []
+    if any(part.startswith("_") for part in module.split(".")):
+        found.append(module)
+    elif any(module == m or module.startswith(m + ".") for m in INTERNAL):
+        found.append(module)
+    found += [f"{module}.{name}" for name in names if name.startswith("_")]
+    return found
+
+
+def private_imports(source: str) -> list[str]:
+    """Every private masknet module or name that ``source`` imports."""
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.name.split(".")[0] == "masknet":
+                    found += _private(alias.name, [])
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            if node.module.split(".")[0] == "masknet":
+                names = [alias.name for alias in node.names]
+                # `from masknet.cli import _common` names a private module too
+                found += _private(node.module, names)
+    return found
+
+
+def test_the_check_finds_private_imports():
+    source = """
+import masknet._atomic
+from masknet._atomic import atomic_target
+from masknet.cli import _common
+from masknet.cli._common import write_views
+from masknet.registration.rounds import keep_source_points
+from masknet.registration.backends import BACKENDS
+from masknet.registration.backends.base import adapter
+from masknet.io import _read_trimesh
+from masknet.io import read_points
+from masknet import register
+import numpy._core
+"""
+    assert private_imports(source) == [
+        "masknet._atomic",
+        "masknet._atomic",
+        "masknet.cli._common",
+        "masknet.cli._common",
+        "masknet.registration.rounds",
+        "masknet.registration.backends",
+        "masknet.registration.backends.base",
+        "masknet.io._read_trimesh",
+    ]
+
+
+@pytest.mark.parametrize("script", SCRIPTS, ids=lambda p: p.name)
+def test_scripts_use_only_the_public_api(script):
+    assert private_imports(script.read_text()) == []
+
+
+_HELP = """
+import contextlib, io, json, runpy, sys
+codes = {}
+for script in sys.argv[1:]:
+    sys.argv = [script, "--help"]
+    with contextlib.redirect_stdout(io.StringIO()):
+        try:
+            runpy.run_path(script, run_name="__main__")
+            codes[script] = "no exit"
+        except SystemExit as exc:
+            codes[script] = exc.code
+print(json.dumps(codes))
+"""
+
+
+def test_every_script_imports_and_answers_help():
+    """Their imports resolve (one process for all: the imports are shared)."""
+    run = subprocess.run(
+        [sys.executable, "-c", _HELP, *map(str, SCRIPTS)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert run.returncode == 0, run.stderr
+    codes = json.loads(run.stdout.strip().splitlines()[-1])
+    assert codes == {str(s): 0 for s in SCRIPTS}
