@@ -112,6 +112,17 @@ def select_mask(
     return ranks < ks[:, None]
 
 
+def select_template_mask(
+    scores: Tensor, source: np.ndarray, k: int | None, threshold: float | None
+) -> Tensor:
+    """A template mask from its scores (B, N) or (N,) by the options of a network's
+    ``predict_mask(s)``: top-k with k = M, the number of ``source`` points (the official
+    code's rule), unless ``k`` or ``threshold`` is given (:func:`select_mask`)."""
+    if threshold is None and k is None:
+        k = np.shape(source)[-2]
+    return select_mask(scores, k=k, threshold=threshold)
+
+
 def prepare_inputs(
     template: np.ndarray,
     source: np.ndarray,
@@ -360,9 +371,7 @@ class MaskNet(SafetensorsWeights, nn.Module):
     ) -> tuple[Tensor, Tensor, bool]:
         """The mask (B, N) and scores (B, N) as tensors, and whether one pair was given."""
         scores, single = self._scores(template, source, precision, normalize=normalize)
-        if threshold is None and k is None:
-            k = np.shape(source)[-2]
-        return select_mask(scores, k=k, threshold=threshold), scores, single
+        return select_template_mask(scores, source, k, threshold), scores, single
 
     def predict_masks(
         self,

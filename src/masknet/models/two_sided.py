@@ -46,7 +46,7 @@ from masknet.models.masknet import (
     MaskNet,
     centre_pair,
     predict_two_masks,
-    select_mask,
+    select_template_mask,
 )
 from masknet.models.weights import SafetensorsWeights
 
@@ -207,11 +207,5 @@ class TwoSidedMaskNet(SafetensorsWeights, nn.Module):
         with 10% outliers, 5.73 against 5.54 degrees mean error after one round.)
         """
         t_scores, s_scores = self.predict(template, source, precision, normalize)
-        source_mask = s_scores >= source_threshold
-        batch = torch.from_numpy(np.atleast_2d(t_scores))
-        if threshold is None and k is None:
-            k = np.asarray(source).shape[-2]
-        template_mask = select_mask(batch, k=k, threshold=threshold).numpy()
-        if t_scores.ndim == 1:
-            template_mask = template_mask[0]
-        return template_mask, source_mask
+        template_mask = select_template_mask(torch.from_numpy(t_scores), source, k, threshold)
+        return template_mask.numpy(), s_scores >= source_threshold
