@@ -6,8 +6,6 @@ import ast
 import re
 from pathlib import Path
 
-from masknet.training.loop import CHECKPOINT
-
 ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / "src" / "masknet"
 # The order of docs/ARCHITECTURE.md; a layer may import the ones before it.
@@ -50,9 +48,3 @@ def test_the_architecture_doc_lists_the_layers_in_this_order():
     block = text.split("```")[1]
     listed = [line.split()[0] for line in block.strip().splitlines() if re.match(r"^\w", line)]
     assert listed == LAYERS
-
-
-def test_the_training_script_resumes_from_the_checkpoint_training_writes():
-    script = (ROOT / "scripts" / "train_shipped.sh").read_text()
-    resume = next(line for line in script.splitlines() if line.startswith("resume()"))
-    assert f"$1/{CHECKPOINT}" in resume

@@ -1,16 +1,21 @@
-"""The helper scripts (scripts/*.py) use only masknet's public API, and still run."""
+"""The helper scripts: scripts/*.py use only masknet's public API and still run, and
+scripts/train_shipped.sh resumes from the checkpoint that training writes."""
 
 from __future__ import annotations
 
 import ast
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
-SCRIPTS = sorted((Path(__file__).parents[1] / "scripts").glob("*.py"))
+from masknet.training.loop import CHECKPOINT
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPTS = sorted((ROOT / "scripts").glob("*.py"))
 
 # Internal modules that hold no public API, beside every module or name with a leading _.
 INTERNAL = ("masknet.registration.rounds", "masknet.registration.backends")
@@ -102,3 +107,35 @@ def test_every_script_imports_and_answers_help():
     assert run.returncode == 0, run.stderr
     codes = json.loads(run.stdout.strip().splitlines()[-1])
     assert codes == {str(s): 0 for s in SCRIPTS}
+
+
+def checkpoint_files(script: str) -> set[str]:
+    """The checkpoint files a shell script names (``checkpoint.<ext>``)."""
+    return set(re.findall(r"\bcheckpoint\.\w+", script))
+
+
+def resume_check(script: str) -> str:
+    """The line of ``scripts/train_shipped.sh`` that decides whether to pass --resume."""
+    return next(line for line in script.splitlines() if line.startswith("resume()"))
+
+
+def test_the_resume_check_is_read_as_intended():
+    old = 'resume() { [ -f "$1/checkpoint.pt" ] && echo --resume; }\n$M train $(resume runs/a)\n'
+    assert checkpoint_files(old) == {"checkpoint.pt"}
+    assert resume_check(old).startswith("resume() {")
+
+
+def test_train_shipped_resumes_from_the_checkpoint_training_writes():
+    """train_shipped.sh must look for the file the training loop writes every epoch, or
+    a killed step restarts from scratch instead of resuming."""
+    loop = ast.parse((ROOT / "src" / "masknet" / "training" / "loop.py").read_text())
+    saves = [
+        node
+        for node in ast.walk(loop)
+        if isinstance(node, ast.Call) and getattr(node.func, "id", None) == "save_checkpoint"
+    ]
+    assert [ast.unparse(call.args[0]) for call in saves] == ["out / CHECKPOINT"]
+    script = (ROOT / "scripts" / "train_shipped.sh").read_text()
+    assert f'[ -f "$1/{CHECKPOINT}" ]' in resume_check(script)
+    assert checkpoint_files(script) == {CHECKPOINT}
+    assert "$(resume runs/" in script
