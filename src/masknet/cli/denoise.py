@@ -5,17 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from masknet.cli._common import (
-    add_file_options,
-    add_model_options,
-    check_html,
-    check_outputs,
-    file_rows,
-    finite_float,
-    load_model,
-    view_writers,
-    write_all,
-)
+from masknet.cli._common import add_file_options, add_model_options, finite_float, load_model
+from masknet.cli._mask_outputs import mask_outputs, write_kept
 from masknet.errors import MaskNetError
 
 
@@ -69,21 +60,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> None:
     """Denoise; write the kept points and ``<stem>_mask.txt`` (and views)."""
     from masknet.denoising import denoise
-    from masknet.io import (
-        read_point_attributes,
-        read_points,
-        read_points_with_rows,
-        write_mask,
-        write_points,
-    )
+    from masknet.io import read_points, read_points_with_rows
 
     if not 0 <= args.threshold <= 1:
         raise MaskNetError(f"--threshold must be in [0, 1], got {args.threshold}")
-    out = Path(args.output)
-    check_outputs(
-        [out, out.with_name(out.stem + "_mask.txt")] + check_html(args.html),
-        inputs=[args.template, args.noisy],
-    )
+    paths = mask_outputs(args, inputs=[args.template, args.noisy])
     template = read_points(args.template, drop_nonfinite=args.drop_nonfinite)
     noisy, noisy_rows = read_points_with_rows(args.noisy, drop_nonfinite=args.drop_nonfinite)
     if args.method == "distance":
@@ -105,16 +86,9 @@ def run(args: argparse.Namespace) -> None:
             precision=args.inference_precision,
         )
         rule = f"MaskNet score >= {args.threshold}"
-    mask_path = out.with_name(out.stem + "_mask.txt")
-    carried = read_point_attributes(args.noisy, out).take(noisy_rows).take(result.mask)
-    writers = [
-        (out, lambda p: write_points(p, result.points, *carried)),
-        (mask_path, lambda p: write_mask(p, file_rows(result.mask, noisy_rows))),
-    ]
-    if args.html:  # written with the others, all or nothing
-        layers = {"template": template, "kept": result.points, "removed": noisy[~result.mask]}
-        writers += view_writers(args.html, layers, f"MaskNet denoising: {Path(args.noisy).name}")
-    write_all(writers)
+    layers = {"template": template, "kept": result.points, "removed": noisy[~result.mask]}
+    title = f"MaskNet denoising: {Path(args.noisy).name}"
+    written = write_kept(args, paths, args.noisy, noisy, noisy_rows, result.mask, layers, title)
     removed = int((~result.mask).sum())
     dropped = int((~noisy_rows).sum())
     print(
@@ -122,4 +96,4 @@ def run(args: argparse.Namespace) -> None:
         f"({100 * removed / len(noisy):.1f}%, {rule})"
         + (f"; {dropped} non-finite rows dropped before" if dropped else "")
     )
-    print(f"wrote {', '.join(str(p) for p, _ in writers)}")
+    print(f"wrote {', '.join(map(str, written))}")

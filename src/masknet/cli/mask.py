@@ -9,15 +9,11 @@ from masknet.cli._common import (
     add_cloud_arguments,
     add_file_options,
     add_model_options,
-    check_html,
-    check_outputs,
-    file_rows,
     finite_float,
     load_model,
     positive_int,
-    view_writers,
-    write_all,
 )
+from masknet.cli._mask_outputs import mask_outputs, write_kept
 from masknet.errors import MaskNetError
 
 
@@ -49,21 +45,11 @@ def run(args: argparse.Namespace) -> None:
     """Predict the mask; write the inlier points and ``<stem>_mask.txt`` (and views)."""
     import numpy as np
 
-    from masknet.io import (
-        read_point_attributes,
-        read_points,
-        read_points_with_rows,
-        write_mask,
-        write_points,
-    )
+    from masknet.io import read_points, read_points_with_rows
 
     if args.threshold is not None and not 0 <= args.threshold <= 1:
         raise MaskNetError(f"--threshold must be in [0, 1] (scores are), got {args.threshold}")
-    out = Path(args.output)
-    check_outputs(
-        [out, out.with_name(out.stem + "_mask.txt")] + check_html(args.html),
-        inputs=[args.template, args.source],
-    )
+    paths = mask_outputs(args, inputs=[args.template, args.source])
     template, template_rows = read_points_with_rows(
         args.template, drop_nonfinite=args.drop_nonfinite
     )
@@ -72,17 +58,9 @@ def run(args: argparse.Namespace) -> None:
     mask, scores = model.predict_mask_with_scores(
         template, source, k=args.k, threshold=args.threshold, precision=args.inference_precision
     )
-    mask_path = out.with_name(out.stem + "_mask.txt")
-    carried = read_point_attributes(args.template, out).take(template_rows).take(mask)
-    writers = [
-        (out, lambda p: write_points(p, template[mask], *carried)),
-        (mask_path, lambda p: write_mask(p, file_rows(mask, template_rows))),
-    ]
-    if args.html:  # written with the others, all or nothing
-        layers = {"template": template, "source": source, "inliers": template[mask]}
-        title = f"MaskNet inliers: {Path(args.template).name} seen by {Path(args.source).name}"
-        writers += view_writers(args.html, layers, title)
-    write_all(writers)
+    layers = {"template": template, "source": source, "inliers": template[mask]}
+    title = f"MaskNet inliers: {Path(args.template).name} seen by {Path(args.source).name}"
+    written = write_kept(args, paths, args.template, template, template_rows, mask, layers, title)
     if args.threshold is not None:
         rule = f"threshold {args.threshold}"
     else:
@@ -92,4 +70,4 @@ def run(args: argparse.Namespace) -> None:
         f"kept {int(mask.sum())} of {len(template)} template points ({rule}); "
         f"mean score {float(np.mean(scores)):.3f}"
     )
-    print(f"wrote {', '.join(str(p) for p, _ in writers)}")
+    print(f"wrote {', '.join(map(str, written))}")
