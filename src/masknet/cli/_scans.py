@@ -22,14 +22,28 @@ def names(text: str) -> list[str]:
     return out
 
 
+def _scans_group(p: argparse.ArgumentParser, description: str) -> argparse._ArgumentGroup:
+    """The ``real scans`` group, with ``--scans``."""
+    g = p.add_argument_group("real scans", description)
+    g.add_argument("--scans", metavar="DIR", help="folder of .ply/.pcd/.xyz/.npy/.bin scans")
+    return g
+
+
+def _add_pair_options(g: argparse._ArgumentGroup, noise: float, noise_help: str) -> None:
+    """How a scan pair is cut: ``--scan-points`` and ``--scan-noise`` (default ``noise``)."""
+    g.add_argument(
+        "--scan-points", type=positive_int, default=512, help="template points per scan pair"
+    )
+    g.add_argument("--scan-noise", type=float, default=noise, help=noise_help)
+
+
 def add_train_options(p: argparse.ArgumentParser) -> None:
     """The ``real scans`` group of ``masknet train``."""
-    g = p.add_argument_group(
-        "real scans",
+    g = _scans_group(
+        p,
         "train MaskNet on sensor-like pairs cut from crops of your own scans (no labels "
         "needed), mixed with ModelNet40 when it is given (--data or $MASKNET_DATA)",
     )
-    g.add_argument("--scans", metavar="DIR", help="folder of .ply/.pcd/.xyz/.npy/.bin scans")
     g.add_argument(
         "--val-scans",
         type=names,
@@ -45,24 +59,17 @@ def add_train_options(p: argparse.ArgumentParser) -> None:
         help="fraction of the ModelNet40 training shapes used per epoch beside the scans "
         "(0: scans alone)",
     )
-    g.add_argument(
-        "--scan-points", type=positive_int, default=512, help="template points per scan pair"
-    )
-    g.add_argument(
-        "--scan-noise",
-        type=float,
-        default=0.01,
-        help="largest Gaussian noise on a scan pair's source, in crop radii (each pair "
+    _add_pair_options(
+        g,
+        noise=0.01,
+        noise_help="largest Gaussian noise on a scan pair's source, in crop radii (each pair "
         "draws its own from [0, this])",
     )
 
 
 def add_evaluate_options(p: argparse.ArgumentParser) -> None:
     """The ``real scans`` group of ``masknet evaluate``."""
-    g = p.add_argument_group(
-        "real scans", "evaluate on sensor-like pairs cut from scans instead of ModelNet40"
-    )
-    g.add_argument("--scans", metavar="DIR", help="folder of .ply/.pcd/.xyz/.npy/.bin scans")
+    g = _scans_group(p, "evaluate on sensor-like pairs cut from scans instead of ModelNet40")
     g.add_argument(
         "--scan-names", type=names, metavar="NAMES", help="only these scans (file stems)"
     )
@@ -72,14 +79,10 @@ def add_evaluate_options(p: argparse.ArgumentParser) -> None:
         default=50,
         help="pairs cut from each scan (default 50)",
     )
-    g.add_argument(
-        "--scan-points", type=positive_int, default=512, help="template points per scan pair"
-    )
-    g.add_argument(
-        "--scan-noise",
-        type=float,
-        default=0.002,
-        help="Gaussian noise on the source, in crop radii (0.002: 0.2%% of the radius)",
+    _add_pair_options(
+        g,
+        noise=0.002,
+        noise_help="Gaussian noise on the source, in crop radii (0.002: 0.2%% of the radius)",
     )
     g.add_argument(
         "--no-registration",
