@@ -25,8 +25,8 @@ from masknet.data.pairs import Pairs
 from masknet.data.residuals import ResidualConfig, residual_pairs
 from masknet.metrics import mask_metrics
 from masknet.models.refine import RefineMaskNet
-from masknet.training.scan_task import KIND_OF, MappedEpoch
-from masknet.training.two_sided_task import TwoSidedTask
+from masknet.training.scan_task import MappedEpoch, by_kind
+from masknet.training.two_sided_task import TwoSidedTask, outliers_removed
 
 __all__ = ["RefineMaskTask"]
 
@@ -71,17 +71,14 @@ class RefineMaskTask(TwoSidedTask):
         with torch.no_grad():
             t = mask_metrics(t_logits >= 0, truth_t).mean()
             s = mask_metrics(s_logits >= 0, truth_s).mean()
-            corrupted = (~truth_s).sum()
-            removed = float((~(s_logits >= 0) & ~truth_s).sum() / corrupted.clamp_min(1))
             metrics = {
                 "template_precision": t["precision"],
                 "template_recall": t["recall"],
                 "source_f1": s["f1"],
-                "outliers_removed": removed,
+                "outliers_removed": outliers_removed(s_logits >= 0, truth_s),
                 "score": (t["precision"] + s["f1"]) / 2,
             }
-        kind = KIND_OF[type(batch)]
-        return loss, metrics | {f"{kind}_{k}": v for k, v in metrics.items()}
+        return loss, by_kind(batch, metrics)
 
     def describe_extra(self) -> dict:
         return super().describe_extra() | {"residual": self.residual.to_dict()}

@@ -33,7 +33,7 @@ from masknet.data.scans import (
 from masknet.data.views import ViewConfig, make_view_pairs, normalize_cloud
 from masknet.training.masknet_task import MaskNetTask
 
-__all__ = ["MappedEpoch", "ScanMaskNetTask", "ScanPairs", "ViewPairs"]
+__all__ = ["MappedEpoch", "ScanMaskNetTask", "ScanPairs", "ViewPairs", "by_kind"]
 
 
 class ScanPairs(Pairs):
@@ -45,6 +45,13 @@ class ViewPairs(Pairs):
 
 
 KIND_OF = {ScanPairs: "scans", ViewPairs: "views", Pairs: "modelnet"}
+
+
+def by_kind(batch: Pairs, metrics: dict[str, float]) -> dict[str, float]:
+    """``metrics``, and each again under the name of the batch's kind (``scans_f1``,
+    ``views_f1``, ``modelnet_f1``), so the log keeps the kinds apart."""
+    kind = KIND_OF[type(batch)]
+    return metrics | {f"{kind}_{k}": v for k, v in metrics.items()}
 
 
 class _Epoch:
@@ -169,8 +176,7 @@ class ScanMaskNetTask(MaskNetTask):
         self, model: nn.Module, batch: Pairs, device: torch.device
     ) -> tuple[Tensor, dict[str, float]]:
         loss, metrics = super().step(model, batch, device)
-        kind = KIND_OF[type(batch)]
-        return loss, metrics | {f"{kind}_{k}": v for k, v in metrics.items()}
+        return loss, by_kind(batch, metrics)
 
     def describe_extra(self) -> dict:
         return super().describe_extra() | {

@@ -26,9 +26,15 @@ from masknet.metrics import mask_metrics
 from masknet.models.masknet import MaskNet, select_mask
 from masknet.models.two_sided import TwoSidedMaskNet
 from masknet.models.weights import read_metadata
-from masknet.training.scan_task import KIND_OF, MappedEpoch, ScanMaskNetTask
+from masknet.training.scan_task import MappedEpoch, ScanMaskNetTask, by_kind
 
-__all__ = ["TwoSidedTask"]
+__all__ = ["TwoSidedTask", "outliers_removed"]
+
+
+def outliers_removed(kept: Tensor, truth: Tensor) -> float:
+    """The share of the corrupted source points (``truth`` False) that the source mask
+    ``kept`` rejects, over a batch (B, M); 0 where none is corrupted."""
+    return float((~kept & ~truth).sum() / (~truth).sum().clamp_min(1))
 
 
 @dataclass
@@ -91,10 +97,9 @@ class TwoSidedTask(ScanMaskNetTask):
         with torch.no_grad():
             kept = source_logits >= 0
             m = mask_metrics(kept, truth).mean()
-            corrupted = (~truth).sum().clamp_min(1)
             metrics = {
                 "f1": m["f1"],
-                "outliers_removed": float((~kept & ~truth).sum() / corrupted),
+                "outliers_removed": outliers_removed(kept, truth),
                 "inliers_kept": float((kept & truth).sum() / truth.sum().clamp_min(1)),
             }
             if not model.training:
@@ -103,8 +108,7 @@ class TwoSidedTask(ScanMaskNetTask):
                 metrics["template_precision"] = float(
                     mask_metrics(selected, batch.mask.to(device)).mean()["precision"]
                 )
-        kind = KIND_OF[type(batch)]
-        return loss, metrics | {f"{kind}_{k}": v for k, v in metrics.items()}
+        return loss, by_kind(batch, metrics)
 
     def describe_extra(self) -> dict:
         return super().describe_extra() | {
