@@ -199,14 +199,6 @@ def test_importing_the_table_needs_no_torch():
     assert methods.__name__ == "masknet.registration.methods"
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=TypeError,
-    reason="BUG: options=PointNetLKOptions() / NetworkOptions() (max_iterations=None, "
-    "documented as 'its paper's, from the method table') reach the network as None: "
-    "method_options returns a given object unchanged and run_network passes None on, "
-    "so register raises TypeError",
-)
 def test_a_given_network_options_object_runs_the_tables_iterations(known_pairs, shipped_pointnetlk):
     from masknet import register
 

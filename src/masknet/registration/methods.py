@@ -14,6 +14,7 @@ To add a method: write an adapter module under :mod:`masknet.registration.backen
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 from collections.abc import Callable
 from typing import Any, NamedTuple
@@ -128,14 +129,11 @@ def method_options(name: str, given: Any | None, keywords: dict[str, Any]) -> An
             f"give options={kind.__name__}(...) or its fields as keywords "
             f"({', '.join(sorted(keywords))}), not both"
         )
-    if given is not None:
-        return given
-    values = dict(keywords)
-    if "max_iterations" in fields and values.get("max_iterations") is None:
-        default = METHOD_TABLE[name].default_iterations
-        if default is not None:
-            values["max_iterations"] = default
-    return kind(**values)
+    options = kind(**keywords) if given is None else given
+    default = METHOD_TABLE[name].default_iterations
+    if "max_iterations" in fields and options.max_iterations is None and default is not None:
+        options = dataclasses.replace(options, max_iterations=default)  # the table's
+    return options
 
 
 def default_method(method: str | None, options: Any | None, round_options: dict) -> str:

@@ -98,23 +98,14 @@ def mask_and_register(
 
 
 def keep_source_points(source: np.ndarray, keep: np.ndarray | None) -> np.ndarray:
-    """Sources (B, M, 3) for a back-end that needs one shape and cannot weigh points: each
-    pair's kept points (``keep`` (B, M) bool), rejected slots filled by repeating kept
-    points in order. Only for networks that pool over points with a maximum (PointNet
-    features), which a repeated point cannot change; ICP takes ``source_valid`` instead,
-    so that no point counts twice. One pair keeps exactly its kept points, (1, M', 3). A
-    pair with fewer than 3 kept points stays as it was."""
-    if keep is None:
+    """One pair's kept source points: source (1, M, 3) and ``keep`` (1, M) bool ->
+    (1, M', 3), each kept point once; unchanged where nothing is rejected or fewer than 3
+    points are kept. A batch keeps one shape, so its back-ends take the mask instead (ICP's
+    ``source_valid``) or run pair by pair (the networks)."""
+    if keep is None or source.shape[0] != 1:
         return source
-    if source.shape[0] == 1:
-        kept = np.flatnonzero(keep[0])
-        return source[:, kept] if 3 <= len(kept) < source.shape[1] else source
-    out = source.copy()
-    for b in range(source.shape[0]):
-        kept = np.flatnonzero(keep[b])
-        if 3 <= len(kept) < source.shape[1]:
-            out[b] = source[b, np.resize(kept, source.shape[1])]
-    return out
+    kept = np.flatnonzero(keep[0])
+    return source[:, kept] if 3 <= len(kept) < source.shape[1] else source
 
 
 def usable(keep: np.ndarray | None) -> np.ndarray | None:

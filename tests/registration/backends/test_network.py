@@ -124,16 +124,6 @@ def test_a_pointnetlk_batch_equals_its_pairs(known_pairs, lk):
         np.testing.assert_allclose(batch.transform[b], single.transform[0], atol=1e-5, rtol=0)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=AssertionError,
-    reason="BUG: run_network fills a batch's rejected source slots with repeats of kept "
-    "points (rounds.keep_source_points, documented 'only for networks that pool over "
-    "points with a maximum') for every network; DCP, PRNet, PCRNet and RPM-Net weigh "
-    "repeated points, so a batch with a source mask (a two-sided MaskNet, refined rounds) "
-    "answers 0.8-3.7 deg away from the same pairs one at a time (measured with the "
-    "shipped weights; without a source mask the batch matches exactly)",
-)
 def test_a_dcp_batch_with_a_source_mask_equals_its_pairs(known_pairs):
     from masknet.models import REGISTRATION_NETWORKS
 

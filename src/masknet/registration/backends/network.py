@@ -26,7 +26,25 @@ def run_network(
     """A learned network (``options.network``) on each pair's template points in use (all,
     or the masked ones) and kept source points. template (B, N, 3), source (B, M, 3), mask
     (B, N) and source_mask (B, M) bool or None."""
-    source = keep_source_points(source, usable(source_mask))
+    keep = usable(source_mask)
+    if keep is not None and not keep.all() and len(source) > 1:
+        # A network weighs every point it is given (attention, soft matches): a batch
+        # would have to repeat kept points to keep one shape, so it runs pair by pair.
+        parts = [
+            run_network(
+                template[i : i + 1],
+                source[i : i + 1, keep[i]],
+                None if mask is None else mask[i : i + 1],
+                None,
+                options,
+            )
+            for i in range(len(source))
+        ]
+        inliers = [p.correspondence_inliers for p in parts]
+        info = {key: np.concatenate([p.info[key] for p in parts]) for key in parts[0].info}
+        transform = np.concatenate([p.transform for p in parts])
+        return BackendRun(transform, info, None if inliers[0] is None else np.concatenate(inliers))
+    source = keep_source_points(source, keep)  # one pair: exactly its kept points
     if mask is None or len(set(mask.sum(1).tolist())) == 1:
         # Every pair keeps the same number of points (top-k masks): one batched call.
         index = None if mask is None else np.stack([np.flatnonzero(m) for m in mask])
