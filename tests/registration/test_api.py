@@ -11,9 +11,9 @@ from scipy.spatial import cKDTree
 
 import masknet
 import masknet.io as mio
-from masknet import MaskNet, MaskNetError, RegistrationResult, register
+from masknet import MaskNet, MaskNetError, RegistrationResult, evaluate_registration, register
 from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
-from masknet.geometry.clouds import Frame
+from masknet.geometry.clouds import Frame, median_spacing
 from masknet.io import require_open3d
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -92,14 +92,18 @@ def test_single_pair_shapes(pairs, small_masknet):
     for key in ("converged", "fitness", "inlier_rmse", "iterations"):
         assert np.ndim(result.info[key]) == 0, key
     np.testing.assert_allclose(np.linalg.det(result.R), 1.0, atol=1e-9)
-    # The values: the mask is MaskNet's top-k, and the fit figures are those of the moved
-    # source against the masked template, found here with a KD-tree (no distance cut-off,
-    # so every source point counts: fitness 1).
+    # The values: the mask is MaskNet's top-k, and the fit figures are Open3D's at the
+    # pose returned, 1.5 template spacings, found here with a KD-tree.
     np.testing.assert_array_equal(result.mask, small_masknet.predict_mask(template, source))
     moved = source.astype(float) @ result.R.T + result.t
-    distance, _ = cKDTree(template[result.mask].astype(float)).query(moved)
-    assert result.info["fitness"] == 1
-    np.testing.assert_allclose(result.info["inlier_rmse"], np.sqrt(np.mean(distance**2)), rtol=1e-6)
+    distance, _ = cKDTree(template.astype(float)).query(moved)
+    inlier = distance <= 1.5 * median_spacing(template.astype(float))
+    assert 0 < result.info["fitness"] < 1  # a wrong-basin pose leaves some points off
+    # 2 / M: the call's frame holds float32 values; a point at the cut-off may flip
+    assert abs(result.info["fitness"] - inlier.mean()) <= 2 / len(source)
+    np.testing.assert_allclose(
+        result.info["inlier_rmse"], np.sqrt(np.mean(distance[inlier] ** 2)), rtol=1e-3
+    )
 
 
 def test_batch_shapes_and_equals_single(pairs, small_masknet):
@@ -321,7 +325,13 @@ def test_pointnetlk_recovers_a_known_transform(full_pairs, lk_network):
     # the pairs are turned by 0.04-0.08 rad; the network recovers them to about 1e-6 rad
     assert _angle(result.R, truth[:, :3, :3]).max() < 1e-3
     np.testing.assert_allclose(result.t, truth[:, :3, 3], atol=1e-4)
-    assert set(result.info) == {"converged", "iterations", "feature_residual"}
+    assert set(result.info) == {
+        "converged",
+        "iterations",
+        "feature_residual",
+        "fitness",
+        "inlier_rmse",
+    }
 
 
 def test_pointnetlk_scale_does_not_matter(full_pairs, lk_network):
@@ -519,15 +529,18 @@ def test_result_carries_open3d_names_and_converged_is_none_where_not_reported(on
     icp = register(template, source, method="icp", use_mask=False)
     assert icp.transformation is icp.transform
     assert isinstance(icp.converged, bool) and icp.converged == icp.info["converged"]
-    # Open3D's figures, found here with a KD-tree at the returned pose: no distance cut-off,
-    # so every source point is an inlier (measured RMSE 0.078; the pair is turned 44 deg and
-    # 10 ICP iterations leave it 15 deg off).
-    distance, _ = cKDTree(template).query(source @ icp.R.T + icp.t)
-    assert float(icp.fitness) == 1
-    # rtol 1e-6: ICP runs in the call's frame, whose coordinates hold float32 values
-    np.testing.assert_allclose(float(icp.inlier_rmse), np.sqrt(np.mean(distance**2)), rtol=1e-6)
+    # Open3D's figures at the returned pose and 1.5 template spacings, as
+    # evaluate_registration measures any result (the pair is turned 44 deg and 10 ICP
+    # iterations leave it 15 deg off: about half the points fit)
+    for result in (icp, register(template, source, method="dcp", use_mask=False)):
+        quality = evaluate_registration(
+            template=template, source=source, transform=result.transform
+        )
+        assert abs(float(result.fitness) - float(quality.fitness)) <= 2 / len(source)
+        np.testing.assert_allclose(float(result.inlier_rmse), quality.inlier_rmse, rtol=1e-3)
+    assert 0.2 < float(icp.fitness) < 0.8
     dcp = register(template, source, method="dcp", use_mask=False)
-    assert dcp.converged is None and dcp.fitness is None
+    assert dcp.converged is None  # DCP has no stopping rule
 
 
 def test_a_default_call_crosses_between_numpy_and_torch_twice(monkeypatch, pairs):

@@ -32,7 +32,9 @@ def test_the_true_transform_fits_every_point(shape):
     quality = evaluate_registration(template=shape, source=source, transform=back)
     assert quality.fitness == pytest.approx(1.0)
     assert quality.inlier_rmse == pytest.approx(0.0, abs=1e-9)
-    assert quality.max_distance == pytest.approx(DEFAULT_SPACINGS * median_spacing(shape))
+    assert quality.max_correspondence_distance == pytest.approx(
+        DEFAULT_SPACINGS * median_spacing(shape)
+    )
 
 
 def test_a_wrong_transform_fits_fewer_points(shape):
@@ -65,11 +67,11 @@ def test_batches_and_an_explicit_distance(shape):
         template=np.stack([shape, shape]),
         source=np.stack([source, source]),
         transform=np.stack([back, np.eye(4)]),
-        max_distance=1e-6,
+        max_correspondence_distance=1e-6,
     )
     assert quality.fitness.shape == (2,)
     assert quality.fitness[0] == pytest.approx(1.0) and quality.fitness[1] < 0.5
-    np.testing.assert_allclose(quality.max_distance, [1e-6, 1e-6])
+    np.testing.assert_allclose(quality.max_correspondence_distance, [1e-6, 1e-6])
 
 
 @pytest.mark.parametrize(
@@ -79,15 +81,18 @@ def test_batches_and_an_explicit_distance(shape):
         (np.full((4, 4), np.nan), None, "transform must be"),
         (2 * np.eye(4), None, "must be rigid"),
         (np.diag([1.0, 1.0, -1.0, 1.0]), None, "must be rigid"),
-        (np.eye(4), -1.0, "max_distance"),
-        (np.eye(4), float("nan"), "max_distance"),
-        (np.eye(4), "0.1", "max_distance"),
+        (np.eye(4), -1.0, "max_correspondence_distance"),
+        (np.eye(4), float("nan"), "max_correspondence_distance"),
+        (np.eye(4), "0.1", "max_correspondence_distance"),
     ],
 )
 def test_bad_arguments_are_one_clear_error(shape, transform, distance, words):
     with pytest.raises(MaskNetError, match=words):
         evaluate_registration(
-            template=shape, source=shape[:100], transform=transform, max_distance=distance
+            template=shape,
+            source=shape[:100],
+            transform=transform,
+            max_correspondence_distance=distance,
         )
 
 
@@ -101,3 +106,17 @@ def test_a_positional_call_is_refused(shape):
         evaluate_registration(source, shape, 0.01, back)  # Open3D's order
     with pytest.raises(TypeError):
         evaluate_registration(shape, source=source, transform=back)
+
+
+def test_the_former_name_max_distance_still_works_with_a_warning():
+    rng = np.random.default_rng(0)
+    shape = rng.normal(size=(200, 3))
+    new = evaluate_registration(
+        template=shape, source=shape, transform=np.eye(4), max_correspondence_distance=0.01
+    )
+    with pytest.warns(DeprecationWarning, match="max_correspondence_distance"):
+        old = evaluate_registration(
+            template=shape, source=shape, transform=np.eye(4), max_distance=0.01
+        )
+    np.testing.assert_array_equal(np.array(old), np.array(new))
+    assert float(new.fitness) == 1.0

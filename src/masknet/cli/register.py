@@ -330,7 +330,7 @@ def run(args: argparse.Namespace) -> None:
         f"did it work: {check.verdict}: {check.reason} (inlier distance {DEFAULT_SPACINGS:g} "
         f"spacings); fit: {check.fitness:.1%} of the "
         f"{'kept ' if result.source_mask is not None else ''}source points within "
-        f"{check.max_distance:.3g} of {Path(args.template).name}"
+        f"{check.max_correspondence_distance:.3g} of {Path(args.template).name}"
     )
     if check.verdict != "likely correct":
         print(

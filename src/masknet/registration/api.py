@@ -37,6 +37,7 @@ from masknet.models import REGISTRATION_NETWORKS
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
 from masknet.registration.backends.base import MaskModels
+from masknet.registration.evaluation import inlier_fit
 from masknet.registration.methods import (
     GLOBAL_METHODS,
     INITS,
@@ -344,6 +345,13 @@ def register(
             )
             total = run.transform @ total
             times["refine"] = time.perf_counter() - tic
+        cut = getattr(opts, "max_correspondence_distance", None)
+        if entry.kind != "pipeline" and (cut is None or refine_iterations or "fitness" not in info):
+            # Open3D's fitness of the pose returned, at the cut-off given or else 1.5
+            # template spacings: with no cut-off ICP counts every pair (always 1), and
+            # the networks report none.
+            fit = inlier_fit(tpl_full, transform_points(total, src_full), cut)
+            info = {**info, "fitness": fit.fitness, "inlier_rmse": fit.inlier_rmse}
 
         total = frame.transforms_out(total)
         rounds = [

@@ -55,12 +55,13 @@ VERDICTS = ("likely correct", "uncertain", "likely wrong")
 class Assessment(NamedTuple):
     """verdict: ``likely correct``, ``uncertain`` or ``likely wrong``. reason: one line
     saying why. overlap_fit: the smaller of the two directions' share of overlap points
-    within ``max_distance``. fitness: the share of source points within
-    ``max_distance`` (Open3D's fitness; over a seeded subset of 8,192 points for larger
+    within ``max_correspondence_distance``. fitness: the share of source points within
+    it (Open3D's fitness; over a seeded subset of 8,192 points for larger
     sources). overlap: the share of source points in the
-    overlap (within 3 ``max_distance``). nearby_deg, nearby_shift: how far a short ICP
+    overlap (within 3 times that distance). nearby_deg, nearby_shift: how far a short ICP
     from the pose moves it, as a rotation in degrees and as the shift of the source's
-    centroid over its RMS radius. max_distance: the inlier distance, input units."""
+    centroid over its RMS radius. max_correspondence_distance: the inlier distance, input
+    units."""
 
     verdict: str
     reason: str
@@ -69,7 +70,7 @@ class Assessment(NamedTuple):
     overlap: float
     nearby_deg: float
     nearby_shift: float
-    max_distance: float
+    max_correspondence_distance: float
 
 
 def _subset(points: np.ndarray, seed: int) -> np.ndarray:
@@ -93,6 +94,7 @@ def assess_registration(
     source: np.ndarray,
     transform: np.ndarray,
     *,
+    max_correspondence_distance: float | None = None,
     max_distance: float | None = None,
 ) -> Assessment:
     """Judge ``transform`` (source -> template) for one pair.
@@ -101,9 +103,10 @@ def assess_registration(
         template: (N, 3) points.
         source: (M, 3) points.
         transform: (4, 4) rigid source -> template, as ``register`` returns it.
-        max_distance: the inlier distance in input units; None takes 1.5 times the
-            larger of the two clouds' median spacings (exact duplicates skipped), so
-            the verdict does not depend on the unit.
+        max_correspondence_distance: the inlier distance in input units (Open3D's name);
+            None takes 1.5 times the larger of the two clouds' median spacings (exact
+            duplicates skipped), so the verdict does not depend on the unit.
+        max_distance: the former name of ``max_correspondence_distance``, deprecated.
 
     Raises:
         MaskNetError: bad clouds (shape, NaN/inf, too few points), a batch, or a
@@ -113,6 +116,17 @@ def assess_registration(
     from masknet.geometry.knn import cloud_tree
     from masknet.registration.icp import icp
 
+    if max_distance is not None:
+        import warnings
+
+        warnings.warn(
+            "assess_registration(max_distance=...) is deprecated; use "
+            "max_correspondence_distance=, Open3D's name",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        max_correspondence_distance = max_distance
+    max_distance = max_correspondence_distance
     template_b, source_b, single = as_numpy_batch(template, source)
     if not single:
         raise MaskNetError("assess_registration judges one pair: (N, 3) and (M, 3) clouds")
@@ -126,7 +140,9 @@ def assess_registration(
     else:
         limit = float(max_distance)
     if max_distance is not None and not (np.isfinite(limit) and limit > 0):
-        raise MaskNetError(f"max_distance must be a positive number, got {max_distance!r}")
+        raise MaskNetError(
+            f"max_correspondence_distance must be a positive number, got {max_distance!r}"
+        )
     if not limit > 0:
         raise MaskNetError("every point of a cloud is the same point: no spacing to measure by")
     template_pts, source_pts = _subset(full_template, 0), _subset(full_source, 1)

@@ -21,18 +21,18 @@ Example::
 
 from __future__ import annotations
 
+import warnings
 from typing import NamedTuple
 
 import numpy as np
-import torch
 
 from masknet.errors import MaskNetError
 from masknet.geometry.clouds import median_spacing
-from masknet.geometry.knn import knn_points
+from masknet.geometry.knn import cloud_tree
 from masknet.geometry.se3 import transform_points
 from masknet.registration.validation import as_numpy_batch, as_rigid_transforms
 
-__all__ = ["DEFAULT_SPACINGS", "RegistrationQuality", "evaluate_registration"]
+__all__ = ["DEFAULT_SPACINGS", "RegistrationQuality", "evaluate_registration", "inlier_fit"]
 
 # The default inlier distance, in template spacings (median nearest-neighbour distance):
 # where right and wrong results fit most differently (docs/RESULTS.md, "Did a registration
@@ -41,14 +41,36 @@ DEFAULT_SPACINGS = 1.5
 
 
 class RegistrationQuality(NamedTuple):
-    """fitness: () or (B,), the fraction of source points within ``max_distance`` of
-    the template. inlier_rmse: () or (B,), the root mean square distance of those points,
-    in input units (0 where there are none, as Open3D). max_distance: () or (B,), the
-    distance used."""
+    """fitness: () or (B,), the fraction of source points within
+    ``max_correspondence_distance`` of the template. inlier_rmse: () or (B,), the root mean
+    square distance of those points, in input units (0 where there are none, as Open3D).
+    max_correspondence_distance: () or (B,), the distance used."""
 
     fitness: np.ndarray
     inlier_rmse: np.ndarray
-    max_distance: np.ndarray
+    max_correspondence_distance: np.ndarray
+
+
+def inlier_fit(
+    template: np.ndarray, moved: np.ndarray, max_correspondence_distance: float | None = None
+) -> RegistrationQuality:
+    """The measure itself, for checked numpy batches: template (B, N, 3) and the source
+    already moved (B, M, 3); the cut-off in their units, or None for ``DEFAULT_SPACINGS``
+    template spacings. Returns (B,) arrays."""
+    fitness, rmse, limits = [], [], []
+    for tpl, src in zip(template, moved, strict=True):
+        tree = cloud_tree(tpl)
+        if max_correspondence_distance is None:
+            limit = DEFAULT_SPACINGS * median_spacing(tpl, tree)
+        else:
+            limit = float(max_correspondence_distance)
+        d2 = tree.query(np.ascontiguousarray(src, dtype=np.float64), k=1, sqr_dists=True)[0]
+        inlier = d2 <= limit**2
+        count = int(inlier.sum())
+        fitness.append(count / len(d2))
+        rmse.append(np.sqrt(d2[inlier].sum() / max(count, 1)))
+        limits.append(limit)
+    return RegistrationQuality(np.array(fitness), np.array(rmse), np.array(limits))
 
 
 def evaluate_registration(
@@ -56,6 +78,7 @@ def evaluate_registration(
     template: np.ndarray,
     source: np.ndarray,
     transform: np.ndarray,
+    max_correspondence_distance: float | None = None,
     max_distance: float | None = None,
 ) -> RegistrationQuality:
     """Inlier fraction and RMSE of ``source`` moved by ``transform`` against ``template``.
@@ -68,37 +91,36 @@ def evaluate_registration(
         template: (N, 3) or (B, N, 3) points.
         source: (M, 3) or (B, M, 3) points.
         transform: (4, 4) or (B, 4, 4) source -> template, as ``register`` returns it.
-        max_distance: inlier cut-off in input units; None takes ``DEFAULT_SPACINGS``
-            times each template's median nearest-neighbour distance, so the result
-            does not depend on the unit.
+        max_correspondence_distance: inlier cut-off in input units (Open3D's name); None
+            takes ``DEFAULT_SPACINGS`` times each template's median nearest-neighbour
+            distance, so the result does not depend on the unit.
+        max_distance: the former name of ``max_correspondence_distance``, deprecated.
 
     Returns:
         RegistrationQuality, unbatched for unbatched clouds.
 
     Raises:
         MaskNetError: bad clouds (shape, NaN/inf, too few points) or a bad transform
-            or ``max_distance``.
+            or cut-off.
     """
+    if max_distance is not None:
+        warnings.warn(
+            "evaluate_registration(max_distance=...) is deprecated; use "
+            "max_correspondence_distance=, Open3D's name",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        max_correspondence_distance = max_distance
     template_b, source_b, single = as_numpy_batch(template, source)
     tf = as_rigid_transforms(transform, template_b.shape[0])
-    if max_distance is not None and (
-        isinstance(max_distance, bool)
-        or not isinstance(max_distance, int | float | np.number)
-        or not (np.isfinite(max_distance) and max_distance > 0)
+    cut = max_correspondence_distance
+    if cut is not None and (
+        isinstance(cut, bool)
+        or not isinstance(cut, int | float | np.number)
+        or not (np.isfinite(cut) and cut > 0)
     ):
-        raise MaskNetError(f"max_distance must be a positive number, got {max_distance!r}")
-    if max_distance is None:
-        limits = np.array([DEFAULT_SPACINGS * median_spacing(t) for t in template_b])
-    else:
-        limits = np.full(len(template_b), float(max_distance))
-    moved = transform_points(torch.from_numpy(tf), torch.from_numpy(source_b))
-    d2 = knn_points(moved, torch.from_numpy(template_b), 1).dists[..., 0].numpy()
-    inlier = d2 <= limits[:, None] ** 2
-    count = inlier.sum(1)
-    fitness = count / d2.shape[1]
-    rmse = np.sqrt(np.where(inlier, d2, 0.0).sum(1) / np.maximum(count, 1))
-
-    def out(a: np.ndarray) -> np.ndarray:
-        return a[0] if single else a
-
-    return RegistrationQuality(out(fitness), out(rmse), out(limits))
+        raise MaskNetError(f"max_correspondence_distance must be a positive number, got {cut!r}")
+    quality = inlier_fit(template_b, transform_points(tf, source_b), cut)
+    if single:
+        return RegistrationQuality(*(a[0] for a in quality))
+    return quality

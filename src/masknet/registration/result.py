@@ -84,10 +84,10 @@ class RegistrationResult:
     @property
     def fitness(self) -> np.ndarray | None:
         """Fraction of source points with a template point within the correspondence
-        distance (Open3D's definition), () or (B,), as the method reports it; None where it
-        does not. ICP without ``max_correspondence_distance`` counts every pair, so it is 1
-        whatever the result: :func:`~masknet.registration.evaluate_registration` judges any
-        result alike."""
+        distance (Open3D's definition), () or (B,), at the pose returned: the method's
+        ``max_correspondence_distance``, or where none is given 1.5 template spacings
+        (unit-free; ``"auto"`` and ``"robust"`` measure the source points they keep), as
+        :func:`~masknet.registration.evaluate_registration` measures any result."""
         return self.info.get("fitness")
 
     @property
