@@ -468,7 +468,7 @@ def test_output_paths_are_checked_before_computing(tmp_path, pair_files, capsys)
 
 
 def test_write_all_is_all_or_nothing_and_keeps_earlier_files(tmp_path):
-    from masknet.cli._common import write_all
+    from masknet._atomic import write_all
     from masknet.errors import MaskNetError
 
     a, b = tmp_path / "a.txt", tmp_path / "b.txt"

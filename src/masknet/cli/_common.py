@@ -9,18 +9,14 @@ import json
 import math
 import os
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-# write_all: the commands write their outputs all-or-nothing with it
-from masknet._atomic import write_all as write_all
 from masknet._extras import PICTURES, require
 from masknet.errors import MaskNetError
 
 if TYPE_CHECKING:
-    import numpy as np
-
     from masknet.data import PairConfig
     from masknet.models import MaskNet
 
@@ -197,25 +193,6 @@ def load_model(args: argparse.Namespace, two_sided: bool = False) -> MaskNet:
     return kind.pretrained(args.pretrained) if args.pretrained else kind.pretrained()
 
 
-def view_writers(
-    path: str, layers: dict[str, np.ndarray | tuple], title: str
-) -> list[tuple[Path, Callable[[Path], None]]]:
-    """:func:`masknet.viewer.view_writers`, imported on first use (numpy stays out of
-    ``masknet --help``)."""
-    from masknet.viewer import view_writers
-
-    return view_writers(path, layers, title)
-
-
-def scene_layers(
-    template: np.ndarray, moved_scene: np.ndarray, on_object: np.ndarray, reach: float = 2.0
-) -> dict[str, tuple[np.ndarray, str]]:
-    """:func:`masknet.viewer.scene_layers`, imported on first use."""
-    from masknet.viewer import scene_layers
-
-    return scene_layers(template, moved_scene, on_object, reach)
-
-
 PROGRESS_AFTER_S = 2.0  # steps that take longer say so on stderr
 
 
@@ -245,14 +222,6 @@ def progress(label: str, after: float | None = None) -> Iterator[None]:
         if shown.is_set():
             elapsed = time.perf_counter() - start
             print(f"masknet: {label}: done in {elapsed:.1f} s", file=sys.stderr, flush=True)
-
-
-def file_rows(mask: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """A per-point mask (K,) laid out over the input file's rows (P,): rows dropped as
-    non-finite (``rows`` False) get False, so line i of a mask file is row i of the input."""
-    from masknet.io_checks import over_rows
-
-    return over_rows(mask, rows)
 
 
 def check_outputs(

@@ -8,7 +8,8 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from masknet.cli._common import check_html, check_outputs, file_rows, view_writers, write_all
+from masknet._atomic import write_all
+from masknet.cli._common import check_html, check_outputs
 
 if TYPE_CHECKING:
     import numpy as np
@@ -38,12 +39,14 @@ def write_kept(
     finite rows), the mask over that file's rows to the second, and with ``--html`` the
     views of ``layers``. Returns the paths written."""
     from masknet.io import read_point_attributes, write_mask, write_points
+    from masknet.io_checks import over_rows
+    from masknet.viewer import view_writers
 
     out, mask_path = paths
     carried = read_point_attributes(read_from, out).take(rows).take(mask)
     writers = [
         (out, lambda p: write_points(p, points[mask], *carried)),
-        (mask_path, lambda p: write_mask(p, file_rows(mask, rows))),
+        (mask_path, lambda p: write_mask(p, over_rows(mask, rows))),
     ]
     if args.html:
         writers += view_writers(args.html, layers, title)

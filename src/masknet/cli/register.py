@@ -8,19 +8,16 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from masknet._atomic import write_all
 from masknet.cli._common import (
     add_cloud_arguments,
     add_file_options,
     add_model_options,
     check_html,
     check_outputs,
-    file_rows,
     load_model,
     positive_int,
     progress,
-    scene_layers,
-    view_writers,
-    write_all,
 )
 from masknet.errors import MaskNetError
 from masknet.registration.methods import METHOD_TITLES, METHODS
@@ -173,9 +170,11 @@ def run(args: argparse.Namespace) -> None:
         write_points,
         write_text_atomic,
     )
+    from masknet.io_checks import over_rows
     from masknet.registration import assess_registration, register
     from masknet.registration.evaluation import DEFAULT_SPACINGS
     from masknet.registration.methods import GLOBAL_METHODS
+    from masknet.viewer import scene_layers, view_writers
 
     if args.refine < 0:
         raise MaskNetError(f"--refine must be >= 0, got {args.refine}")
@@ -265,7 +264,7 @@ def run(args: argparse.Namespace) -> None:
 
         source_mask_path = out.with_name(out.stem + "_source_mask.txt")
         writers.append(
-            (source_mask_path, lambda p: write_mask(p, file_rows(result.source_mask, source_rows)))
+            (source_mask_path, lambda p: write_mask(p, over_rows(result.source_mask, source_rows)))
         )
     name = ("" if args.no_mask else "Mask-") + METHOD_TITLES[args.method]
     if args.html:  # written with the others, all or nothing

@@ -198,7 +198,9 @@ def register(
             its escalation uses ``masknet2_scans``), the two-sided ``masknet2_scans`` for
             ``iterations`` > 1 and ``"robust"``. A
             :class:`~masknet.models.two_sided.TwoSidedMaskNet` masks both clouds: the
-            method then sees only the source points it keeps.
+            method then sees only the source points it keeps. Any object with
+            ``predict_masks(template, source, *, k, threshold, precision) -> (template_mask,
+            source_mask or None)`` serves (masks given in advance, another network).
         k, threshold: inlier selection, as :meth:`MaskNet.predict_mask` (default
             top-k with k = M); only with ``use_mask=True``.
         precision: MaskNet's inference precision, as :meth:`MaskNet.predict`
