@@ -76,7 +76,8 @@ class SceneSearch(NamedTuple):
     of a candidate's region. min_region_points: smaller regions are skipped.
     hypotheses: rotations per centre (the cube's 24, nearest the identity first).
     hypothesis_points: template points in the batched hypothesis stage.
-    iterations: ICP iterations per stage. trim: fraction of template points that score.
+    max_iterations: ICP iterations per stage (Open3D's name; rounds are register's
+    ``iterations``). trim: fraction of template points that score.
     candidates: best placements refined. refine_points: template points then.
     refine_distance: correspondence cut-off of the refinement.
     inlier_distance: scene points this close to the moved template are the object's (at
@@ -98,7 +99,7 @@ class SceneSearch(NamedTuple):
     min_region_points: int = 32
     hypotheses: int = 24
     hypothesis_points: int = 64
-    iterations: int = 15
+    max_iterations: int = 15
     trim: float = 0.9
     candidates: int = 16
     refine_points: int = 1024
@@ -117,7 +118,11 @@ class SceneSearch(NamedTuple):
             raise MaskNetError("scene search: trim must be in (0, 1]")
         if not self.scene_ratio > 0:
             raise MaskNetError("scene search: scene_ratio must be positive")
-        for name, low in (("hypotheses", 1), ("hypothesis_points", MIN_POINTS), ("iterations", 1)):
+        for name, low in (
+            ("hypotheses", 1),
+            ("hypothesis_points", MIN_POINTS),
+            ("max_iterations", 1),
+        ):
             if getattr(self, name) < low:
                 raise MaskNetError(f"scene search: {name} must be >= {low}")
         if self.viewpoint is not None and (
@@ -296,7 +301,7 @@ def locate(
     poses = np.tile(np.eye(4), (count, 1, 1))  # template -> scene
     poses[:, :3, :3] = np.tile(rotations, (len(centres), 1, 1))
     poses[:, :3, 3] = np.repeat(centres, len(rotations), axis=0)
-    for iteration in range(opts.iterations):
+    for iteration in range(opts.max_iterations):
         moved, matched, d2 = _nearest(poses, small, thin, thin_tree)
         facing = _facing(poses, moved, small_normals, sensor)
         if iteration and iteration % PRUNE_EVERY == 0:
@@ -327,7 +332,7 @@ def locate(
                 around,
                 fine[seen],
                 pose,
-                max_iterations=2 * opts.iterations,
+                max_iterations=2 * opts.max_iterations,
                 max_correspondence_distance=opts.refine_distance,
             )
             pose = run.transform[0]
@@ -345,7 +350,7 @@ def locate(
             around,
             tpl[seen],
             pose,
-            max_iterations=2 * opts.iterations,
+            max_iterations=2 * opts.max_iterations,
             max_correspondence_distance=tolerance,
         ).transform[0]
     moved_tpl = transform_points(pose, tpl[_seen(pose, tpl, normals, sensor)])
@@ -392,7 +397,7 @@ def polish(
             template,
             points,
             start,
-            max_iterations=2 * opts.iterations,
+            max_iterations=2 * opts.max_iterations,
             max_correspondence_distance=cut,
         )
         pose = run.transform[0]
