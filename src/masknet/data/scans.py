@@ -178,7 +178,7 @@ def crop_scan(scan: Scan, crop: ScanCropConfig, rng: np.random.Generator) -> np.
     count = min(int(rng.integers(lo, hi + 1)), len(scan))
     centre = scan.points[rng.integers(len(scan))]
     # One query point: a distance per point and a partial sort beat building a tree.
-    d2 = ((scan.points - centre) ** 2).sum(1)
+    d2 = ((scan.points.astype(np.float64) - centre) ** 2).sum(1)
     near = np.argpartition(d2, count - 1)[:count] if count < len(d2) else np.arange(len(d2))
     return normalize_cloud(scan.points[near[np.argsort(d2[near], kind="stable")]])
 
