@@ -62,7 +62,9 @@ def farthest_point_sample(
         if len(small):
             j = int(small[0]) + 1
             return FPSResult(pool[order[:j]], float(gaps[j]))
-    radius = float(cloud_tree(cloud[order].astype(np.float64)).query(cloud.astype(np.float64), k=1)[0].max())
+    radius = float(
+        cloud_tree(cloud[order].astype(np.float64)).query(cloud.astype(np.float64), k=1)[0].max()
+    )
     return FPSResult(pool[order], radius)
 
 
