@@ -424,11 +424,15 @@ def test_ctrl_c_while_open3d_imports_is_an_interrupt_not_a_missing_package(monke
         return real_import(name, *args, **kwargs)
 
     masknet_io._load_open3d.cache_clear()
+    # Python's own handler, as in a terminal: a process started in the background by a
+    # shell inherits SIGINT ignored, and then Ctrl-C is nothing to hold
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     monkeypatch.setattr(builtins, "__import__", import_with_ctrl_c)
     before = signal.getsignal(signal.SIGINT)
     with pytest.raises(KeyboardInterrupt):
         masknet_io.require_open3d("reading .pcd files")
     assert signal.getsignal(signal.SIGINT) is before  # the user's handler is back
+    signal.signal(signal.SIGINT, previous)
     monkeypatch.setattr(builtins, "__import__", real_import)
     masknet_io._load_open3d.cache_clear()
     assert masknet_io.require_open3d("reading .pcd files") is o3d
