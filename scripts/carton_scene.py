@@ -24,11 +24,11 @@ import time
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from masknet import register
 from masknet.evaluation.registration import pose_errors
+from masknet.geometry.knn import cloud_tree
 from masknet.io import read_points, require_open3d, write_text_atomic
 from masknet.models import TwoSidedMaskNet
 from masknet.registration.scene import SceneSearch
@@ -130,7 +130,7 @@ def main() -> None:
         )
     moved = model @ model_to_scene[:3, :3].T + model_to_scene[:3, 3]
     # The scene points on the carton: within 3 mm of the ground-truth carton.
-    scene_truth = np.isfinite(cKDTree(moved).query(scene, k=1, distance_upper_bound=0.003)[0])
+    scene_truth = np.isfinite(cloud_tree(moved).query(scene, k=1, distance_upper_bound=0.003)[0])
     # The scene within 25 cm of the carton, so that the fit can be checked by eye.
     near = scene[np.linalg.norm(scene - moved.mean(0), axis=1) < 0.25]
     layers = {

@@ -44,7 +44,9 @@ def main() -> None:
     for factor in [float(f) for f in args.spacings.split(",")]:
         fitness = np.array(
             [
-                evaluate_registration(t, s, tf, factor * sp).fitness
+                evaluate_registration(
+                    template=t, source=s, transform=tf, max_correspondence_distance=factor * sp
+                ).fitness
                 for t, s, tf, sp in zip(template, source, result.transform, spacing, strict=True)
             ]
         )

@@ -47,7 +47,7 @@ def denoise_rows(model: TwoSidedMaskNet, points: np.ndarray, ratio: float, args)
         kept = {
             "two-sided MaskNet (source mask >= 0.5)": model.predict_masks(tpl, src)[1],
             "template distance (3x spacing)": np.stack(
-                [denoise(s, t).mask for t, s in zip(tpl, src, strict=True)]
+                [denoise(t, s).mask for t, s in zip(tpl, src, strict=True)]
             ),
             "Open3D statistical (20 nn, 2 std)": np.stack(
                 [open3d_statistical_outlier_removal(s) for s in src]

@@ -4,7 +4,7 @@
     >>> model = MaskNet.pretrained()
     >>> mask = model.predict_mask(template, source)   # (N,) bool, top-k with k = len(source)
     >>> from masknet import register
-    >>> result = register(template, source)           # Mask-ICP; result.transform (4, 4)
+    >>> result = register(template, source)           # the default, "auto"; result.transform (4, 4)
     >>> from masknet import evaluate_registration
     >>> quality = evaluate_registration(template=template, source=source, transform=result.transform)
     >>> quality.fitness                               # inlier fraction (names only: not Open3D's order)

@@ -18,14 +18,12 @@ import functools
 from typing import NamedTuple
 
 import numpy as np
-import torch
 from torch import Tensor
 
 from masknet.errors import MaskNetError, checks_done, warns_once
-from masknet.geometry.clouds import median_spacing, unit_radius
+from masknet.geometry.clouds import as_cloud_batch, median_spacing, unit_radius
 from masknet.geometry.knn import knn_points
 from masknet.geometry.sampling import farthest_point_sample, spread_mask
-from masknet.io_checks import check_cloud
 from masknet.models.masknet import MaskNet
 from masknet.models.refine import RefineMaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
@@ -151,23 +149,15 @@ def denoise(
 
 
 def _checked_pair(template: np.ndarray, noisy: np.ndarray) -> tuple[Tensor, Tensor]:
-    """The checks of :func:`masknet.io_checks.check_cloud`, each cloud under its own name
-    (``template``, ``noisy``): float32 tensors (1, N, 3) and (1, P, 3)."""
-    t, y = np.asarray(template), np.asarray(noisy)
-    if t.ndim != 2 or y.ndim != 2:
+    """One template (N, 3) and one noisy cloud (P, 3), checked under their own names:
+    float32 tensors (1, N, 3) and (1, P, 3)."""
+    if np.ndim(template) != 2 or np.ndim(noisy) != 2:
         raise MaskNetError(
             "denoise takes one template (N, 3) and one noisy cloud (P, 3); "
-            f"got shapes {t.shape} and {y.shape}"
+            f"got shapes {np.shape(template)} and {np.shape(noisy)}"
         )
-    for name, a in (("template", t), ("noisy", y)):
-        # (3, P) with P > 3 is left to check_cloud, which names it as transposed.
-        if a.shape[1] != 3 and not (a.shape[0] == 3 and a.shape[1] > 3):
-            raise MaskNetError(f"{name} must have 3 columns (x, y, z); got shape {a.shape}")
-        check_cloud(a, name)
-    return (
-        torch.from_numpy(np.ascontiguousarray(t[None], np.float32)),
-        torch.from_numpy(np.ascontiguousarray(y[None], np.float32)),
-    )
+    x, y, _ = as_cloud_batch(template, noisy, names=("template", "noisy"))
+    return x, y
 
 
 def _open3d_cloud(points: np.ndarray):

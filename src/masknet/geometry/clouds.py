@@ -31,10 +31,12 @@ def unit_radius(points: Any) -> Any:
     return np.maximum(np.linalg.norm(points - mid, axis=-1).max(-1), 1e-12)
 
 
-def check_pair(template: Any, source: Any) -> tuple[np.ndarray, np.ndarray, bool]:
+def check_pair(
+    template: Any, source: Any, names: tuple[str, str] = ("template", "source")
+) -> tuple[np.ndarray, np.ndarray, bool]:
     """Validate numpy clouds, template (N, 3) or (B, N, 3) and source (M, 3) or (B, M, 3);
     return them as batches (B, N, 3), (B, M, 3) (numpy, as given) and whether the input
-    was one pair.
+    was one pair. Messages name the clouds by ``names``.
 
     Raises:
         MaskNetError: mismatched or wrong shapes, different batch sizes, or a cloud that
@@ -57,7 +59,7 @@ def check_pair(template: Any, source: Any) -> tuple[np.ndarray, np.ndarray, bool
         t, s = t[None], s[None]
     if t.shape[0] != s.shape[0]:
         raise MaskNetError(f"batch sizes differ: template {t.shape[0]}, source {s.shape[0]}")
-    for name, a in (("template", t), ("source", s)):
+    for name, a in zip(names, (t, s), strict=True):
         if a.shape[-1] != 3 and not (a.shape[1] == 3 and a.shape[-1] > 3):
             raise MaskNetError(f"{name} must have 3 columns (x, y, z); got shape {a.shape}")
         if clouds_checked():  # an entry point checked them already (errors.checks_done)
@@ -67,10 +69,12 @@ def check_pair(template: Any, source: Any) -> tuple[np.ndarray, np.ndarray, bool
     return t, s, single
 
 
-def as_cloud_batch(template: Any, source: Any) -> tuple[Tensor, Tensor, bool]:
+def as_cloud_batch(
+    template: Any, source: Any, names: tuple[str, str] = ("template", "source")
+) -> tuple[Tensor, Tensor, bool]:
     """:func:`check_pair`, then the clouds as float32 tensors (B, N, 3), (B, M, 3), moved
     into torch together in one conversion."""
-    t, s, single = check_pair(template, source)
+    t, s, single = check_pair(template, source, names)
     both = torch.from_numpy(np.concatenate([t, s], axis=1).astype(np.float32))
     return both[:, : t.shape[1]], both[:, t.shape[1] :], single
 

@@ -20,19 +20,30 @@ import numpy as np
 import torch
 from torch import Tensor
 
-__all__ = ["KDTreeIndex", "KNN", "cloud_tree", "knn_points"]
+__all__ = ["CloudTree", "KDTreeIndex", "KNN", "cloud_tree", "knn_points"]
 
 
-def cloud_tree(points: np.ndarray) -> Any:
+class CloudTree:
     """A KD-tree of one cloud (P, 3), numpy, built once and queried many times: the
-    project's one KD-tree library (pykdtree; ``tree.query(points, k=1,
-    distance_upper_bound=None, sqr_dists=False) -> (distances, indices)``). Float32
-    clouds keep float32; anything else is searched in float64."""
-    from pykdtree.kdtree import KDTree
+    project's one KD-tree library (pykdtree). ``query`` takes pykdtree's arguments
+    (``k``, ``distance_upper_bound``, ``sqr_dists``) and returns (distances, indices);
+    queries are cast to the tree's dtype."""
 
-    points = np.asarray(points)
-    dtype = np.float32 if points.dtype == np.float32 else np.float64
-    return KDTree(np.ascontiguousarray(points, dtype=dtype))
+    def __init__(self, points: np.ndarray, dtype: type = np.float64) -> None:
+        from pykdtree.kdtree import KDTree
+
+        self.dtype = dtype
+        self._tree = KDTree(np.ascontiguousarray(points, dtype=dtype))
+        self.n = self._tree.n
+
+    def query(self, points: np.ndarray, k: int = 1, **options: Any) -> tuple:
+        return self._tree.query(np.ascontiguousarray(points, dtype=self.dtype), k=k, **options)
+
+
+def cloud_tree(points: np.ndarray, dtype: type = np.float64) -> CloudTree:
+    """The :class:`CloudTree` of ``points`` (P, 3): float64 by default, float32 where a
+    hot loop trades precision for speed."""
+    return CloudTree(points, dtype)
 
 
 class KNN(NamedTuple):
@@ -142,7 +153,7 @@ class KDTreeIndex:
             keep = None if reference_valid is None else np.flatnonzero(reference_valid[i].numpy())
             points = r_np[i] if keep is None else r_np[i][keep]
             self.keep.append(keep)
-            self.trees.append(cloud_tree(points) if len(points) else None)
+            self.trees.append(cloud_tree(points, self.dtype) if len(points) else None)
 
     def query(self, query: Tensor, k: int = 1) -> KNN:
         """The k nearest reference points of every query point (B, P, 3): as

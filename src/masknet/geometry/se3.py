@@ -18,6 +18,7 @@ Twists ``xi = (omega, v)`` in R^6 put the rotation part first, as PointNetLK doe
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any
 
@@ -125,7 +126,9 @@ def transform_points(transform: Any, points: Any) -> Any:
     The one way to apply a transform: numpy arrays stay numpy (float64 where either is),
     tensors stay tensors (in the points' dtype)."""
     if isinstance(points, Tensor):
-        transform = torch.as_tensor(transform).to(points.dtype)
+        transform = torch.as_tensor(transform, device=points.device).to(points.dtype)
+    elif isinstance(transform, Tensor):  # numpy points stay numpy
+        transform = transform.detach().cpu().numpy()
     rot, trans = split_transform(transform)
     return points @ rot.swapaxes(-1, -2) + trans[..., None, :]
 
@@ -171,15 +174,19 @@ def translation_error(t_pred: Tensor, t_true: Tensor) -> Tensor:
     return (t_pred - t_true).norm(dim=-1)
 
 
+@functools.cache
 def hypothesis_rotations(count: int) -> np.ndarray:
     """(count, 3, 3) starting rotations: the 24 rotations of the cube, nearest the
-    identity first, then seeded random rotations."""
+    identity first, then seeded random rotations; read-only (computed once per count)."""
     from scipy.spatial.transform import Rotation
 
     cube = Rotation.create_group("O").as_matrix()
     angles = np.arccos(np.clip((np.trace(cube, axis1=1, axis2=2) - 1) / 2, -1, 1))
     cube = cube[np.argsort(angles, kind="stable")]
-    if count <= len(cube):
-        return cube[:count]
-    extra = Rotation.random(count - len(cube), random_state=0).as_matrix()
-    return np.concatenate([cube, extra])
+    out = (
+        cube[:count]
+        if count <= len(cube)
+        else np.concatenate([cube, Rotation.random(count - len(cube), random_state=0).as_matrix()])
+    )
+    out.flags.writeable = False  # cached: shared by every caller
+    return out

@@ -136,7 +136,7 @@ def _info_out(info: dict, frame: Frame) -> dict:
 
 
 # Keywords that, with no method named, ask for Mask-ICP's rounds.
-_ICP_FIELDS = ("max_iterations", "relative_rmse", "max_correspondence_distance")
+_ICP_FIELDS = tuple(f.name for f in dataclasses.fields(ICPCriteria))
 
 
 @warns_once
@@ -183,7 +183,9 @@ def register(
             pair), a learned network: ``"pointnetlk"``, ``"dcp"``, ``"prnet"``,
             ``"pcrnet"`` or ``"rpmnet"`` (the shipped weights unless ``network=`` is
             given), ``"open3d-ransac"`` or ``"open3d-fgr"`` (Open3D's global registration
-            on FPFH features).
+            on FPFH features). ``"auto"`` and ``"robust"`` run whole pipelines: they ignore
+            ``iterations``, ``k``, ``threshold``, ``init`` and ``refine_masks``, and refuse
+            ``refine_iterations``.
         options: the method's typed options (:mod:`masknet.registration.options`):
             ``ICPCriteria`` (``"icp"``), ``Open3DICPOptions``, ``PointNetLKOptions``,
             ``NetworkOptions`` (DCP, PRNet, PCRNet, RPM-Net), ``RANSACOptions``,
@@ -266,6 +268,11 @@ def register(
     )
     check_arguments(method, iterations, k, threshold, use_mask, init, refine_iterations, max_points)
     entry = METHOD_TABLE[method]
+    if entry.kind == "pipeline" and refine_iterations:
+        raise MaskNetError(
+            f"refine_iterations is for the rounds' methods; {method!r} refines itself "
+            "(ICP with a pair cut-off on the source points it keeps)"
+        )
     opts = options_for(method, options, method_options)
     template_rows = source_rows = None
     if drop_nonfinite:
@@ -347,11 +354,12 @@ def register(
             )
             total = run.transform @ total
             times["refine"] = time.perf_counter() - tic
-        cut = getattr(opts, "max_correspondence_distance", None)
-        if entry.kind != "pipeline" and (cut is None or refine_iterations or "fitness" not in info):
-            # Open3D's fitness of the pose returned, at the cut-off given or else 1.5
-            # template spacings: with no cut-off ICP counts every pair (always 1), and
-            # the networks report none.
+        if entry.kind != "pipeline":
+            # Open3D's fitness of the pose returned, over every source point against the
+            # whole template, at the cut-off given or else 1.5 template spacings: the
+            # rounds' own figure counted masked points at the sampled size (and with no
+            # cut-off every pair, always 1), and the networks report none.
+            cut = getattr(opts, "max_correspondence_distance", None)
             fit = inlier_fit(tpl_full, transform_points(total, src_full), cut)
             info = {**info, "fitness": fit.fitness, "inlier_rmse": fit.inlier_rmse}
 

@@ -39,7 +39,7 @@ import numpy as np
 from masknet.geometry.clouds import median_spacing
 from masknet.geometry.se3 import transform_points
 from masknet.registration.coarse import rotation_between_deg
-from masknet.registration.evaluation import DEFAULT_SPACINGS
+from masknet.registration.evaluation import DEFAULT_SPACINGS, given_cut
 from masknet.registration.validation import as_numpy_batch, as_rigid_transforms
 
 __all__ = ["Assessment", "assess_registration"]
@@ -116,17 +116,7 @@ def assess_registration(
     from masknet.geometry.knn import cloud_tree
     from masknet.registration.icp import icp
 
-    if max_distance is not None:
-        import warnings
-
-        warnings.warn(
-            "assess_registration(max_distance=...) is deprecated; use "
-            "max_correspondence_distance=, Open3D's name",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        max_correspondence_distance = max_distance
-    max_distance = max_correspondence_distance
+    max_distance = given_cut(max_correspondence_distance, max_distance, "assess_registration")
     template_b, source_b, single = as_numpy_batch(template, source)
     if not single:
         raise MaskNetError("assess_registration judges one pair: (N, 3) and (M, 3) clouds")
@@ -139,10 +129,6 @@ def assess_registration(
         limit = DEFAULT_SPACINGS * spacing
     else:
         limit = float(max_distance)
-    if max_distance is not None and not (np.isfinite(limit) and limit > 0):
-        raise MaskNetError(
-            f"max_correspondence_distance must be a positive number, got {max_distance!r}"
-        )
     if not limit > 0:
         raise MaskNetError("every point of a cloud is the same point: no spacing to measure by")
     template_pts, source_pts = _subset(full_template, 0), _subset(full_source, 1)

@@ -41,7 +41,6 @@ Example::
 
 from __future__ import annotations
 
-import functools
 import time
 from collections.abc import Callable
 from typing import Any, NamedTuple
@@ -108,7 +107,6 @@ def isolated_free(points: np.ndarray, radius: float) -> np.ndarray:
     return keep if keep.sum() >= max(3, len(points) // 2) else np.ones(len(points), bool)
 
 
-@functools.cache
 class PoseFit(NamedTuple):
     """fitness: fraction of points within the distance. rmse: their RMS distance.
     score: 1 - the mean of the squared distances capped at 3 times the distance, over that

@@ -2,7 +2,7 @@
 
 The same measure as Open3D's ``pipelines.registration.evaluate_registration``: a source
 point is an inlier when its nearest template point, after the transform, is within
-``max_distance``; ``fitness`` is the fraction of source points that are inliers and
+``max_correspondence_distance``; ``fitness`` is the fraction of source points that are inliers and
 ``inlier_rmse`` the root mean square of their distances. Unlike the ``fitness`` an ICP
 run reports (which counts every pair when it has no distance cut-off), it judges any
 method's result on the same footing, and says when a registration has failed.
@@ -30,14 +30,10 @@ from masknet.errors import MaskNetError
 from masknet.geometry.clouds import median_spacing
 from masknet.geometry.knn import cloud_tree
 from masknet.geometry.se3 import transform_points
+from masknet.registration.options import DEFAULT_SPACINGS
 from masknet.registration.validation import as_numpy_batch, as_rigid_transforms
 
 __all__ = ["DEFAULT_SPACINGS", "RegistrationQuality", "evaluate_registration", "inlier_fit"]
-
-# The default inlier distance, in template spacings (median nearest-neighbour distance):
-# where right and wrong results fit most differently (docs/RESULTS.md, "Did a registration
-# work?", scripts/fit_calibration.py); at 3 spacings wrong results fit as well as right ones.
-DEFAULT_SPACINGS = 1.5
 
 
 class RegistrationQuality(NamedTuple):
@@ -73,6 +69,31 @@ def inlier_fit(
     return RegistrationQuality(np.array(fitness), np.array(rmse), np.array(limits))
 
 
+def given_cut(
+    max_correspondence_distance: float | None, max_distance: float | None, function: str
+) -> float | None:
+    """The cut-off a caller gave, checked: ``max_correspondence_distance``, or the
+    deprecated ``max_distance`` with a DeprecationWarning (not both); None if neither."""
+    if max_distance is not None:
+        if max_correspondence_distance is not None:
+            raise MaskNetError(f"{function}: give max_correspondence_distance only")
+        warnings.warn(
+            f"{function}(max_distance=...) is deprecated; use max_correspondence_distance=, "
+            "Open3D's name",
+            DeprecationWarning,
+            stacklevel=3,
+        )
+        max_correspondence_distance = max_distance
+    cut = max_correspondence_distance
+    if cut is not None and (
+        isinstance(cut, bool | np.bool_)
+        or not isinstance(cut, int | float | np.number)
+        or not (np.isfinite(cut) and cut > 0)
+    ):
+        raise MaskNetError(f"max_correspondence_distance must be a positive number, got {cut!r}")
+    return None if cut is None else float(cut)
+
+
 def evaluate_registration(
     *,
     template: np.ndarray,
@@ -103,23 +124,9 @@ def evaluate_registration(
         MaskNetError: bad clouds (shape, NaN/inf, too few points) or a bad transform
             or cut-off.
     """
-    if max_distance is not None:
-        warnings.warn(
-            "evaluate_registration(max_distance=...) is deprecated; use "
-            "max_correspondence_distance=, Open3D's name",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        max_correspondence_distance = max_distance
+    cut = given_cut(max_correspondence_distance, max_distance, "evaluate_registration")
     template_b, source_b, single = as_numpy_batch(template, source)
     tf = as_rigid_transforms(transform, template_b.shape[0])
-    cut = max_correspondence_distance
-    if cut is not None and (
-        isinstance(cut, bool)
-        or not isinstance(cut, int | float | np.number)
-        or not (np.isfinite(cut) and cut > 0)
-    ):
-        raise MaskNetError(f"max_correspondence_distance must be a positive number, got {cut!r}")
     quality = inlier_fit(template_b, transform_points(tf, source_b), cut)
     if single:
         return RegistrationQuality(*(a[0] for a in quality))

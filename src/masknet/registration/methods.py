@@ -55,7 +55,9 @@ class Method(NamedTuple):
         (:data:`~masknet.registration.backends.base.Pipeline`).
     options: its typed options class (:mod:`masknet.registration.options`).
     default_iterations: ``max_iterations`` when none is given (None: the options' own).
-    uses_init: whether ``init`` (the centroid start) applies.
+    uses_init: whether ``init`` (the centroid start) matters; False for global registration,
+        which searches every pose and has no iteration budget (:data:`GLOBAL_METHODS`,
+        which the command line reads).
     kind: ``"backend"`` (runs inside the rounds), ``"network"`` (a learned back-end, the
         shipped weights by default) or ``"pipeline"`` (a whole coarse-to-fine call).
     """
@@ -113,7 +115,7 @@ def method_options(name: str, given: Any | None, keywords: dict[str, Any]) -> An
     from masknet.registration.options import as_dict
 
     kind = METHOD_TABLE[name].options
-    if given is not None and not isinstance(given, kind):
+    if given is not None and type(given) is not kind:
         raise MaskNetError(
             f"method {name!r} takes options={kind.__name__}(...), got {type(given).__name__}"
         )

@@ -19,6 +19,8 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from masknet.errors import MaskNetError
 
 __all__ = [
@@ -32,10 +34,11 @@ __all__ = [
     "as_dict",
 ]
 
-# The robust pipeline's pair cut-off when none is given, in template point spacings (the
-# median distance of a template point to its nearest neighbour): unit-free, and tight
-# enough that ``fitness`` separates right poses from wrong ones (docs/RESULTS.md).
-DEFAULT_CUT_SPACINGS = 1.5
+# The pair cut-off when none is given, in template point spacings (the median distance of
+# a template point to its nearest neighbour): unit-free, and where right and wrong results
+# fit most differently (docs/RESULTS.md, "Did a registration work?",
+# scripts/fit_calibration.py); at 3 spacings wrong results fit as well as right ones.
+DEFAULT_SPACINGS = 1.5
 
 
 def as_dict(options: Any) -> dict[str, Any]:
@@ -44,20 +47,25 @@ def as_dict(options: Any) -> dict[str, Any]:
 
 
 def _integer(name: str, value: Any, low: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or value < low:
+    if isinstance(value, bool | np.bool_) or not isinstance(value, int | np.integer) or value < low:
         raise MaskNetError(f"{name} must be an integer >= {low}, got {value!r}")
 
 
 def _positive(name: str, value: Any, allow_none: bool = True) -> None:
     if value is None and allow_none:
         return
-    if isinstance(value, bool) or not isinstance(value, int | float) or not value > 0:
+    if not _number(value) or not (np.isfinite(value) and value > 0):
         raise MaskNetError(f"{name} must be a positive number, got {value!r}")
 
 
 def _non_negative(name: str, value: Any) -> None:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not value >= 0:
+    if not _number(value) or not value >= 0:
         raise MaskNetError(f"{name} must be a number >= 0, got {value!r}")
+
+
+def _number(value: Any) -> bool:
+    """A real number (numpy scalars too), not a bool."""
+    return not isinstance(value, bool | np.bool_) and isinstance(value, int | float | np.number)
 
 
 @dataclass(frozen=True)
@@ -209,6 +217,10 @@ class RobustOptions:
             raise MaskNetError(
                 "robust: feature_points, hypothesis_points and fine_points must be >= 16"
             )
+        for name in ("ransac_trials", "correspondence_hypotheses", "hypotheses", "candidates"):
+            _integer(name, getattr(self, name), 0)
+        for name in ("hypothesis_points", "max_iterations", "inlier_iterations", "fine_points"):
+            _integer(name, getattr(self, name), 0)
         if self.ransac_trials < 1 or self.correspondence_hypotheses < 0:
             raise MaskNetError("robust: ransac_trials >= 1, correspondence_hypotheses >= 0")
         if not 0 <= self.hypotheses <= 24:
@@ -227,4 +239,4 @@ class RobustOptions:
         """The pair cut-off in the clouds' units, for a template of this point spacing."""
         if self.max_correspondence_distance is not None:
             return float(self.max_correspondence_distance)
-        return DEFAULT_CUT_SPACINGS * spacing
+        return DEFAULT_SPACINGS * spacing

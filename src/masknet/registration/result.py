@@ -84,10 +84,11 @@ class RegistrationResult:
     @property
     def fitness(self) -> np.ndarray | None:
         """Fraction of source points with a template point within the correspondence
-        distance (Open3D's definition), () or (B,), at the pose returned: the method's
-        ``max_correspondence_distance``, or where none is given 1.5 template spacings
-        (unit-free; ``"auto"`` and ``"robust"`` measure the source points they keep), as
-        :func:`~masknet.registration.evaluate_registration` measures any result."""
+        distance (Open3D's definition), () or (B,), at the pose the method returned: at its
+        ``max_correspondence_distance``, or where none is given 1.5 template spacings, as
+        :func:`~masknet.registration.evaluate_registration` measures any result. ``"auto"``
+        and ``"robust"`` count the source points they keep; after a scene search, it is the
+        method's on the object's points, before the final polish."""
         return self.info.get("fitness")
 
     @property

@@ -12,6 +12,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from masknet.errors import MaskNetError
+from masknet.geometry.clouds import MIN_POINTS
 from masknet.geometry.se3 import transform_points
 from masknet.registration.backends.base import BackendRun
 from masknet.registration.methods import adapter
@@ -79,6 +81,7 @@ def mask_and_register(
                     template, moved, k=k, threshold=threshold, precision=precision
                 )
             times["mask"] += time.perf_counter() - tic
+            check_template_mask(mask)
         tic = time.perf_counter()
         # Later rounds start where the last one ended; only the paper's loop (the
         # network again in every round) re-centres, as it always did.
@@ -106,6 +109,19 @@ def keep_source_points(source: np.ndarray, keep: np.ndarray | None) -> np.ndarra
         return source
     kept = np.flatnonzero(keep[0])
     return source[:, kept] if 3 <= len(kept) < source.shape[1] else source
+
+
+def check_template_mask(mask: np.ndarray | None) -> None:
+    """MaskNetError where a template mask (B, N) keeps fewer than 3 points of a pair:
+    nothing can be registered onto them."""
+    if mask is None:
+        return
+    fewest = int(mask.sum(-1).min())
+    if fewest < MIN_POINTS:
+        raise MaskNetError(
+            f"the mask kept {fewest} template point(s); registration needs at least "
+            f"{MIN_POINTS} (lower the threshold, or use top-k)"
+        )
 
 
 def usable(keep: np.ndarray | None) -> np.ndarray | None:

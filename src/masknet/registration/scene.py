@@ -61,6 +61,7 @@ from masknet.geometry.sampling import farthest_point_sample
 from masknet.geometry.se3 import hypothesis_rotations, transform_points
 from masknet.geometry.trimmed import trimmed_fit, trimmed_mean, trimmed_order
 from masknet.registration.icp import icp
+from masknet.registration.options import DEFAULT_SPACINGS
 
 __all__ = ["SceneSearch", "SceneMatch", "is_scene", "locate", "polish"]
 
@@ -188,7 +189,7 @@ def _inlier_distance(unit_template: np.ndarray, options: SceneSearch) -> float:
     option, or 1.5 median nearest-neighbour spacings of the template if more, but never
     more than ``refine_distance`` (a template of a few points has huge spacings)."""
     spacing = median_spacing(unit_template)
-    return max(options.inlier_distance, min(1.5 * spacing, options.refine_distance))
+    return max(options.inlier_distance, min(DEFAULT_SPACINGS * spacing, options.refine_distance))
 
 
 def _nearest(
@@ -272,7 +273,7 @@ def locate(
     # 1-2. Thinned scene and candidate centres (those with enough scene around them).
     thin = _voxel_thin(scn, opts.voxel)
     # Nearest neighbours in the hot loop, in float32 (the refinement is float64).
-    thin_tree = cloud_tree(thin.astype(np.float32))
+    thin_tree = cloud_tree(thin, np.float32)
     # A scene too large for the budget is searched on a coarser grid (less reliably).
     spacing = opts.spacing
     centres = _voxel_thin(thin, spacing)

@@ -5,12 +5,11 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from masknet.errors import MaskNetError
-from masknet.geometry.clouds import MIN_POINTS, unit_radius
+from masknet.geometry.clouds import unit_radius
 from masknet.geometry.sampling import farthest_point_sample
 from masknet.registration.backends.base import BackendRun
 from masknet.registration.options import NetworkOptions, PointNetLKOptions
-from masknet.registration.rounds import keep_source_points, usable
+from masknet.registration.rounds import check_template_mask, keep_source_points, usable
 
 __all__ = ["run_network"]
 
@@ -76,11 +75,7 @@ def _network_batch(
         if index is None
         else index
     )
-    if index.shape[1] < MIN_POINTS:
-        raise MaskNetError(
-            f"the mask kept {index.shape[1]} template point(s); a registration network needs "
-            f"at least {MIN_POINTS} (lower the threshold, or use top-k)"
-        )
+    check_template_mask(np.ones((1, index.shape[1]), bool))
     network = options.network
     limit = getattr(network, "config", {}).get("input_points")
     n_used, m = index.shape[1], source.shape[1]
