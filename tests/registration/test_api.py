@@ -592,3 +592,32 @@ def test_each_cloud_is_checked_once(monkeypatch, pairs):
         bad = source.copy()
         bad[3] = np.nan
         register(template, bad)
+
+
+def test_fitness_is_open3ds_at_the_cut_off_for_a_masked_loop(pairs):
+    """With a mask, a loop and a cut-off, result.fitness is still the pose's fit over every
+    source point against the whole template, as evaluate_registration measures it."""
+    template, source = pairs.template[0].numpy(), pairs.source[0].numpy()
+    result = register(template, source, iterations=2, max_correspondence_distance=0.03)
+    quality = evaluate_registration(
+        template=template,
+        source=source,
+        transform=result.transform,
+        max_correspondence_distance=0.03,
+    )
+    assert abs(float(result.fitness) - float(quality.fitness)) <= 2 / len(source)
+
+
+def test_a_mask_of_under_three_points_is_refused_on_every_path(pairs):
+    template, source = pairs.template[0].numpy(), pairs.source[0].numpy()
+    for method in ("icp", "open3d-icp"):
+        with pytest.raises(MaskNetError, match="the mask kept [0-2] template point"):
+            register(template, source, method=method, threshold=0.999999)
+    with pytest.raises(MaskNetError, match="the mask kept 2 template point"):
+        register(template, source, method="icp", k=2)
+
+
+def test_pose_fit_is_a_type():
+    from masknet.registration.coarse import PoseFit
+
+    assert isinstance(PoseFit(1.0, 0.0, 1.0), PoseFit)

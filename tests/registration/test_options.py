@@ -96,3 +96,20 @@ def test_max_correspondence_distance_follows_the_unit(pair):
     np.testing.assert_allclose(metres.R, millimetres.R, atol=1e-6)
     assert float(metres.fitness) == pytest.approx(float(millimetres.fitness))
     assert float(metres.fitness) < 1  # the cut-off was applied
+
+
+def test_each_method_takes_its_own_options_class_and_numpy_scalars(pair):
+    from masknet.registration import PointNetLKOptions
+
+    template, source = pair
+    with pytest.raises(MaskNetError, match="method 'dcp' takes options=NetworkOptions"):
+        register(template, source, method="dcp", options=PointNetLKOptions(tolerance=0.5))
+    assert ICPCriteria(max_iterations=np.int64(5), max_correspondence_distance=np.float32(0.05))
+    with pytest.raises(MaskNetError, match="ransac_trials must be an integer"):
+        RobustOptions(ransac_trials=2.5)
+
+
+def test_pipelines_refuse_refine_iterations(pair):
+    template, source = pair
+    with pytest.raises(MaskNetError, match="refine_iterations is for the rounds' methods"):
+        register(template, source, method="robust", refine_iterations=10)
