@@ -10,7 +10,15 @@ from torch import Tensor
 
 from masknet.errors import MaskNetError
 
-__all__ = ["MIN_POINTS", "Frame", "as_cloud_batch", "check_pair", "median_spacing", "unit_radius"]
+__all__ = [
+    "MIN_POINTS",
+    "SPACING_SAMPLE",
+    "Frame",
+    "as_cloud_batch",
+    "check_pair",
+    "median_spacing",
+    "unit_radius",
+]
 
 # The fewest points a template or source may have for MaskNet and the registration networks.
 MIN_POINTS = 3
@@ -77,6 +85,11 @@ def as_cloud_batch(
     t, s, single = check_pair(template, source, names)
     both = torch.from_numpy(np.concatenate([t, s], axis=1).astype(np.float32))
     return both[:, : t.shape[1]], both[:, t.shape[1] :], single
+
+
+# Points a cloud's spacing is measured on (a seeded subset of larger clouds): the median
+# of 4,096 nearest-neighbour distances is as good as that of millions, at a fraction of it.
+SPACING_SAMPLE = 4096
 
 
 def median_spacing(

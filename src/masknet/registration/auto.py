@@ -23,11 +23,12 @@ import time
 
 import numpy as np
 
-from masknet.geometry.clouds import median_spacing
+from masknet.geometry.clouds import SPACING_SAMPLE, median_spacing
 from masknet.geometry.knn import cloud_tree
 from masknet.geometry.se3 import transform_points
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
+from masknet.registration.backends.base import MaskModels, PipelineRun
 from masknet.registration.coarse import (
     FIT_SPACINGS,
     REFINE_TOLERANCE,
@@ -40,7 +41,7 @@ from masknet.registration.coarse import (
 )
 from masknet.registration.icp import icp
 from masknet.registration.options import ICPCriteria, RobustOptions
-from masknet.registration.robust import PipelineRun, robust_register
+from masknet.registration.robust import robust_register
 from masknet.registration.rounds import mask_and_register
 
 __all__ = ["auto_register"]
@@ -51,17 +52,17 @@ def auto_register(
     source: np.ndarray,
     template_net: np.ndarray,
     source_net: np.ndarray,
-    model: MaskNet | TwoSidedMaskNet | None,
-    search_model: TwoSidedMaskNet | None,
+    models: MaskModels,
     options: RobustOptions,
     times: dict[str, float],
     precision: str = "auto",
 ) -> PipelineRun:
     """The pipeline of the module docstring for template (B, N, 3) and source (B, M, 3),
     float64, pair by pair, at full resolution; the networks see template_net (B, n, 3) and
-    source_net (B, m, 3), the clouds sampled to their size. ``model`` masks the fast path
-    (None: plain ICP), ``search_model`` the escalation (None: no mask). Masks are over the
-    full clouds."""
+    source_net (B, m, 3), the clouds sampled to their size. ``models.first`` masks the fast
+    path (None: plain ICP), ``models.search`` the escalation (None: no mask). Masks are over
+    the full clouds. The method table's adapter of ``"auto"``."""
+    model, search_model = models
     runs = []
     for b in range(template.shape[0]):
         nets = (template_net[b : b + 1], source_net[b : b + 1])
@@ -97,7 +98,7 @@ def _one(
     fast = mask_and_register(*nets, "icp", model, 1, icp_options, times, precision=precision)
     tic = time.perf_counter()
     tree = cloud_tree(template)
-    spacing = median_spacing(template, tree, sample=4096) or 1.0
+    spacing = median_spacing(template, tree, sample=SPACING_SAMPLE) or 1.0
     fine = random_subset(source, options.fine_points)
     surface = isolated_free(fine, SURFACE_SPACINGS * spacing)
     source_mask = None
@@ -129,11 +130,17 @@ def _one(
         return PipelineRun(
             transform[None], mask, None if source_mask is None else source_mask[None], info
         )
-    known = None  # the fast path's network is the search's: its masks serve again
     if search_model is not None and search_model is model and fast.mask is not None:
-        known = (fast.mask, fast.source_mask)
+        # The fast path's network is the search's: its masks serve again.
+        search_model = _GivenMasks(fast.mask[0], fast.source_mask)
     run = robust_register(
-        template[None], source[None], *nets, search_model, options, times, precision, known
+        template[None],
+        source[None],
+        *nets,
+        MaskModels(search_model, None),
+        options,
+        times,
+        precision,
     )
     if run.info["score"][0] < fit.score:  # the fast path's pose fits better after all
         info = _info("fast", fit, fit.fitness)
@@ -177,3 +184,16 @@ def _info(path: str, fit: PoseFit, escalated: float) -> dict[str, np.ndarray]:
         "runner_up": np.full((1, 4, 4), np.nan),
         "escalated_fitness": np.array([escalated]),
     }
+
+
+class _GivenMasks:
+    """Masks already predicted, answering the mask protocol: template (n,) and source
+    (1, m) or None, for the clouds they were predicted on."""
+
+    def __init__(self, mask: np.ndarray, source_mask: np.ndarray | None) -> None:
+        self.masks = mask, None if source_mask is None else source_mask[0]
+
+    def predict_masks(
+        self, template: np.ndarray, source: np.ndarray, **_: object
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        return self.masks

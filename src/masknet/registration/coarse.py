@@ -47,7 +47,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from masknet.geometry.clouds import median_spacing
+from masknet.geometry.clouds import SPACING_SAMPLE, median_spacing
 from masknet.geometry.knn import cloud_tree
 from masknet.geometry.se3 import hypothesis_rotations, transform_points
 from masknet.registration.correspondences import (
@@ -188,7 +188,7 @@ def coarse_to_fine(
 
     tic = time.perf_counter()
     tree = cloud_tree(template)
-    spacing = median_spacing(template, tree, sample=4096) or 1.0
+    spacing = median_spacing(template, tree, sample=SPACING_SAMPLE) or 1.0
     limit = FIT_SPACINGS * spacing
     radius = float(np.linalg.norm(template - template.mean(0), axis=1).max())
     # Isolated source points (uniform outliers, stray returns) would cap every pose's

@@ -75,9 +75,9 @@ _BACKENDS = "masknet.registration.backends"
 METHOD_TABLE: dict[str, Method] = {
     m.name: m
     for m in (
-        Method("auto", "ICP (auto)", f"{_BACKENDS}.pipelines:run_auto", RobustOptions, None, False, "pipeline"),
+        Method("auto", "ICP (auto)", "masknet.registration.auto:auto_register", RobustOptions, None, False, "pipeline"),
         Method("icp", "ICP", f"{_BACKENDS}.icp:run_icp", ICPCriteria, 10, True, "backend"),
-        Method("robust", "ICP (robust)", f"{_BACKENDS}.pipelines:run_robust", RobustOptions, None, False, "pipeline"),
+        Method("robust", "ICP (robust)", "masknet.registration.robust:robust_register", RobustOptions, None, False, "pipeline"),
         Method("open3d-icp", "Open3D-ICP", f"{_BACKENDS}.icp:run_open3d_icp", Open3DICPOptions, 10, True, "backend"),
         Method("pointnetlk", "PointNetLK", f"{_BACKENDS}.network:run_network", PointNetLKOptions, 10, True, "network"),
         Method("dcp", "DCP", f"{_BACKENDS}.network:run_network", NetworkOptions, 1, True, "network"),

@@ -17,7 +17,7 @@ import numpy as np
 from masknet.geometry.knn import cloud_tree
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
-from masknet.registration.backends.base import PipelineRun
+from masknet.registration.backends.base import MaskModels, PipelineRun
 from masknet.registration.coarse import MaskFunction, coarse_to_fine
 from masknet.registration.options import RobustOptions
 
@@ -29,19 +29,14 @@ def network_masks(
     template_net: np.ndarray,
     source_net: np.ndarray,
     precision: str = "auto",
-    known: tuple[np.ndarray, np.ndarray | None] | None = None,
 ) -> MaskFunction:
     """A mask function for :func:`~masknet.registration.coarse.coarse_to_fine`: the
     network runs once on the clouds sampled to its size, template_net (n, 3) and
     source_net (m, 3), and every point of the clouds it is asked about takes the label of
-    its nearest sampled point. A one-sided MaskNet keeps every source point. ``known``:
-    the masks (n,) and (m,) (or None) of those clouds already predicted, reused instead."""
+    its nearest sampled point. A one-sided MaskNet keeps every source point."""
 
     def predict(template: np.ndarray, source: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        if known is not None:
-            t_mask, s_mask = known
-        else:
-            t_mask, s_mask = model.predict_masks(template_net, source_net, precision=precision)
+        t_mask, s_mask = model.predict_masks(template_net, source_net, precision=precision)
         if s_mask is None:  # a one-sided network keeps every source point
             s_mask = np.ones(len(source_net), bool)
         t_near = cloud_tree(template_net).query(template, k=1)[1].astype(np.int64)
@@ -56,25 +51,22 @@ def robust_register(
     source: np.ndarray,
     template_net: np.ndarray,
     source_net: np.ndarray,
-    model: MaskNet | TwoSidedMaskNet | None,
+    models: MaskModels,
     options: RobustOptions,
     times: dict[str, float],
     precision: str = "auto",
-    known: tuple[np.ndarray, np.ndarray | None] | None = None,
 ) -> PipelineRun:
     """The coarse-to-fine pipeline for template (B, N, 3) and source (B, M, 3), float64,
-    one pair at a time, at full resolution; the network (``model``, None: no masks) sees
-    template_net (B, n, 3) and source_net (B, m, 3), the clouds sampled to its size.
-    ``known``: its masks of those clouds, (B, n) and (B, m) or None, already predicted.
-    Masks are over the full clouds. Stage times are summed into ``times``."""
+    one pair at a time, at full resolution; the network (``models.first``, None: no masks)
+    sees template_net (B, n, 3) and source_net (B, m, 3), the clouds sampled to its size.
+    Masks are over the full clouds. Stage times are summed into ``times``. The method
+    table's adapter of ``"robust"``."""
+    model = models.first
     runs = []
     for b in range(template.shape[0]):
         masks = None
         if model is not None:
-            given = None
-            if known is not None:
-                given = (known[0][b], None if known[1] is None else known[1][b])
-            masks = network_masks(model, template_net[b], source_net[b], precision, given)
+            masks = network_masks(model, template_net[b], source_net[b], precision)
         runs.append(coarse_to_fine(template[b], source[b], masks, options, times))
     masks = [r.mask for r in runs]
     source_masks = [r.source_mask for r in runs]

@@ -8,6 +8,7 @@ frame; only the networks' own calls hold tensors.
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -81,7 +82,8 @@ def mask_and_register(
                     template, moved, k=k, threshold=threshold, precision=precision
                 )
             times["mask"] += time.perf_counter() - tic
-            check_template_mask(mask)
+            if mask is not None:
+                check_template_points(int(mask.sum(-1).min()))
         tic = time.perf_counter()
         # Later rounds start where the last one ended; only the paper's loop (the
         # network again in every round) re-centres, as it always did.
@@ -111,17 +113,29 @@ def keep_source_points(source: np.ndarray, keep: np.ndarray | None) -> np.ndarra
     return source[:, kept] if 3 <= len(kept) < source.shape[1] else source
 
 
-def check_template_mask(mask: np.ndarray | None) -> None:
-    """MaskNetError where a template mask (B, N) keeps fewer than 3 points of a pair:
-    nothing can be registered onto them."""
-    if mask is None:
-        return
-    fewest = int(mask.sum(-1).min())
+def check_template_points(fewest: int) -> None:
+    """MaskNetError where a mask keeps fewer than 3 template points of a pair (``fewest``,
+    the smallest count of a batch): nothing can be registered onto them."""
     if fewest < MIN_POINTS:
         raise MaskNetError(
             f"the mask kept {fewest} template point(s); registration needs at least "
             f"{MIN_POINTS} (lower the threshold, or use top-k)"
         )
+
+
+def points_in_use(
+    template: np.ndarray,
+    source: np.ndarray,
+    mask: np.ndarray | None,
+    source_mask: np.ndarray | None,
+) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """Pair by pair, the template points in use (N', 3) and the kept source points
+    (M', 3) of template (B, N, 3) and source (B, M, 3): for back-ends that take one pair
+    at a time."""
+    keep = usable(source_mask)
+    for i in range(template.shape[0]):
+        target = template[i] if mask is None else template[i][mask[i]]
+        yield target, source[i] if keep is None else source[i][keep[i]]
 
 
 def usable(keep: np.ndarray | None) -> np.ndarray | None:

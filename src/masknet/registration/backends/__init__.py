@@ -1,8 +1,10 @@
 """Adapters of the method table (:mod:`masknet.registration.methods`), one module per
 family: :mod:`.icp` (ICP, Open3D's ICP), :mod:`.network` (the learned networks),
-:mod:`.open3d_global` (Open3D's RANSAC and FGR) and :mod:`.pipelines` (``auto`` and
-``robust``). :mod:`.base` says what each takes and returns. The table imports each on
-first use.
+:mod:`.open3d_global` (Open3D's RANSAC and FGR). :mod:`.base` says what each takes and
+returns, and what the whole-call pipelines take (``auto`` and ``robust``, whose adapters
+are :func:`~masknet.registration.auto.auto_register` and
+:func:`~masknet.registration.robust.robust_register`). The table imports each on first
+use.
 """
 
 from masknet.registration.backends.base import Backend, BackendRun, Pipeline, PipelineRun

@@ -12,7 +12,7 @@ from masknet.registration.backends.base import BackendRun
 from masknet.registration.icp import icp
 from masknet.registration.open3d_icp import open3d_icp
 from masknet.registration.options import ICPCriteria, Open3DICPOptions, as_dict
-from masknet.registration.rounds import usable
+from masknet.registration.rounds import points_in_use, usable
 
 __all__ = ["run_icp", "run_open3d_icp"]
 
@@ -29,17 +29,12 @@ def run_icp(
     twice as fast as float64 and exact enough in the call's frame (centred, unit scale).
 
     template (B, N, 3), source (B, M, 3), mask (B, N) and source_mask (B, M) bool or None."""
-    keep = usable(source_mask)
     try:
         if template.shape[0] == 1:  # one pair: the KD-tree branch, no tensor
-            points = template[0] if mask is None else template[0][mask[0]]
-            solution = icp(
-                points,
-                source[0],
-                source_valid=None if keep is None else keep[0],
-                **as_dict(options),
-            )
+            target, moving = next(points_in_use(template, source, mask, source_mask))
+            solution = icp(target, moving, **as_dict(options))
         else:
+            keep = usable(source_mask)
             solution = icp(
                 torch.from_numpy(template).float(),
                 torch.from_numpy(source).float(),
@@ -71,11 +66,8 @@ def run_open3d_icp(
 ) -> BackendRun:
     """Open3D's point-to-point ICP, pair by pair, on the template points in use and the
     kept source points."""
-    keep = usable(source_mask)
     parts = []
-    for i in range(template.shape[0]):
-        target = template[i] if mask is None else template[i][mask[i]]
-        moving = source[i] if keep is None else source[i][keep[i]]
+    for target, moving in points_in_use(template, source, mask, source_mask):
         try:
             parts.append(open3d_icp(template=target, source=moving, **as_dict(options)))
         except (ValueError, TypeError) as exc:

@@ -9,7 +9,7 @@ from masknet.geometry.clouds import unit_radius
 from masknet.geometry.sampling import farthest_point_sample
 from masknet.registration.backends.base import BackendRun
 from masknet.registration.options import NetworkOptions, PointNetLKOptions
-from masknet.registration.rounds import check_template_mask, keep_source_points, usable
+from masknet.registration.rounds import check_template_points, keep_source_points, usable
 
 __all__ = ["run_network"]
 
@@ -29,36 +29,39 @@ def run_network(
     if keep is not None and not keep.all() and len(source) > 1:
         # A network weighs every point it is given (attention, soft matches): a batch
         # would have to repeat kept points to keep one shape, so it runs pair by pair.
-        parts = [
-            run_network(
-                template[i : i + 1],
-                source[i : i + 1, keep[i]],
-                None if mask is None else mask[i : i + 1],
-                None,
-                options,
-            )
-            for i in range(len(source))
-        ]
-        inliers = [p.correspondence_inliers for p in parts]
-        info = {key: np.concatenate([p.info[key] for p in parts]) for key in parts[0].info}
-        transform = np.concatenate([p.transform for p in parts])
-        return BackendRun(transform, info, None if inliers[0] is None else np.concatenate(inliers))
+        return _concatenated(
+            [
+                run_network(
+                    template[i : i + 1],
+                    source[i : i + 1, keep[i]],
+                    None if mask is None else mask[i : i + 1],
+                    None,
+                    options,
+                )
+                for i in range(len(source))
+            ]
+        )
     source = keep_source_points(source, keep)  # one pair: exactly its kept points
     if mask is None or len(set(mask.sum(1).tolist())) == 1:
         # Every pair keeps the same number of points (top-k masks): one batched call.
         index = None if mask is None else np.stack([np.flatnonzero(m) for m in mask])
         return _network_batch(template, source, index, options)
-    parts = [  # threshold masks: sizes differ, so pair by pair
-        _network_batch(template[i : i + 1], source[i : i + 1], idx[None], options)
-        for i, idx in enumerate(np.flatnonzero(m) for m in mask)
-    ]
-    inliers = (
-        None
-        if parts[0].correspondence_inliers is None
-        else np.concatenate([p.correspondence_inliers for p in parts])
+    return _concatenated(  # threshold masks: sizes differ, so pair by pair
+        [
+            _network_batch(template[i : i + 1], source[i : i + 1], idx[None], options)
+            for i, idx in enumerate(np.flatnonzero(m) for m in mask)
+        ]
     )
-    info = {key: np.concatenate([p.info[key] for p in parts]) for key in parts[0].info}
-    return BackendRun(np.concatenate([p.transform for p in parts]), info, inliers)
+
+
+def _concatenated(parts: list[BackendRun]) -> BackendRun:
+    """Runs of single pairs as one run of the batch."""
+    inliers = [p.correspondence_inliers for p in parts]
+    return BackendRun(
+        np.concatenate([p.transform for p in parts]),
+        {key: np.concatenate([p.info[key] for p in parts]) for key in parts[0].info},
+        None if inliers[0] is None else np.concatenate(inliers),
+    )
 
 
 def _network_batch(
@@ -75,7 +78,7 @@ def _network_batch(
         if index is None
         else index
     )
-    check_template_mask(np.ones((1, index.shape[1]), bool))
+    check_template_points(index.shape[1])
     network = options.network
     limit = getattr(network, "config", {}).get("input_points")
     n_used, m = index.shape[1], source.shape[1]

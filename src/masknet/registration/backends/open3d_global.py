@@ -7,7 +7,7 @@ import numpy as np
 from masknet.geometry.clouds import unit_radius
 from masknet.registration.backends.base import BackendRun
 from masknet.registration.options import FGROptions, RANSACOptions, as_dict
-from masknet.registration.rounds import usable
+from masknet.registration.rounds import points_in_use
 
 __all__ = ["run_fgr", "run_ransac"]
 
@@ -41,13 +41,11 @@ def run_fgr(
 
 
 def _run(solver, template, source, mask, source_mask, options) -> BackendRun:
-    keep = usable(source_mask)
     settings = as_dict(options)
     relative_voxel = settings.pop("voxel_size")
     transforms, fitness, rmse = [], [], []
-    for i in range(template.shape[0]):
-        target = template[i] if mask is None else template[i][mask[i]]
-        moving = source[i] if keep is None else source[i][keep[i]]
+    pairs = points_in_use(template, source, mask, source_mask)
+    for i, (target, moving) in enumerate(pairs):
         voxel = relative_voxel * float(unit_radius(template[i]))
         tf, fit, err = solver(template=target, source=moving, voxel_size=voxel, **settings)
         transforms.append(tf)

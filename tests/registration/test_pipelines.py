@@ -1,4 +1,4 @@
-"""masknet.registration.backends.pipelines: the adapters of ``auto`` and ``robust``, with the
+"""The method table's adapters of ``auto`` and ``robust`` (auto_register, robust_register), with the
 shipped MaskNet (auto's first look) and two-sided MaskNet (the search's), on ModelNet40
 pairs with a known transform: a near one, which auto's fast path settles, and a far one
 (150 degrees, outliers), which needs the coarse-to-fine search."""
@@ -11,9 +11,10 @@ from scipy.spatial.transform import Rotation
 
 from masknet.data import bundled_sample_path, load_modelnet40
 from masknet.models import MaskNet, TwoSidedMaskNet
+from masknet.registration.auto import auto_register as run_auto
 from masknet.registration.backends.base import MaskModels, PipelineRun
-from masknet.registration.backends.pipelines import run_auto, run_robust
 from masknet.registration.options import RobustOptions
+from masknet.registration.robust import robust_register as run_robust
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
