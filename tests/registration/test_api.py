@@ -111,14 +111,21 @@ def test_batch_shapes_and_equals_single(pairs, small_masknet):
     b, n, _ = template.shape
     # The paper's loop: no source mask, so a batch and its pairs see the same points (a
     # batch fills rejected source slots with kept points to keep one shape).
-    result = register(template, source, model=small_masknet, iterations=2, refine_masks="network")
+    result = register(
+        template, source, method="icp", model=small_masknet, iterations=2, refine_masks="network"
+    )
     assert result.R.shape == (b, 3, 3) and result.t.shape == (b, 3)
     assert result.transform.shape == (b, 4, 4) and result.mask.shape == (b, n)
     assert len(result.rounds) == 2 and all(r.shape == (b, 4, 4) for r in result.rounds)
     for key in ("converged", "fitness", "inlier_rmse", "iterations"):
         assert result.info[key].shape == (b,), key
     one = register(
-        template[1], source[1], model=small_masknet, iterations=2, refine_masks="network"
+        template[1],
+        source[1],
+        method="icp",
+        model=small_masknet,
+        iterations=2,
+        refine_masks="network",
     )
     # One frame per call: a batch's scale is its templates' mean radius, a pair's its own;
     # coordinates in the frame hold float32 values, so the two agree to that precision.

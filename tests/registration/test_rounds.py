@@ -8,6 +8,7 @@ import pytest
 from masknet import register
 from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
 from masknet.geometry.clouds import Frame
+from masknet.registration.api import REFINE_POINTS
 from masknet.registration.backends import BackendRun
 from masknet.registration.backends import icp as icp_backend
 from masknet.registration.refinement import NearestNeighbourMasks
@@ -57,7 +58,7 @@ def test_later_rounds_start_from_the_pose_reached(monkeypatch, pairs, use_mask):
     spy = _Spy()
     monkeypatch.setattr(icp_backend, "run_icp", spy)
     template, source = pairs.template[0].numpy(), pairs.source[0].numpy()
-    result = register(template, source, iterations=3, use_mask=use_mask)
+    result = register(template, source, method="icp", iterations=3, use_mask=use_mask)
     assert len(spy.sources) == 3
     frame = Frame.of(template[None].astype(np.float64))  # what the back-end sees
     for i in (1, 2):  # no centroid shift: exactly the source moved by the last round
@@ -77,7 +78,7 @@ def test_the_papers_loop_recentres_every_round(monkeypatch, pairs):
     spy = _Spy()
     monkeypatch.setattr(icp_backend, "run_icp", spy)
     template, source = pairs.template[0].numpy(), pairs.source[0].numpy()
-    register(template, source, iterations=2, refine_masks="network")
+    register(template, source, method="icp", iterations=2, refine_masks="network")
     # round 2 re-centres: its source centroid sits on the masked template's centroid,
     # not where round 1 left it (0.01 further along x)
     first, second = spy.sources[0][0].mean(0), spy.sources[1][0].mean(0)
@@ -89,7 +90,7 @@ def test_refined_loop_with_the_rule_reaches_a_precise_mask(pairs):
     truth = pairs.mask.numpy()
     for i in range(len(template)):
         one = register(template[i], source[i], iterations=1)
-        three = register(template[i], source[i], iterations=3, refine_masks="nearest")
+        three = register(template[i], source[i], method="icp", iterations=3, refine_masks="nearest")
         precision = (three.mask & truth[i]).sum() / three.mask.sum()
         assert precision >= 0.97, i  # the rule at a pose within a degree or so
         assert three.source_mask is not None and three.source_mask.all()
@@ -115,7 +116,7 @@ def test_refiner_masks_are_used_from_round_two(monkeypatch, pairs):
             return super().predict_masks(template, source)
 
     template, source = pairs.template[1].numpy(), pairs.source[1].numpy()
-    result = register(template, source, iterations=3, refine_masks=Recorder())
+    result = register(template, source, method="icp", iterations=3, refine_masks=Recorder())
     # rounds 2 and 3, then once at the pose returned
     assert len(calls) == 3
     last = result.rounds[-1]
@@ -130,7 +131,7 @@ def test_a_large_pair_loops_on_samples_and_masks_every_point():
     # 3,072 points of one shape (three jittered copies), sampled to 512 for the network
     template = np.concatenate([shape + rng.normal(0, 0.004, shape.shape) for _ in range(3)])
     source = template[template[:, 0] > -0.2] + np.array([0.05, 0.0, 0.0])
-    result = register(template, source, iterations=3, max_points=512)
+    result = register(template, source, method="icp", iterations=3, max_points=512)
     assert result.sampled == (512, result.sampled[1]) and result.sampled[1] <= 512
     assert result.mask.shape == (len(template),) and result.source_mask.shape == (len(source),)
     # the source lies on the template: nearly every source point is kept, and the mask
@@ -189,3 +190,51 @@ def test_the_start_moves_the_kept_source_centroid_onto_the_masked_template_centr
     np.testing.assert_array_equal(
         initial_transform("identity", template, source, mask)[0], np.eye(4)
     )
+
+
+# ------------------------------------------------------------ the default's refined rounds
+def test_a_default_loop_starts_from_the_default_answer(pairs):
+    template, source = pairs.template[0].numpy(), pairs.source[0].numpy()
+    default = register(template, source)
+    loop = register(template, source, iterations=3)
+    assert loop.method == "auto" and len(loop.rounds) == 3
+    np.testing.assert_allclose(loop.rounds[0], default.transform, atol=1e-9)
+    assert loop.mask.shape == (len(template),) and loop.source_mask.shape == (len(source),)
+    truth = pairs.mask[0].numpy()
+    precision = (loop.mask & truth).sum() / loop.mask.sum()
+    assert precision >= 0.9
+    # the refined rounds do not walk away from a correct answer
+    angle = np.degrees(np.arccos(np.clip((np.trace(loop.R.T @ _truth_R(pairs, 0)) - 1) / 2, -1, 1)))
+    assert angle < 1.0
+
+
+def test_the_refiner_sees_full_clouds_up_to_its_limit_and_the_pose_returned(pairs):
+    calls = []
+
+    class Recorder(NearestNeighbourMasks):
+        def predict_masks(self, template, source):
+            calls.append((template.copy(), source.copy()))
+            return super().predict_masks(template, source)
+
+    shape = load_modelnet40(bundled_sample_path()).points[0].astype(np.float64)
+    rng = np.random.default_rng(1)
+    template = np.concatenate([shape + rng.normal(0, 0.004, shape.shape) for _ in range(5)])
+    source = template[template[:, 0] > -0.2] + np.array([0.05, 0.0, 0.0])
+    result = register(template, source, iterations=2, refine_masks=Recorder())
+    assert len(calls) == 2  # round 2, then once at the pose returned
+    seen_template, seen_source = calls[-1]
+    assert seen_template.shape[1] == REFINE_POINTS < len(template)  # 5,120 points sampled
+    assert 0.3 * REFINE_POINTS < seen_source.shape[1] <= REFINE_POINTS
+    assert result.mask.shape == (len(template),) and result.source_mask.shape == (len(source),)
+    # the last call saw source points where the result puts them (in the frame it runs in)
+    frame = Frame.of(template[None])
+    moved = frame.points_in((source @ result.R.T + result.t)[None])[0]
+    assert np.linalg.norm(seen_source[0][:, None] - moved[None], axis=-1).min(1).max() < 1e-6
+
+
+def test_plain_rounds_after_the_default_have_no_mask_and_robust_takes_rounds(pairs):
+    template, source = pairs.template[2].numpy(), pairs.source[2].numpy()
+    plain = register(template, source, iterations=2, refine_masks=None)
+    assert plain.mask is None and plain.source_mask is None and len(plain.rounds) == 2
+    robust = register(template, source, method="robust", iterations=2)
+    assert robust.method == "robust" and len(robust.rounds) == 2 and robust.mask is not None

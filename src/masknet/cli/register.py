@@ -52,7 +52,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "--method",
         choices=list(METHODS),
         default=None,
-        help="auto (the default; icp when --iterations, --refine, --init identity or "
+        help="auto (the default; icp when --refine, --init identity or "
         "--max-iterations is given): one round of Mask-ICP, its fit checked, and robust "
         "where the fit says it may be wrong; robust: the coarse-to-fine pipeline (FPFH "
         "correspondence hypotheses, then the two-sided mask and rotation hypotheses; any "
@@ -78,8 +78,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "--iterations",
         type=positive_int,
         default=1,
-        help="rounds of mask -> register (default 1, the paper's Mask-X); from round 2 on the "
-        "masks are refined on the pair as the last round left it (--refine-masks)",
+        help="rounds of mask -> register (default 1); from round 2 on the masks are refined "
+        "on the pair as the last round left it (--refine-masks). With auto or robust, round 1 "
+        "is that pipeline's answer",
     )
     p.add_argument(
         "--refine-masks",
@@ -208,7 +209,6 @@ def run(args: argparse.Namespace) -> None:
     from masknet.registration.methods import default_method
 
     rounds_asked = {
-        "iterations": args.iterations != 1,
         "refine": args.refine != 0,
         "init": args.init != "centroid",
         "max_iterations": args.max_iterations is not None,

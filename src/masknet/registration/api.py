@@ -9,8 +9,9 @@ source by the initialisation (``init="centroid"``: its centroid onto the centroi
 of the template points in use), run the method, compose. ``iterations=n`` repeats
 rounds on the moved source: rounds >= 2 take their masks from a refiner that sees the
 pair in one frame and start from the pose reached (``refine_masks="network"``: the
-paper's loop, its MaskNet in every round); ``refine_iterations`` ends with plain ICP
-against the whole template from the estimate reached.
+paper's loop, its MaskNet in every round); with the default method the first round
+is the default pipeline's answer. ``refine_iterations`` ends with plain ICP against the
+whole template from the estimate reached.
 
 Clouds larger than ``max_points`` (single pairs) are brought to the network's
 size by farthest point sampling, the source at the template's spacing (see
@@ -30,7 +31,7 @@ import numpy as np
 import torch
 
 from masknet.errors import MaskNetError, checks_done, warns_once
-from masknet.geometry.clouds import MIN_POINTS, Frame
+from masknet.geometry.clouds import MIN_POINTS, SPACING_SAMPLE, Frame, median_spacing
 from masknet.geometry.sampling import spread_mask
 from masknet.geometry.se3 import transform_points
 from masknet.models import REGISTRATION_NETWORKS
@@ -52,7 +53,12 @@ from masknet.registration.methods import (
     method_options as options_for,
 )
 from masknet.registration.options import ICPCriteria
-from masknet.registration.refinement import DEFAULT_REFINER, Refiner, resolve_refiner
+from masknet.registration.refinement import (
+    DEFAULT_REFINER,
+    Refiner,
+    refine_pose,
+    resolve_refiner,
+)
 from masknet.registration.result import RegistrationResult
 from masknet.registration.rounds import mask_and_register
 from masknet.registration.sampling import fit_to_network
@@ -136,6 +142,8 @@ def _info_out(info: dict, frame: Frame) -> dict:
 
 
 # Keywords that, with no method named, ask for Mask-ICP's rounds.
+# The most points of each cloud the refiner sees in the rounds after a pipeline.
+REFINE_POINTS = 4096
 _ICP_FIELDS = tuple(f.name for f in dataclasses.fields(ICPCriteria))
 
 
@@ -170,7 +178,7 @@ def register(
         method: a name of the method table (:data:`~masknet.registration.methods.METHOD_TABLE`).
             None (default) runs ``"auto"``, the method of a typed ``options`` object, or
             ``"icp"`` when an argument only Mask-ICP's rounds take is given
-            (``iterations`` other than 1, ``k``, ``threshold``, ``refine_iterations``,
+            (``k``, ``threshold``, ``refine_iterations``,
             ``init="identity"``, ICP's options). ``"auto"``: one round of Mask-ICP, its
             fit checked, and ``"robust"`` where the fit says it may be wrong
             (:mod:`masknet.registration.auto`; ``info["path"]`` says which ran).
@@ -184,15 +192,20 @@ def register(
             ``"pcrnet"`` or ``"rpmnet"`` (the shipped weights unless ``network=`` is
             given), ``"open3d-ransac"`` or ``"open3d-fgr"`` (Open3D's global registration
             on FPFH features). ``"auto"`` and ``"robust"`` run whole pipelines: they ignore
-            ``iterations``, ``k``, ``threshold``, ``init`` and ``refine_masks``, and refuse
-            ``refine_iterations``.
+            ``k``, ``threshold`` and ``init``, and refuse ``refine_iterations``; with
+            ``iterations`` > 1 their answer is round 1 and refined rounds follow.
         options: the method's typed options (:mod:`masknet.registration.options`):
             ``ICPCriteria`` (``"icp"``), ``Open3DICPOptions``, ``PointNetLKOptions``,
             ``NetworkOptions`` (DCP, PRNet, PCRNet, RPM-Net), ``RANSACOptions``,
             ``FGROptions``, ``RobustOptions`` (``"auto"``, ``"robust"``). Or give its
             fields as keywords (``**method_options``), not both.
         use_mask: Mask-X (True) or plain X (False).
-        iterations: rounds of {mask -> initialise -> register -> move the source}.
+        iterations: rounds of {mask -> initialise -> register -> move the source}. After
+            ``"auto"`` (the default) or ``"robust"``, whose answer is round 1, each further
+            round masks both clouds with the refiner at the pose reached (seeing up to
+            ``REFINE_POINTS`` of each) and runs ICP at full resolution on the masked points,
+            pairs cut at the pipeline's ``max_correspondence_distance``; ``mask`` and
+            ``source_mask`` are the refiner's at the pose returned.
         refine_iterations: after the rounds, this many iterations of plain ICP
             against the whole template (0: none).
         model: the MaskNet of the first round; None loads shipped weights once: the
@@ -232,8 +245,8 @@ def register(
             nearest-neighbour rule, about twice as fast), an object with
             ``predict_masks(template, source)``, or ``"network"`` / None: ``model``
             again in every round, each cloud centred on its own centroid (the paper's
-            loop). Refined rounds mask the source too (``source_mask``) and start from
-            the pose reached. A refiner's template mask is the top k points with k the
+            loop; after a pipeline: plain ICP rounds, no mask). Refined rounds mask the
+            source too (``source_mask``) and start from the pose reached. A refiner's template mask is the top k points with k the
             number of source points it keeps, and the learned one runs in fp32: ``k``,
             ``threshold`` and ``precision`` apply to round 1.
         drop_nonfinite: drop template and source rows holding NaN or inf (one pair
@@ -258,7 +271,6 @@ def register(
         method,
         options,
         {
-            "iterations": iterations != 1,
             "k": k is not None,
             "threshold": threshold is not None,
             "refine_iterations": refine_iterations != 0,
@@ -291,7 +303,7 @@ def register(
                 method, entry = "icp", METHOD_TABLE["icp"]
                 opts = ICPCriteria(max_iterations=method_options.get("max_iterations", 10))
         # A loop and robust mask with the two-sided network by default (it rejects outliers).
-        two_sided_default = method == "robust" or iterations > 1
+        two_sided_default = method == "robust" or (iterations > 1 and entry.kind != "pipeline")
         search_model = None  # auto's escalation: the two-sided network masks both clouds
         if use_mask and method == "auto":
             search_model = model if isinstance(model, TwoSidedMaskNet) else _default_two_sided()
@@ -325,9 +337,20 @@ def register(
         if entry.kind == "pipeline":  # full resolution; the networks see the sampled clouds
             models = MaskModels(model if use_mask else None, search_model)
             run = adapter(method)(tpl_full, src_full, tpl, src, models, opts, times, precision)
-            template_index = source_index = None  # its masks cover the full clouds already
             total, mask, source_mask, info = run
             inliers, rounds = None, [total[0] if single else total]
+            if iterations > 1:  # refined Mask-ICP rounds from the pipeline's pose
+                total, mask, source_mask, refined = _refined_rounds(
+                    tpl_full,
+                    src_full,
+                    total,
+                    refiner,
+                    iterations - 1,
+                    opts,
+                    times,
+                )
+                rounds += [r[0] if single else r for r in refined]
+            template_index = source_index = None  # the masks cover the full clouds already
         else:
             state = mask_and_register(
                 tpl,
@@ -354,7 +377,7 @@ def register(
             )
             total = run.transform @ total
             times["refine"] = time.perf_counter() - tic
-        if entry.kind != "pipeline":
+        if entry.kind != "pipeline" or iterations > 1:
             # Open3D's fitness of the pose returned, over every source point against the
             # whole template, at the cut-off given or else 1.5 template spacings: the
             # rounds' own figure counted masked points at the sampled size (and with no
@@ -419,3 +442,41 @@ def register(
             method=method,
             scene=found,
         )
+
+
+def _refined_rounds(
+    template: np.ndarray,
+    source: np.ndarray,
+    start: np.ndarray,
+    refiner: Refiner | None,
+    rounds: int,
+    options: Any,
+    times: dict[str, float],
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, list[np.ndarray]]:
+    """A pipeline's pose (B, 4, 4) for template (B, N, 3) and source (B, M, 3) taken through
+    ``rounds`` refined Mask-ICP rounds, pair by pair (:func:`refine_pose`). Returns the transforms (B, 4, 4), the
+    masks (B, N) and (B, M) or None, and the transform after each round."""
+    poses = []
+    for b in range(template.shape[0]):
+        t, s = template[b], source[b]
+        # The refiner sees the clouds at full resolution up to REFINE_POINTS: on real scans
+        # its masks are more precise there than at the first round's size, spread.
+        _, _, t_index, s_index = fit_to_network(t[None], s[None], True, REFINE_POINTS)
+        sampled = (
+            np.arange(len(t)) if t_index is None else t_index,
+            np.arange(len(s)) if s_index is None else s_index,
+        )
+        spacing = median_spacing(t, sample=SPACING_SAMPLE) or 1.0
+        poses.append(
+            refine_pose(t, s, sampled, start[b], refiner, rounds, options.cut(spacing), times)
+        )
+    transform = np.stack([p.transform for p in poses])
+    history = [np.stack([p.rounds[r] for p in poses]) for r in range(rounds)]
+    if refiner is None:
+        return transform, None, None, history
+    return (
+        transform,
+        np.stack([p.mask for p in poses]),
+        np.stack([p.source_mask for p in poses]),
+        history,
+    )

@@ -141,9 +141,9 @@ def method_options(name: str, given: Any | None, keywords: dict[str, Any]) -> An
 def default_method(method: str | None, options: Any | None, round_options: dict) -> str:
     """``method``, or for None the default: the method whose options class ``options`` is
     (``ICPCriteria`` -> ``"icp"``); else ``"auto"``, unless ``round_options`` (the arguments
-    only Mask-ICP's rounds take: ``iterations`` other than 1, ``k``, ``threshold``,
-    ``refine_iterations``, ``init="identity"``, ICP's options) ask for Mask-ICP itself,
-    which is then what runs."""
+    only Mask-ICP's rounds take: ``k``, ``threshold``, ``refine_iterations``,
+    ``init="identity"``, ICP's options) ask for Mask-ICP itself, which is then what runs.
+    ``iterations`` does not: ``auto``'s answer is then the loop's first round."""
     if method is not None:
         return method
     if options is not None:

@@ -25,14 +25,24 @@ Two refiners:
 from __future__ import annotations
 
 import functools
-from typing import Any, Protocol
+import time
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
 from masknet.errors import MaskNetError
 from masknet.geometry.clouds import median_spacing
+from masknet.geometry.se3 import transform_points
 
-__all__ = ["DEFAULT_REFINER", "REFINERS", "NearestNeighbourMasks", "Refiner", "resolve_refiner"]
+__all__ = [
+    "DEFAULT_REFINER",
+    "REFINERS",
+    "NearestNeighbourMasks",
+    "RefinedPose",
+    "Refiner",
+    "refine_pose",
+    "resolve_refiner",
+]
 
 # ``refine_masks`` by name: the rule, the shipped learned refiner, or the first round's
 # network again (the paper's loop).
@@ -124,3 +134,83 @@ def resolve_refiner(spec: Any, first_round_model: Any) -> Refiner | None:
     if spec == "learned":
         return _shipped_refiner()
     return spec
+
+
+class RefinedPose(NamedTuple):
+    """transform: (4, 4) source -> template after the last round. mask: (N,) bool template
+    points the refiner marks at that pose (None without a refiner). source_mask: (M,) bool
+    source points it keeps, likewise. rounds: (4, 4) transform after each round."""
+
+    transform: np.ndarray
+    mask: np.ndarray | None
+    source_mask: np.ndarray | None
+    rounds: list[np.ndarray]
+
+
+def refine_pose(
+    template: np.ndarray,
+    source: np.ndarray,
+    sampled: tuple[np.ndarray, np.ndarray],
+    start: np.ndarray,
+    refiner: Refiner | None,
+    rounds: int,
+    cut: float,
+    times: dict[str, float],
+) -> RefinedPose:
+    """Refined Mask-ICP rounds from a pose another stage found, for one pair.
+
+    Each round the refiner masks the pair as it stands (on the sampled clouds that the
+    networks see, its masks spread to every point), then ICP runs on the masked points at
+    full resolution, pairs cut at ``cut``, from the pose reached: the masks drop what the
+    source does not share with the template, and the cut-off what a mask missed.
+
+    Args:
+        template: (N, 3) float64, the full template. source: (M, 3) float64, likewise.
+        sampled: indices (n,) and (m,) of the points the refiner sees.
+        start: (4, 4) source -> template pose to start from.
+        refiner: the masks of each round, or None (plain ICP rounds).
+        rounds: how many rounds (>= 1).
+        cut: ICP's max_correspondence_distance, in the clouds' units.
+        times: seconds are added to ``"mask"`` and ``"register"``.
+    """
+    from masknet.geometry.knn import cloud_tree
+    from masknet.geometry.sampling import spread_mask
+    from masknet.registration.icp import icp
+
+    template_index, source_index = sampled
+    template_net = template[template_index][None]
+    total = np.asarray(start, np.float64)
+    mask = source_mask = None
+    tree = cloud_tree(template)
+    history = []
+
+    def masks_at(pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        tic = time.perf_counter()
+        moved = transform_points(pose, source[source_index]).reshape(1, -1, 3)
+        t_mask, s_mask = refiner.predict_masks(template_net, moved)
+        full = (
+            spread_mask(template, template_index, t_mask[0]),
+            spread_mask(source, source_index, s_mask[0]),
+        )
+        times["mask"] += time.perf_counter() - tic
+        return full
+
+    for _ in range(rounds):
+        if refiner is not None:
+            mask, source_mask = masks_at(total)
+        tic = time.perf_counter()
+        masked = mask is not None and mask.sum() >= 3  # else the whole template (its tree)
+        solution = icp(
+            template[mask] if masked else template,
+            source,
+            total,
+            max_correspondence_distance=cut,
+            source_valid=source_mask,
+            template_tree=None if masked else tree,
+        )
+        total = np.asarray(solution.transform).reshape(4, 4)
+        history.append(total.copy())
+        times["register"] += time.perf_counter() - tic
+    if refiner is not None:
+        mask, source_mask = masks_at(total)
+    return RefinedPose(total, mask, source_mask, history)
