@@ -302,3 +302,73 @@ def test_rejected_source_points_take_no_part_in_a_batch():
         np.testing.assert_allclose(batched.transform[b].numpy(), alone.transform[0], atol=1e-9)
         np.testing.assert_allclose(float(batched.fitness[b]), alone.fitness[0])
         np.testing.assert_allclose(float(batched.inlier_rmse[b]), alone.inlier_rmse[0], atol=1e-9)
+
+
+# ---------------------------------------------------------------------- point-to-plane
+def test_point_to_plane_converges_where_open3d_does(shapes, o3d):
+    """Same pairs and normals: Open3D's point-to-plane ICP and ours settle on one pose."""
+    from masknet.geometry.normals import estimate_normals
+
+    pairs = _pairs(shapes, 2, seed=12, keep_ratio=1.0, max_angle_deg=5, max_translation=0.05)
+    reg = o3d.pipelines.registration
+    for b in range(2):
+        template = pairs.template[b].double().numpy()
+        source = pairs.source[b].double().numpy()
+        normals = estimate_normals(template)[0]
+        ours = icp(template, source, max_iterations=60, relative_rmse=0, template_normals=normals)
+        target = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(template))
+        target.normals = o3d.utility.Vector3dVector(normals)
+        moving = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(source))
+        theirs = reg.registration_icp(
+            moving,
+            target,
+            10.0,
+            np.eye(4),
+            reg.TransformationEstimationPointToPlane(),
+            reg.ICPConvergenceCriteria(1e-12, 1e-12, 60),
+        ).transformation
+        np.testing.assert_allclose(ours.transform[0], theirs, atol=1e-6)
+        truth = pairs.transform[b].double().numpy()
+        np.testing.assert_allclose(ours.transform[0], truth, atol=1e-6)  # a copied source
+
+
+def test_point_to_plane_is_closer_than_point_to_point_on_a_resampled_surface():
+    """A source sampled between the template's points: point-to-point pulls it onto them."""
+    from masknet.geometry.normals import estimate_normals
+
+    g = np.random.default_rng(3)
+    u, v = g.uniform(-1, 1, (2, 4000))
+    template = np.stack([u, v, 0.3 * np.sin(2 * u) * np.cos(2 * v)], 1)
+    u, v = g.uniform(-0.7, 0.7, (2, 1500))  # re-sampled, a part of the surface
+    surface = np.stack([u, v, 0.3 * np.sin(2 * u) * np.cos(2 * v)], 1)
+    turn = make_transform(so3_exp(torch.tensor([[0.03, -0.02, 0.04]])), torch.zeros(1, 3))
+    truth = turn[0].double().numpy()
+    source = transform_points(np.linalg.inv(truth), surface)
+    cut = 0.2
+    plane = icp(
+        template,
+        source,
+        max_iterations=30,
+        max_correspondence_distance=cut,
+        template_normals=estimate_normals(template)[0],
+    )
+    point = icp(template, source, max_iterations=30, max_correspondence_distance=cut)
+
+    def off(solution) -> float:
+        return float(
+            np.linalg.norm(transform_points(solution.transform[0], source) - surface, axis=1).mean()
+        )
+
+    assert off(plane) < 0.5 * off(point)
+
+
+def test_point_to_plane_refuses_bad_normals(shapes):
+    template = shapes[0].astype(np.float64)
+    with pytest.raises(ValueError, match="template_normals"):
+        icp(template, template, template_normals=np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="numpy"):
+        icp(
+            torch.from_numpy(template)[None],
+            torch.from_numpy(template)[None],
+            template_normals=np.zeros_like(template),
+        )

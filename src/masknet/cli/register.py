@@ -315,6 +315,20 @@ def run(args: argparse.Namespace) -> None:
             )
     if result.source_mask is not None:
         print(f"source kept: {int(result.source_mask.sum()):,} of {len(source):,} points")
+    if len(result.rounds) > 1:  # how far each round moved the source: has the loop settled?
+        from masknet.geometry.se3 import transform_points
+        from masknet.registration.coarse import rotation_between_deg
+
+        steps = []
+        for r, (before, after) in enumerate(zip(result.rounds, result.rounds[1:], strict=False), 2):
+            shift = np.linalg.norm(
+                transform_points(after, source) - transform_points(before, source), axis=-1
+            )
+            steps.append(
+                f"round {r} {rotation_between_deg(before, after):.3f} deg, "
+                f"median point {np.median(shift):.3g}"
+            )
+        print("rounds moved the source: " + "; ".join(steps) + " (input units)")
     angle = float(result.rotation_deg)
     print(
         f"estimated motion: rotation {angle:.2f} deg, translation {np.linalg.norm(result.t):.4g} "

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from typing import Any
+
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -10,14 +13,29 @@ from masknet.geometry.knn import knn_points
 __all__ = ["estimate_normals"]
 
 
-def estimate_normals(points: Tensor, k: int = 16) -> tuple[Tensor, Tensor]:
+def estimate_normals(points: Tensor | np.ndarray, k: int = 16, tree: Any | None = None) -> tuple:
     """Unit normals (B, N, 3) of clouds (B, N, 3), and the neighbour indices used (B, N, k).
 
     The normal of point i is the eigenvector of the smallest eigenvalue of the
     covariance of its k nearest points (itself included). Its sign is arbitrary:
     users of these normals must not depend on it (RPM-Net's features here use
-    absolute cosines). Computed without gradients.
+    absolute cosines, point-to-plane ICP squares them). Computed without gradients.
+
+    A numpy cloud (N, 3) gives numpy (N, 3) float64 and (N, k), its neighbours from a
+    KD-tree (``tree``: one from :func:`masknet.geometry.knn.cloud_tree` of ``points``, built
+    here when None), so that large clouds need no (N, N) distances.
     """
+    if isinstance(points, np.ndarray):
+        from masknet.geometry.knn import cloud_tree
+
+        points = np.asarray(points, np.float64)
+        k = min(k, len(points))
+        tree = cloud_tree(points) if tree is None else tree
+        idx = tree.query(points, k=k)[1].astype(np.int64).reshape(len(points), k)
+        neighbours = points[idx]
+        centred = neighbours - neighbours.mean(1, keepdims=True)
+        _, vectors = np.linalg.eigh(centred.transpose(0, 2, 1) @ centred)
+        return vectors[..., 0], idx
     k = min(k, points.shape[1])
     with torch.no_grad():
         idx = knn_points(points, points, k).idx

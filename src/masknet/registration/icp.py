@@ -28,7 +28,7 @@ from torch import Tensor
 
 from masknet.geometry.align import rigid_align, rigid_transforms_numpy
 from masknet.geometry.knn import KDTreeIndex, cloud_tree, knn_points
-from masknet.geometry.se3 import make_transform, transform_points
+from masknet.geometry.se3 import make_transform, so3_exp, transform_points
 
 __all__ = ["ICPSolution", "icp", "icp_from_starts"]
 
@@ -84,8 +84,9 @@ def icp(
     template_valid: Tensor | None = None,
     source_valid: np.ndarray | Tensor | None = None,
     template_tree: Any | None = None,
+    template_normals: np.ndarray | None = None,
 ) -> ICPSolution:
-    """Point-to-point ICP: moves ``source`` onto ``template``.
+    """Point-to-point ICP (point-to-plane given normals): moves ``source`` onto ``template``.
 
     Arguments in masknet's order, ``(template, source)``, as :func:`masknet.register`.
 
@@ -105,6 +106,12 @@ def icp(
             the solve or the fitness (fixed shapes for masked, batched sources).
         template_tree: numpy only: a KD-tree of ``template`` from
             :func:`masknet.geometry.knn.cloud_tree`, built once for many calls.
+        template_normals: numpy only: (N, 3) unit normals of ``template``
+            (:func:`masknet.geometry.normals.estimate_normals`); then each update minimises
+            the distances of the source points to the template's tangent planes
+            (point-to-plane, linearised), which does not pull a source sampled apart from
+            the template onto its sample points. ``fitness`` and ``inlier_rmse`` stay
+            point-to-point.
 
     Returns:
         ICPSolution: numpy float64 for numpy input; for tensors, ``transform``,
@@ -126,7 +133,10 @@ def icp(
             max_correspondence_distance,
             source_valid,
             template_tree,
+            template_normals,
         )
+    if template_normals is not None:
+        raise ValueError("template_normals (point-to-plane) is for numpy pairs")
     return _icp_batch(
         template,
         source,
@@ -148,6 +158,7 @@ def _icp_pair(
     max_distance: float | None,
     source_valid: np.ndarray | None,
     tree: Any | None,
+    normals: np.ndarray | None = None,
 ) -> ICPSolution:
     """:func:`icp` for one numpy pair: template (N, 3), source (M, 3)."""
     if template.ndim != 2 or source.ndim != 2 or template.shape[1] != 3 or source.shape[1] != 3:
@@ -162,22 +173,29 @@ def _icp_pair(
     transform = np.eye(4) if init is None else np.array(init, dtype=np.float64).reshape(4, 4)
     total = max(len(source), 1)
 
+    if normals is not None and np.shape(normals) != template.shape:
+        raise ValueError(f"template_normals must be {template.shape}, got {np.shape(normals)}")
+
     def match(tf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
         moved = transform_points(tf, source)
         d2, idx = tree.query(moved, k=1, sqr_dists=True)
+        idx = idx.astype(np.int64)
         inlier = np.ones(len(d2), bool) if limit is None else d2 <= limit
         count = int(inlier.sum())
-        return moved, template[idx], inlier, count / total, float(d2[inlier].sum() / max(count, 1))
+        return moved, idx, inlier, count / total, float(d2[inlier].sum() / max(count, 1))
 
-    moved, matched, inlier, fitness, mse = match(transform)
+    def update(moved: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        if normals is None:
+            return rigid_transforms_numpy(moved[None], template[idx][None])[0]
+        return _point_to_plane_step(moved, template[idx], normals[idx])
+
+    moved, idx, inlier, fitness, mse = match(transform)
     converged, iterations = False, 0
     for _ in range(max_iterations if fitness > 0 else 0):
-        transform = (
-            rigid_transforms_numpy(moved[inlier][None], matched[inlier][None])[0] @ transform
-        )
+        transform = update(moved[inlier], idx[inlier]) @ transform
         iterations += 1
         previous = mse
-        moved, matched, inlier, fitness, mse = match(transform)
+        moved, idx, inlier, fitness, mse = match(transform)
         if fitness == 0:
             break
         if _settled(previous, mse, relative_rmse, floor):
@@ -190,6 +208,22 @@ def _icp_pair(
         np.array([fitness]),
         np.array([np.sqrt(mse)]),
     )
+
+
+def _point_to_plane_step(source: np.ndarray, target: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """The (4, 4) rigid update that minimises sum(((R p + t - q) . n)^2) over pairs p
+    (K, 3) -> q (K, 3) with normals n (K, 3), linearised in the rotation (small angles) and
+    made exactly rigid by the exponential map; identity for a degenerate system."""
+    a = np.concatenate([np.cross(source, normals), normals], axis=1)  # (K, 6)
+    b = ((target - source) * normals).sum(1)
+    try:
+        x = np.linalg.solve(a.T @ a, a.T @ b)
+    except np.linalg.LinAlgError:
+        return np.eye(4)
+    update = np.eye(4)
+    update[:3, :3] = so3_exp(torch.from_numpy(x[:3])[None])[0].numpy()
+    update[:3, 3] = x[3:]
+    return update
 
 
 class _Matches(NamedTuple):

@@ -161,13 +161,17 @@ def refine_pose(
     rounds: int,
     cut: float,
     times: dict[str, float],
+    max_iterations: int = 10,
 ) -> RefinedPose:
     """Refined Mask-ICP rounds from a pose another stage found, for one pair.
 
     Each round the refiner masks the pair as it stands (on ``sampled``, its masks spread to
-    every point; the learned refiner's template mask is its scores >= TEMPLATE_THRESHOLD), then ICP runs on the masked points at
-    full resolution, pairs cut at ``cut``, from the pose reached: the masks drop what the
-    source does not share with the template, and the cut-off what a mask missed.
+    every point; the learned refiner's template mask is its scores >= TEMPLATE_THRESHOLD),
+    then point-to-plane ICP (the template's PCA normals) runs on the masked points at full
+    resolution, pairs cut at ``cut``, from the pose reached: the masks drop what the source
+    does not share with the template, the cut-off what a mask missed, and the planes keep
+    a source sampled apart from the template from being pulled onto its sample points
+    (point-to-point ICP stops about 0.5 degrees off on such real-scan pairs).
 
     Args:
         template: (N, 3) float64, the full template. source: (M, 3) float64, likewise.
@@ -177,8 +181,10 @@ def refine_pose(
         rounds: how many rounds (>= 1).
         cut: ICP's max_correspondence_distance, in the clouds' units.
         times: seconds are added to ``"mask"`` and ``"register"``.
+        max_iterations: ICP's, per round.
     """
     from masknet.geometry.knn import cloud_tree
+    from masknet.geometry.normals import estimate_normals
     from masknet.geometry.sampling import spread_mask
     from masknet.registration.icp import icp
 
@@ -187,6 +193,7 @@ def refine_pose(
     total = np.asarray(start, np.float64)
     mask = source_mask = None
     tree = cloud_tree(template)
+    normals = estimate_normals(template, tree=tree)[0]
     history = []
 
     def masks_at(pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -209,9 +216,11 @@ def refine_pose(
             template[mask] if masked else template,
             source,
             total,
+            max_iterations=max_iterations,
             max_correspondence_distance=cut,
             source_valid=source_mask,
             template_tree=None if masked else tree,
+            template_normals=normals[mask] if masked else normals,
         )
         total = np.asarray(solution.transform).reshape(4, 4)
         history.append(total.copy())
