@@ -49,3 +49,29 @@ def test_resolve_refiner():
         resolve_refiner(42, model)
     with pytest.raises(MaskNetError, match="positive"):
         NearestNeighbourMasks(0.0)
+
+
+def test_a_refined_round_that_fits_worse_is_undone(monkeypatch):
+    """A round whose pose fits worse than its start (FIT_SLACK) is undone, and the rounds
+    stop there; the pose returned is the start's."""
+    # modules that bind icp at import do so before the patch
+    import masknet.registration.auto  # noqa: F401
+    import masknet.registration.coarse  # noqa: F401
+    import masknet.registration.icp as icp_module
+    from masknet.registration.refinement import refine_pose
+
+    g = np.random.default_rng(0)
+    template = g.uniform(-1, 1, (800, 3))
+    source = template[:500].copy()
+    far = np.eye(4)
+    far[:3, 3] = [3.0, 0.0, 0.0]  # nothing fits there
+
+    def astray(template, source, init, **_):
+        return icp_module.ICPSolution(far[None], np.array([True]), np.array([1]), 0.0, 0.0)
+
+    monkeypatch.setattr(icp_module, "icp", astray)
+    times = {"mask": 0.0, "register": 0.0}
+    sampled = (np.arange(len(template)), np.arange(len(source)))
+    out = refine_pose(template, source, sampled, np.eye(4), None, 3, 0.1, times)
+    np.testing.assert_array_equal(out.transform, np.eye(4))
+    assert len(out.rounds) == 3 and all((r == np.eye(4)).all() for r in out.rounds)
