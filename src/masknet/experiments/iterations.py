@@ -2,7 +2,7 @@
 
 Two loops on the same pairs, for ICP and PointNetLK: the paper's (its MaskNet in every
 round, each cloud centred on its own centroid) and the refined loop that
-``register(..., iterations=3)`` runs by default (the two-sided network in round 1,
+``register(..., method=X, iterations=3)`` runs (the two-sided network in round 1,
 refinement masks on the pair as it stands in rounds >= 2). The paired difference of
 the rotation errors, with its standard error, says whether the refined loop is better
 pair by pair.
@@ -77,8 +77,8 @@ def run(ctx: BenchmarkContext) -> ExperimentResult:
 
     summary = (
         f"{len(pairs.template)} pairs, default protocol, 3 rounds. The paper's loop runs its "
-        "MaskNet in every round; the refined loop is register(..., iterations=3) with its "
-        "defaults. paired_diff: refined minus paper, mean over the pairs, with its standard "
+        "MaskNet in every round; the refined loop is register(..., method=X, iterations=3) with "
+        "its defaults. paired_diff: refined minus paper, mean over the pairs, with its standard "
         "error (negative: the refined loop is better)."
     )
     return ExperimentResult(rows, summary, plot)

@@ -188,7 +188,7 @@ def masks_per_round(ctx: BenchmarkContext) -> ExperimentResult:
         f"{modelnet_pairs} ModelNet40 test pairs per set (paper protocol) and {per_scan} pairs "
         "per evaluation scan (70% views of 4,096-point templates, <= 45 degrees, noise 0.2% of "
         "the radius). The paper's loop runs its MaskNet in every round, each cloud centred on "
-        "its own centroid. 'nearest rule' and 'learned' are register(..., iterations=3) with "
+        "its own centroid. 'nearest rule' and 'learned' are register(..., method=X, iterations=3) with "
         "refine_masks set: the two-sided network in round 1, then both masks taken on the pair "
         "as the last round left it, and the returned masks those of the pose returned. Plain "
         "ICP gets the 30 iterations of three Mask-ICP rounds; PointNetLK three rounds. "
@@ -198,8 +198,9 @@ def masks_per_round(ctx: BenchmarkContext) -> ExperimentResult:
         "source points kept (all of them where no source mask exists); errors in degrees. "
         "'default, then ...' rows are register(..., iterations=3) with no method: round 1 is "
         "the default pipeline's answer (its fast path, or the robust search it escalates to), "
-        "then two rounds of ICP at full resolution with pairs cut at 1.5 template spacings, "
-        "on the points the learned refiner keeps or, in the plain rows, on every point."
+        "then two rounds of point-to-plane ICP at full resolution with pairs cut at 1.5 "
+        "template spacings, on the points the learned refiner keeps or, in the plain rows, on "
+        "every point (a round that fits worse than its start is undone)."
     )
     return ExperimentResult(rows, summary, plot)
 
