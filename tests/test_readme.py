@@ -110,13 +110,15 @@ def test_readme_python_example_runs(index, small_masknet, one_thread, tmp_path, 
         assert namespace["check"].verdict == "likely correct", namespace["check"]
         assert namespace["unmoved"].verdict == "likely wrong", namespace["unmoved"]
         checked.append("verdicts")
-    if "covered" in namespace:  # the refined loop: three rounds, masks at the pose returned
-        loop, rule = namespace["result"], namespace["rule"]
-        assert len(loop.rounds) == 3 and len(rule.rounds) == 3
-        assert_pose("result", 0.037, 0.0007)  # measured 0.0226 deg, 0.00044
-        assert_pose("rule", 1e-4, 1e-5)  # exact
-        assert precision(loop.mask) > 0.99 and precision(rule.mask) > 0.99  # 0.9986, 1.0
-        for mask in (loop.source_mask, rule.source_mask):  # a clean source: all 717 kept
+    if "covered" in namespace:  # the loops: three rounds, masks at the pose returned
+        result, loop, paper = (namespace[k] for k in ("result", "loop", "paper"))
+        assert len(result.rounds) == len(loop.rounds) == len(paper.rounds) == 3
+        assert result.method == "auto" and loop.method == "icp"
+        assert_pose("result", 1e-4, 1e-5)  # the default's loop: exact (5e-7 deg)
+        assert_pose("loop", 0.037, 0.0007)  # from MaskNet's mask: measured 0.0226 deg, 0.00044
+        assert_pose("paper", 0.12, 0.0011)  # measured 0.0715 deg, 0.00053
+        assert precision(result.mask) > 0.99 and precision(loop.mask) > 0.99  # 0.9958, 0.9986
+        for mask in (result.source_mask, loop.source_mask):  # a clean source: all 717 kept
             assert mask.shape == (len(source),) and mask.mean() >= 0.99
         checked.append("loop")
     if "kept" in namespace:  # method="masknet": 6 of the 72 outliers kept, 713 of 717 real
