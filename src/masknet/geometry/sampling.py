@@ -17,7 +17,7 @@ import numpy as np
 
 from masknet.geometry.knn import cloud_tree
 
-__all__ = ["FPSResult", "farthest_point_sample", "spread_mask"]
+__all__ = ["FPSResult", "farthest_point_sample", "nearest_sample", "spread_mask"]
 
 # Above this many points, FPS runs on a seeded uniform random subset of this size
 # first: the result is the same in distribution and the cost stays bounded.
@@ -82,5 +82,12 @@ def _gaps_in_order(chosen: np.ndarray, block: int = 512) -> np.ndarray:
 def spread_mask(template: np.ndarray, sampled: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """Give every template point (N, 3) the mask label (K,) of its nearest sampled point
     (indices (K,)); returns (N,)."""
-    _, nearest = cloud_tree(template[sampled]).query(template, k=1)
-    return mask[nearest.astype(np.int64)]
+    return mask[nearest_sample(template, sampled)]
+
+
+def nearest_sample(points: np.ndarray, sampled: np.ndarray) -> np.ndarray:
+    """For every point of ``points`` (N, 3), the position (N,) int64 in ``sampled`` (indices
+    (K,)) of its nearest sampled point: ``labels[nearest_sample(...)]`` spreads labels (K,)
+    of the samples to every point, for many labellings of one sample."""
+    _, nearest = cloud_tree(points[sampled]).query(points, k=1)
+    return nearest.astype(np.int64)

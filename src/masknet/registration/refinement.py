@@ -189,11 +189,14 @@ def refine_pose(
     """
     from masknet.geometry.knn import cloud_tree
     from masknet.geometry.normals import estimate_normals
-    from masknet.geometry.sampling import spread_mask
+    from masknet.geometry.sampling import nearest_sample
     from masknet.registration.coarse import pose_fit
     from masknet.registration.icp import icp
 
     template_index, source_index = sampled
+    # Each point takes the label of its nearest sample: found once for every round's masks.
+    template_nearest = nearest_sample(template, template_index)
+    source_nearest = nearest_sample(source, source_index)
     template_net = template[template_index][None]
     total = np.asarray(start, np.float64)
     mask = source_mask = None
@@ -205,10 +208,7 @@ def refine_pose(
         tic = time.perf_counter()
         moved = transform_points(pose, source[source_index]).reshape(1, -1, 3)
         t_mask, s_mask = _masks(refiner, template_net, moved)
-        full = (
-            spread_mask(template, template_index, t_mask[0]),
-            spread_mask(source, source_index, s_mask[0]),
-        )
+        full = t_mask[0][template_nearest], s_mask[0][source_nearest]
         times["mask"] += time.perf_counter() - tic
         return full
 

@@ -51,7 +51,6 @@ def mask_and_register(
     init: str = "centroid",
     start: np.ndarray | None = None,
     refiner: Refiner | None = None,
-    refine_first: bool = False,
 ) -> RoundsResult:
     """``iterations`` rounds on template (B, N, 3) and source (B, M, 3), float64.
 
@@ -63,9 +62,7 @@ def mask_and_register(
     that pose (no centroid shift); after the last round it masks the pair once more, at
     the pose reached. None runs ``model`` in every round (the paper's loop, each round
     starting with ``init``). Without a model (plain X), rounds >= 2 start from the pose
-    reached. ``refine_first``: round 1 is refined too, from ``start`` (a pose another stage
-    found, such as the default pipeline's). Seconds spent are added to ``times["mask"]``
-    and ``times["register"]``.
+    reached. Seconds spent are added to ``times["mask"]`` and ``times["register"]``.
     """
     run_method = adapter(method)
     b = template.shape[0]
@@ -75,8 +72,7 @@ def mask_and_register(
     run = None
     for round_index in range(iterations):
         moved = transform_points(total, source)
-        continuing = round_index > 0 or refine_first  # from a pose already reached
-        refining = refiner is not None and continuing
+        refining = refiner is not None and round_index > 0
         if refining or model is not None:
             tic = time.perf_counter()
             if refining:
@@ -91,7 +87,7 @@ def mask_and_register(
         tic = time.perf_counter()
         # Later rounds start where the last one ended; only the paper's loop (the
         # network again in every round) re-centres, as it always did.
-        restart = continuing and (refiner is not None or model is None)
+        restart = round_index > 0 and (refiner is not None or model is None)
         start_tf = initial_transform(
             "identity" if restart else init, template, moved, mask, source_mask
         )
@@ -99,7 +95,7 @@ def mask_and_register(
         times["register"] += time.perf_counter() - tic
         total = run.transform @ start_tf @ total
         rounds.append(total.copy())
-    if refiner is not None and (iterations > 1 or refine_first):  # the pose returned's masks
+    if refiner is not None and iterations > 1:  # the masks of the pose returned
         tic = time.perf_counter()
         mask, source_mask = refiner.predict_masks(template, transform_points(total, source))
         times["mask"] += time.perf_counter() - tic
