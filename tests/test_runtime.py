@@ -1,5 +1,6 @@
 """Device and precision helpers."""
 
+import numpy as np
 import pytest
 import torch
 
@@ -59,3 +60,38 @@ def test_unknown_device_is_one_clear_error():
     assert resolve_device("cpu").type == "cpu"
     with pytest.raises(MaskNetError, match="unknown device"):
         resolve_device("tpu:7")
+
+
+def test_small_blas_runs_numpy_blas_single_threaded_and_restores_it():
+    from threadpoolctl import threadpool_info
+
+    from masknet.registration import register
+    from masknet.runtime import _numpy_blas, small_blas
+
+    assert _numpy_blas() is not None, "numpy's BLAS is not found"
+
+    def numpy_blas_threads() -> list[int]:
+        return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+
+    before = numpy_blas_threads()
+
+    @small_blas
+    def inside() -> list[int]:
+        return [i["num_threads"] for i in _numpy_blas().info()]
+
+    assert inside() and inside() == [1] * len(inside())
+    assert numpy_blas_threads() == before
+
+    # register's stages run within it: a mask model sees the limit
+    seen = []
+
+    class Recorder:
+        def predict_masks(self, template, source, **_):
+            seen.extend(i["num_threads"] for i in _numpy_blas().info())
+            return np.ones(template.shape[:2], bool), None
+
+    rng = np.random.default_rng(0)
+    cloud = rng.normal(size=(64, 3))
+    register(cloud, cloud[:40], method="icp", model=Recorder())
+    assert seen and set(seen) == {1}
+    assert numpy_blas_threads() == before

@@ -27,6 +27,7 @@ from masknet.geometry.sampling import farthest_point_sample, spread_mask
 from masknet.models.masknet import MaskNet
 from masknet.models.refine import RefineMaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
+from masknet.runtime import small_blas
 
 __all__ = [
     "DenoiseResult",
@@ -64,6 +65,7 @@ def _default_refiner() -> RefineMaskNet:
 METHODS = ("distance", "masknet", "refined")
 
 
+@small_blas
 @warns_once
 def denoise(
     template: np.ndarray,

@@ -69,6 +69,7 @@ from masknet.registration.validation import (
     finite_rows,
     spread_rows,
 )
+from masknet.runtime import small_blas
 
 __all__ = [
     "GLOBAL_METHODS",
@@ -147,6 +148,7 @@ REFINE_POINTS = 4096
 _ICP_FIELDS = tuple(f.name for f in dataclasses.fields(ICPCriteria))
 
 
+@small_blas
 @warns_once
 def register(
     template: np.ndarray,
