@@ -4,8 +4,9 @@
    centroid onto the masked template's centroid, 10 iterations of ICP), then ICP with
    pairs cut at ``max_correspondence_distance`` (1.5 template spacings): a geometric inlier mask, once the
    clouds are close (the nearest-neighbour refinement rule).
-2. **Check.** The fit of the result: the share of the source's non-isolated points within
-   1.5 template spacings of the template (:func:`masknet.registration.coarse.pose_fit`).
+2. **Check.** The fit of the result: the share of the source's surface points (two
+   others within 2 template spacings: stray outliers do not count) within 1.5 template
+   spacings of the template (:func:`masknet.registration.coarse.pose_fit`).
    A correct result fits at least ``accept_fitness``; a result stopped at a wrong pose
    fits less.
 3. **Escalation.** Below that, the coarse-to-fine pipeline of ``method="robust"``
@@ -30,6 +31,7 @@ from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
 from masknet.registration.backends.base import MaskModels, PipelineRun
 from masknet.registration.coarse import (
+    CHECK_NEIGHBOURS,
     FIT_SPACINGS,
     REFINE_TOLERANCE,
     SURFACE_SPACINGS,
@@ -109,6 +111,7 @@ def _one(
         kept_fine = fast.source_mask[0][near_fine] & surface
         surface = kept_fine if kept_fine.sum() >= 3 else surface
     kept = fine[surface]
+    checked = fine[surface & isolated_free(fine, SURFACE_SPACINGS * spacing, CHECK_NEIGHBOURS)]
     sol = icp(
         template,
         kept,
@@ -120,8 +123,12 @@ def _one(
     )
     transform = sol.transform[0]
     fit = pose_fit(tree, kept, transform, FIT_SPACINGS * spacing)
+    if len(checked) >= 3:  # the verdict counts only points with neighbours enough
+        right = pose_fit(tree, checked, transform, FIT_SPACINGS * spacing).fitness
+    else:
+        right = fit.fitness
     times["fast"] = times.get("fast", 0.0) + time.perf_counter() - tic
-    if fit.fitness >= options.accept_fitness:
+    if right >= options.accept_fitness:
         mask = None
         if model is not None:  # the template points the moved source covers
             moved = transform_points(transform, kept)
@@ -143,7 +150,7 @@ def _one(
         precision,
     )
     if run.info["score"][0] < fit.score:  # the fast path's pose fits better after all
-        info = _info("fast", fit, fit.fitness)
+        info = _info("fast", fit, right)
         # The search's answers that fit as well and lie elsewhere make this one ambiguous.
         others = [(run.transform[0], run.info["fitness"][0], run.info["score"][0])]
         if np.isfinite(run.info["runner_up"][0]).all():
@@ -165,7 +172,7 @@ def _one(
         return PipelineRun(transform[None], run.mask, run.source_mask, info)
     info = dict(run.info)
     info["path"] = np.array([f"robust/{run.info['path'][0]}"])
-    info["escalated_fitness"] = np.array([fit.fitness])
+    info["escalated_fitness"] = np.array([right])
     return PipelineRun(run.transform, run.mask, run.source_mask, info)
 
 
