@@ -19,6 +19,18 @@ def test_isolated_points_are_found_and_a_sparse_cloud_keeps_all():
     assert isolated_free(rng.uniform(0, 100, (50, 3)), 0.01).all()
 
 
+def test_a_close_pair_of_outliers_is_no_surface_with_two_neighbours_asked():
+    """Two stray points 0.1 apart keep each other at one neighbour, not at two (the
+    check of auto's fast path and of robust's early exit); the surface keeps both."""
+    rng = np.random.default_rng(0)
+    surface = np.c_[rng.uniform(0, 1, (500, 2)), np.zeros(500)]
+    pair = np.array([[5.0, 5, 5], [5.1, 5, 5]])
+    cloud = np.concatenate([surface, pair])
+    one, two = isolated_free(cloud, 0.2), isolated_free(cloud, 0.2, neighbours=2)
+    assert one[500:].all() and not two[500:].any()
+    assert one[:500].all() and two[:500].all()
+
+
 def test_fit_counts_points_within_the_distance_and_batched_agrees():
     template = np.c_[np.arange(10.0), np.zeros((10, 2))]
     source = template[:4] + [0, 0.05, 0]

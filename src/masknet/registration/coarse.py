@@ -222,7 +222,7 @@ def coarse_to_fine(
             ).transform[0]
         return Scored(*pose_fit(tree, points, tf, limit), tf, kind)
 
-    # 1. Correspondence hypotheses at each grid, fine first, scored as RANSAC left them;
+    # 1. Correspondence hypotheses at each grid, in order, scored as RANSAC left them;
     # the best two refined, and the search ends at the first grid whose best fits.
     grids: list[tuple[FeatureCloud, FeatureCloud, np.ndarray]] = []  # source, template, matches
 
@@ -327,7 +327,8 @@ def coarse_to_fine(
         tic = clock("hypotheses", tic)
         # 3. The best few, refined with the pair cut-off, rescored on all kept points.
         scored.sort(key=_rank, reverse=True)
-        best_few = _distinct(scored, options.candidates, limit)
+        # Candidates from different basins (distinct_deg apart): close poses refine into one.
+        best_few = _distinct(scored, options.candidates, limit, options.distinct_deg)
         finals = [refine(s.pose, kept_source, s.kind) for s in best_few]
         tic = clock("refine", tic)
     if not finals:  # no hypothesis at all (too few points for features): the identity
@@ -418,15 +419,15 @@ def _voxel_labels(voxels: np.ndarray, points: np.ndarray, keep: np.ndarray) -> n
     return keep[nearest.astype(np.int64)]
 
 
-def _distinct(scored: list, count: int, limit: float) -> list:
+def _distinct(scored: list, count: int, limit: float, degrees: float = 2.0) -> list:
     """The first ``count`` entries of ``scored`` (best first) whose poses differ from every
-    earlier one kept by 2 degrees or ``limit`` of translation: the same basin once."""
+    earlier one kept by ``degrees`` or ``limit`` of translation: the same basin once."""
     out: list = []
     for entry in scored:
         if len(out) == count:
             break
         if all(
-            rotation_between_deg(entry.pose, other.pose) >= 2.0
+            rotation_between_deg(entry.pose, other.pose) >= degrees
             or np.linalg.norm(entry.pose[:3, 3] - other.pose[:3, 3]) >= limit
             for other in out
         ):
