@@ -5,8 +5,9 @@
    pairs cut at ``max_correspondence_distance`` (1.5 template spacings): a geometric inlier mask, once the
    clouds are close (the nearest-neighbour refinement rule).
 2. **Check.** The fit of the result: the share of the source's surface points (two
-   others within 2 template spacings: stray outliers do not count) within 1.5 template
-   spacings of the template (:func:`masknet.registration.coarse.pose_fit`).
+   others within 2 template spacings, so that stray outliers do not count, unless that
+   drops over 5% of the points: :func:`masknet.registration.coarse.check_points`) within
+   1.5 template spacings of the template (:func:`masknet.registration.coarse.pose_fit`).
    A correct result fits at least ``accept_fitness``; a result stopped at a wrong pose
    fits less.
 3. **Escalation.** Below that, the coarse-to-fine pipeline of ``method="robust"``
@@ -31,11 +32,11 @@ from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
 from masknet.registration.backends.base import MaskModels, PipelineRun
 from masknet.registration.coarse import (
-    CHECK_NEIGHBOURS,
     FIT_SPACINGS,
     REFINE_TOLERANCE,
     SURFACE_SPACINGS,
     PoseFit,
+    check_points,
     isolated_free,
     pose_fit,
     random_subset,
@@ -111,7 +112,7 @@ def _one(
         kept_fine = fast.source_mask[0][near_fine] & surface
         surface = kept_fine if kept_fine.sum() >= 3 else surface
     kept = fine[surface]
-    checked = fine[surface & isolated_free(fine, SURFACE_SPACINGS * spacing, CHECK_NEIGHBOURS)]
+    checked = fine[check_points(fine, SURFACE_SPACINGS * spacing, surface)]
     sol = icp(
         template,
         kept,
