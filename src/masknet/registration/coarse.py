@@ -11,8 +11,8 @@ places, scores them all with one fit, and refines only the best:
    cut-off of two voxels. Strong on dense clouds and real scans, whatever the rotation.
 2. **Early exit.** When the best of those fits as a correct result does (``fitness`` of at
    least ``accept_fitness`` at 1.5 template spacings, the measure of
-   :func:`~masknet.registration.evaluate_registration`, over the source points with two
-   others within 2 template spacings), the search stops there. No network runs.
+   :func:`~masknet.registration.evaluate_registration`, over the source points that
+   :func:`check_points` keeps), the search stops there. No network runs.
 3. **The learned side**, otherwise. The two-sided MaskNet masks both clouds once (the
    template's overlap, the source's outliers). Matches that touch a rejected point are
    dropped and RANSAC runs again on the rest; and the kept source, centred on the masked
