@@ -6,7 +6,13 @@ import numpy as np
 from pykdtree.kdtree import KDTree
 from scipy.spatial.transform import Rotation
 
-from masknet.registration.coarse import check_points, isolated_free, pose_fit, pose_fits
+from masknet.registration.coarse import (
+    check_points,
+    isolated_free,
+    pose_fit,
+    pose_fits,
+    surface_points,
+)
 from masknet.registration.icp import icp, icp_from_starts
 
 
@@ -29,6 +35,7 @@ def test_a_close_pair_of_outliers_is_no_surface_with_two_neighbours_asked():
     one, two = isolated_free(cloud, 0.2), isolated_free(cloud, 0.2, neighbours=2)
     assert one[500:].all() and not two[500:].any()
     assert one[:500].all() and two[:500].all()
+    assert all((a == b).all() for a, b in zip(surface_points(cloud, 0.2), (one, two), strict=True))
 
 
 def test_the_check_keeps_a_sparse_part_of_a_surface_that_is_more_than_a_few_points():
@@ -40,13 +47,13 @@ def test_the_check_keeps_a_sparse_part_of_a_surface_that_is_more_than_a_few_poin
     pair = np.array([[5.0, 5, 5], [5.1, 5, 5]])
     few = np.concatenate([dense, pair])
     surface = isolated_free(few, 0.2)
-    assert check_points(few, 0.2, surface).sum() == 500
+    assert check_points(surface, isolated_free(few, 0.2, neighbours=2)).sum() == 500
     starts = 3 + 0.5 * np.arange(30)
     sparse = np.c_[np.sort(np.r_[starts, starts + 0.15]), np.zeros((60, 2))]
     many = np.concatenate([dense, sparse])
     surface = isolated_free(many, 0.2)
     assert surface[500:].all() and not isolated_free(many, 0.2, neighbours=2)[500:].any()
-    assert (check_points(many, 0.2, surface) == surface).all()
+    assert (check_points(surface, isolated_free(many, 0.2, neighbours=2)) == surface).all()
 
 
 def test_fit_counts_points_within_the_distance_and_batched_agrees():

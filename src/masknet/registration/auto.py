@@ -37,10 +37,10 @@ from masknet.registration.coarse import (
     SURFACE_SPACINGS,
     PoseFit,
     check_points,
-    isolated_free,
     pose_fit,
     random_subset,
     rotation_between_deg,
+    surface_points,
 )
 from masknet.registration.icp import icp
 from masknet.registration.options import ICPCriteria, RobustOptions
@@ -103,7 +103,7 @@ def _one(
     tree = cloud_tree(template)
     spacing = median_spacing(template, tree, sample=SPACING_SAMPLE) or 1.0
     fine = random_subset(source, options.fine_points)
-    surface = isolated_free(fine, SURFACE_SPACINGS * spacing)
+    surface, strict = surface_points(fine, SURFACE_SPACINGS * spacing)
     source_mask = None
     if fast.source_mask is not None:  # a two-sided network: its kept points, spread
         near_net = cloud_tree(nets[1][0]).query(source, k=1)[1].astype(np.int64)
@@ -112,7 +112,7 @@ def _one(
         kept_fine = fast.source_mask[0][near_fine] & surface
         surface = kept_fine if kept_fine.sum() >= 3 else surface
     kept = fine[surface]
-    checked = fine[check_points(fine, SURFACE_SPACINGS * spacing, surface)]
+    checked = fine[check_points(surface, strict)]
     sol = icp(
         template,
         kept,

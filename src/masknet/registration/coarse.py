@@ -70,6 +70,7 @@ __all__ = [
     "pose_fit",
     "random_subset",
     "rotation_between_deg",
+    "surface_points",
 ]
 
 # The inlier distance of the score, in template spacings: evaluate_registration's default.
@@ -108,23 +109,38 @@ class CoarseRun(NamedTuple):
     info: dict
 
 
-def check_points(points: np.ndarray, radius: float, surface: np.ndarray) -> np.ndarray:
-    """(P,) bool: the points of ``points`` (P, 3) that the check of a pose counts: those of
-    ``surface`` (P,) bool with ``CHECK_NEIGHBOURS`` others within ``radius``, unless that
+def surface_points(points: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """(P,) bool twice, from one KD-tree query of ``points`` (P, 3): those with at least one
+    other point within ``radius`` (:func:`isolated_free`), and those with
+    ``CHECK_NEIGHBOURS`` (for :func:`check_points`)."""
+    d = _neighbour_distances(points, CHECK_NEIGHBOURS)
+    return _most(d[:, min(1, d.shape[1] - 1)] <= radius), _most(d[:, -1] <= radius)
+
+
+def check_points(surface: np.ndarray, strict: np.ndarray) -> np.ndarray:
+    """(P,) bool: the points that the check of a pose counts: those of ``surface`` that are
+    also ``strict`` (``CHECK_NEIGHBOURS`` neighbours, :func:`surface_points`), unless that
     drops more than ``CHECK_MAX_DROP`` of them (then ``surface`` itself)."""
-    strict = surface & isolated_free(points, radius, CHECK_NEIGHBOURS)
-    return strict if strict.sum() >= (1 - CHECK_MAX_DROP) * surface.sum() else surface
+    kept = surface & strict
+    return kept if kept.sum() >= (1 - CHECK_MAX_DROP) * surface.sum() else surface
 
 
 def isolated_free(points: np.ndarray, radius: float, neighbours: int = 1) -> np.ndarray:
     """(P,) bool: points of ``points`` (P, 3) with at least ``neighbours`` other points
     within ``radius``. All True where that would keep under half of them (a cloud sparser
     than the radius)."""
-    tree = cloud_tree(points)
-    d, _ = tree.query(points, k=min(len(points), neighbours + 1))
-    d = np.asarray(d).reshape(len(points), -1)
-    keep = d[:, -1] <= radius
-    return keep if keep.sum() >= max(3, len(points) // 2) else np.ones(len(points), bool)
+    return _most(_neighbour_distances(points, neighbours)[:, -1] <= radius)
+
+
+def _neighbour_distances(points: np.ndarray, neighbours: int) -> np.ndarray:
+    """(P, k) distances of each point to itself and its nearest others, k <= neighbours + 1."""
+    d, _ = cloud_tree(points).query(points, k=min(len(points), neighbours + 1))
+    return np.asarray(d).reshape(len(points), -1)
+
+
+def _most(keep: np.ndarray) -> np.ndarray:
+    """``keep``, or all True where it keeps under half (a cloud sparser than the radius)."""
+    return keep if keep.sum() >= max(3, len(keep) // 2) else np.ones(len(keep), bool)
 
 
 class PoseFit(NamedTuple):
@@ -213,8 +229,8 @@ def coarse_to_fine(
     radius = float(np.linalg.norm(template - template.mean(0), axis=1).max())
     # Isolated source points (uniform outliers, stray returns) would cap every pose's
     # fitness below what a correct pose reaches: the score counts the rest.
-    surface = isolated_free(source, SURFACE_SPACINGS * spacing)
-    checked = check_points(source, SURFACE_SPACINGS * spacing, surface)
+    surface, strict = surface_points(source, SURFACE_SPACINGS * spacing)
+    checked = check_points(surface, strict)
     probe = random_subset(source[surface], options.hypothesis_points * 2)
     scored: list[Scored] = []
 
