@@ -23,7 +23,9 @@ import numpy as np
 import torch
 
 from masknet import evaluate_registration, register
+from masknet._atomic import write_text_atomic
 from masknet.evaluation.registration import pose_errors
+from masknet.experiments.scans import THREEDMATCH_FILES, load_pair
 from masknet.geometry.clouds import median_spacing
 from masknet.geometry.knn import cloud_tree
 from masknet.geometry.se3 import transform_points
@@ -76,9 +78,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, help="also write the rows here (JSON)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    template = np.load(args.scans / "geotransformer_demo_ref.npy").astype(np.float64)
-    source = np.load(args.scans / "geotransformer_demo_src.npy").astype(np.float64)
-    truth = np.load(args.scans / "geotransformer_demo_gt.npy").astype(np.float64)
+    template, source, truth = load_pair(args.scans, *THREEDMATCH_FILES)
     units = {"m": 1.0, "mm": 1000.0}
     out = {
         "machine": f"{platform.machine()}, {args.threads} threads, torch {torch.__version__}",
@@ -105,8 +105,7 @@ def main() -> None:
                 f"{_f(row['recall'])} | {_f(row['source_kept'])} | {row['seconds']:.2f} |"
             )
     if args.out:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps(out, indent=1) + "\n")
+        write_text_atomic(args.out, json.dumps(out, indent=1) + "\n")
 
 
 def _f(value: float | None) -> str:

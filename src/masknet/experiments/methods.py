@@ -14,7 +14,7 @@ import numpy as np
 
 from masknet.evaluation.registration import pose_errors
 from masknet.experiments.context import BenchmarkContext, ExperimentResult
-from masknet.experiments.scans import load_pair, scans_folder
+from masknet.experiments.scans import THREEDMATCH_FILES, load_pair, scans_folder
 from masknet.registration.methods import METHOD_TABLE
 
 __all__ = ["POINTS", "run"]
@@ -26,12 +26,7 @@ def run(ctx: BenchmarkContext) -> ExperimentResult:
     """Rotation and translation error and time of each method, with and without a mask."""
     from masknet.registration.api import register
 
-    template, source, truth = load_pair(
-        scans_folder(),
-        "geotransformer_demo_ref.npy",
-        "geotransformer_demo_src.npy",
-        "geotransformer_demo_gt.npy",
-    )
+    template, source, truth = load_pair(scans_folder(), *THREEDMATCH_FILES)
     rng = np.random.default_rng(0)
     template = template[rng.choice(len(template), POINTS, replace=False)]
     source = source[rng.choice(len(source), POINTS, replace=False)]

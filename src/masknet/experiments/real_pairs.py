@@ -27,7 +27,7 @@ import numpy as np
 
 from masknet.evaluation.registration import pose_errors
 from masknet.experiments.context import BenchmarkContext, ExperimentResult
-from masknet.experiments.scans import load_pair, scans_folder
+from masknet.experiments.scans import THREEDMATCH_FILES, load_pair, scans_folder
 from masknet.registration.api import register
 
 __all__ = ["consensus_pose", "open3d_tutorial", "run"]
@@ -100,12 +100,7 @@ def run(ctx: BenchmarkContext) -> ExperimentResult:
     """Every pipeline on the 3DMatch pair and the rooms, in metres and millimetres."""
     folder = scans_folder()
     pairs = {
-        "3DMatch pair": load_pair(
-            folder,
-            "geotransformer_demo_ref.npy",
-            "geotransformer_demo_src.npy",
-            "geotransformer_demo_gt.npy",
-        ),
+        "3DMatch pair": load_pair(folder, *THREEDMATCH_FILES),
     }
     voxels = {"3DMatch pair": VOXELS_M}
     notes = []

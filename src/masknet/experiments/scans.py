@@ -15,14 +15,15 @@ from masknet.experiments.pipelines import SWEEP_PIPELINES
 from masknet.geometry.se3 import so3_exp
 from masknet.registration.api import register
 
+# The 3DMatch fragment pair of ../shared/data/scans: template, source, ground truth.
+THREEDMATCH_FILES = (
+    "geotransformer_demo_ref.npy",
+    "geotransformer_demo_src.npy",
+    "geotransformer_demo_gt.npy",
+)
 # (name, template file, source file, ground truth file or None) in ../shared/data/scans.
 SCAN_PAIRS = [
-    (
-        "3DMatch pair (GeoTransformer demo)",
-        "geotransformer_demo_ref.npy",
-        "geotransformer_demo_src.npy",
-        "geotransformer_demo_gt.npy",
-    ),
+    ("3DMatch pair (GeoTransformer demo)", *THREEDMATCH_FILES),
     (
         "3DMatch pair (Open3D, downsampled)",
         "o3d_feature_cloud_bin_0.pcd",

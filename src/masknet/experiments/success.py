@@ -22,7 +22,7 @@ from scipy.spatial.transform import Rotation
 from masknet.data.pairs import PairConfig
 from masknet.evaluation.registration import pose_errors
 from masknet.experiments.context import BenchmarkContext, ExperimentResult
-from masknet.experiments.scans import load_pair, scans_folder
+from masknet.experiments.scans import THREEDMATCH_FILES, load_pair, scans_folder
 from masknet.registration.api import register
 from masknet.registration.assessment import VERDICTS, assess_registration
 
@@ -72,12 +72,7 @@ def _sets(ctx: BenchmarkContext) -> dict[str, tuple[list, int]]:
     per_scan = 1 if ctx.quick else 7
     for shared, name in ((True, "scans, shared points"), (False, "scans, re-sampled")):
         sets[name] = (_triples(scan_eval_pairs(per_scan, shared, ctx.seed)), 1)
-    pair = load_pair(
-        folder,
-        "geotransformer_demo_ref.npy",
-        "geotransformer_demo_src.npy",
-        "geotransformer_demo_gt.npy",
-    )
+    pair = load_pair(folder, *THREEDMATCH_FILES)
     sets["3DMatch pair"] = ([pair], 1 if ctx.quick else 20)
     if not ctx.quick:
         from masknet.experiments.real_pairs import consensus_pose
