@@ -23,12 +23,12 @@ import numpy as np
 import torch
 
 from masknet import evaluate_registration, register
-from masknet._atomic import write_text_atomic
 from masknet.evaluation.registration import pose_errors
 from masknet.experiments.scans import THREEDMATCH_FILES, load_pair
 from masknet.geometry.clouds import median_spacing
 from masknet.geometry.knn import cloud_tree
 from masknet.geometry.se3 import transform_points
+from masknet.io import write_text_atomic
 
 
 def per_round(template: np.ndarray, source: np.ndarray, truth: np.ndarray, rounds: int) -> list:

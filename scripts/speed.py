@@ -13,7 +13,6 @@ import argparse
 import json
 import platform
 import time
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -21,6 +20,7 @@ import torch
 from masknet import register
 from masknet.data import PairConfig, load_modelnet40, make_test_pairs
 from masknet.evaluation.registration import pair_arrays
+from masknet.io import write_text_atomic
 
 PIPELINES = {
     "ICP (masknet)": {"method": "icp", "use_mask": False},
@@ -68,7 +68,7 @@ def main() -> None:
         print(row, flush=True)
     machine = f"{platform.machine()}, {torch.get_num_threads()} threads, torch {torch.__version__}"
     if args.out:
-        Path(args.out).write_text(json.dumps({"machine": machine, "rows": rows}, indent=1))
+        write_text_atomic(args.out, json.dumps({"machine": machine, "rows": rows}, indent=1))
 
 
 if __name__ == "__main__":
