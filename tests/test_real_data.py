@@ -30,6 +30,23 @@ def scan_pairs(request, scans_dir):
     return scan_eval_pairs(2, request.param, seed=0)
 
 
+def test_the_default_registers_the_two_room_scans(scans_dir, o3d):
+    """Two laser scans of one room, 2 m and 41 degrees apart, each crowded at its
+    scanner's feet. The reference is independent of masknet: Open3D's point-to-plane ICP
+    from the robot's odometry that PCL's tutorial publishes, on even 5 cm grids (the
+    benchmark's consensus, reached there from every start). Measured 0.5 degrees and
+    1.6 cm; before the fit used even subsets, the default returned the scans as given,
+    41 degrees off."""
+    from masknet.experiments.real_pairs import refine_on_grid, room_odometry
+
+    template = read_points(scans_dir / "room_scan1.pcd", drop_nonfinite=True)
+    source = read_points(scans_dir / "room_scan2.pcd", drop_nonfinite=True)
+    reference, _ = refine_on_grid(template, source, room_odometry())
+    result = register(template, source)
+    rotation, translation = pose_errors(result.transform[None], reference[None])
+    assert rotation[0] < 1.0 and translation[0] < 0.05, (rotation, translation)
+
+
 def _precision(predicted: np.ndarray, truth: np.ndarray) -> float:
     return float((predicted & truth).sum() / max(predicted.sum(), 1))
 

@@ -4,10 +4,11 @@
    centroid onto the masked template's centroid, 10 iterations of ICP), then ICP with
    pairs cut at ``max_correspondence_distance`` (1.5 template spacings): a geometric inlier mask, once the
    clouds are close (the nearest-neighbour refinement rule).
-2. **Check.** The fit of the result: the share of the source's surface points (two
+2. **Check.** On even subsets of the clouds
+   (:func:`masknet.registration.prepared.prepare_pair`), the fit of the result: the share of the source's surface points (two
    others within 2 template spacings, so that stray outliers do not count, unless that
-   drops over 5% of the points: :func:`masknet.registration.coarse.check_points`) within
-   1.5 template spacings of the template (:func:`masknet.registration.coarse.pose_fit`).
+   drops over 5% of the points: :func:`masknet.registration.prepared.check_points`) within
+   1.5 template spacings of the template (:func:`masknet.registration.prepared.pose_fit`).
    A correct result fits at least ``accept_fitness``; a result stopped at a wrong pose
    fits less.
 3. **Escalation.** Below that, the coarse-to-fine pipeline of ``method="robust"``
@@ -25,26 +26,16 @@ import time
 
 import numpy as np
 
-from masknet.geometry.clouds import SPACING_SAMPLE, median_spacing
 from masknet.geometry.knn import cloud_tree
 from masknet.geometry.se3 import transform_points
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
 from masknet.registration.backends.base import MaskModels, PipelineRun
-from masknet.registration.coarse import (
-    FIT_SPACINGS,
-    REFINE_TOLERANCE,
-    SURFACE_SPACINGS,
-    PoseFit,
-    check_points,
-    pose_fit,
-    random_subset,
-    rotation_between_deg,
-    surface_points,
-)
+from masknet.registration.coarse import REFINE_TOLERANCE, rotation_between_deg
 from masknet.registration.icp import icp
 from masknet.registration.options import ICPCriteria, RobustOptions
-from masknet.registration.robust import robust_register
+from masknet.registration.prepared import FIT_SPACINGS, PoseFit, pose_fit, prepare_pair
+from masknet.registration.robust import robust_register_prepared
 from masknet.registration.rounds import mask_and_register
 
 __all__ = ["auto_register"]
@@ -100,10 +91,8 @@ def _one(
     icp_options = ICPCriteria()  # the paper's Mask-ICP: 10 iterations, all pairs
     fast = mask_and_register(*nets, "icp", model, 1, icp_options, times, precision=precision)
     tic = time.perf_counter()
-    tree = cloud_tree(template)
-    spacing = median_spacing(template, tree, sample=SPACING_SAMPLE) or 1.0
-    fine = random_subset(source, options.fine_points)
-    surface, strict = surface_points(fine, SURFACE_SPACINGS * spacing)
+    prepared = prepare_pair(template, source, options.fine_points)
+    fine_template, tree, spacing, fine, surface = prepared[:5]
     source_mask = None
     if fast.source_mask is not None:  # a two-sided network: its kept points, spread
         near_net = cloud_tree(nets[1][0]).query(source, k=1)[1].astype(np.int64)
@@ -112,9 +101,9 @@ def _one(
         kept_fine = fast.source_mask[0][near_fine] & surface
         surface = kept_fine if kept_fine.sum() >= 3 else surface
     kept = fine[surface]
-    checked = fine[check_points(surface, strict)]
+    checked = fine[prepared.checked]
     sol = icp(
-        template,
+        fine_template,
         kept,
         fast.transform[0],
         options.inlier_iterations,
@@ -141,7 +130,7 @@ def _one(
     if search_model is not None and search_model is model and fast.mask is not None:
         # The fast path's network is the search's: its masks serve again.
         search_model = _GivenMasks(fast.mask[0], fast.source_mask)
-    run = robust_register(
+    run = robust_register_prepared(
         template[None],
         source[None],
         *nets,
@@ -149,6 +138,7 @@ def _one(
         options,
         times,
         precision,
+        [prepared],
     )
     if run.info["score"][0] < fit.score:  # the fast path's pose fits better after all
         info = _info("fast", fit, right)

@@ -43,11 +43,10 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
-from masknet.geometry.clouds import SPACING_SAMPLE, median_spacing
 from masknet.geometry.knn import cloud_tree
 from masknet.geometry.se3 import hypothesis_rotations, transform_points
 from masknet.registration.correspondences import (
@@ -57,37 +56,19 @@ from masknet.registration.correspondences import (
     ransac_poses,
     voxel_for,
 )
-from masknet.registration.evaluation import DEFAULT_SPACINGS
 from masknet.registration.icp import icp, icp_from_starts
 from masknet.registration.options import RobustOptions
+from masknet.registration.prepared import (
+    FIT_SPACINGS,
+    PreparedPair,
+    pose_fit,
+    pose_fits,
+    prepare_pair,
+    random_subset,
+)
 
-__all__ = [
-    "CoarseRun",
-    "check_points",
-    "coarse_to_fine",
-    "hypothesis_rotations",
-    "isolated_free",
-    "pose_fit",
-    "random_subset",
-    "rotation_between_deg",
-    "surface_points",
-]
+__all__ = ["REFINE_TOLERANCE", "CoarseRun", "coarse_to_fine", "rotation_between_deg"]
 
-# The inlier distance of the score, in template spacings: evaluate_registration's default.
-FIT_SPACINGS = DEFAULT_SPACINGS
-# A source point with no other source point within this many template spacings is
-# isolated: it takes no part in the score.
-SURFACE_SPACINGS = 2.0
-# The check that a pose is right (the early exit, auto's fast path) counts only points
-# with this many others that near: two uniform outliers that happen to lie close are no
-# surface, and with 10% of them a right pose fit 0.97 instead of 0.99 (ModelNet40 pairs:
-# 68% of the fast paths accepted instead of 12%, no wrong one more) ...
-CHECK_NEIGHBOURS = 2
-# ... unless that drops more than this share of the points: stray outliers are few (2.5%
-# of the points in the median pair with 10% of them, 9% at most), and a larger share is a
-# sparse part of a real scan, which a wrong pose can misfit (a pair of 4,096-point scan
-# views 11 degrees off fit 0.90 in all and 0.99 without its sparse 13%).
-CHECK_MAX_DROP = 0.05
 # The refinement's ICP stops once its mean squared error changes by less than this
 # fraction: finer steps move a pose by far less than its error.
 REFINE_TOLERANCE = 5e-6
@@ -109,92 +90,10 @@ class CoarseRun(NamedTuple):
     info: dict
 
 
-def surface_points(points: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
-    """(P,) bool twice, from one KD-tree query of ``points`` (P, 3): those with at least one
-    other point within ``radius`` (:func:`isolated_free`), and those with
-    ``CHECK_NEIGHBOURS`` (for :func:`check_points`)."""
-    d = _neighbour_distances(points, CHECK_NEIGHBOURS)
-    return _most(d[:, min(1, d.shape[1] - 1)] <= radius), _most(d[:, -1] <= radius)
-
-
-def check_points(surface: np.ndarray, strict: np.ndarray) -> np.ndarray:
-    """(P,) bool: the points that the check of a pose counts: those of ``surface`` that are
-    also ``strict`` (``CHECK_NEIGHBOURS`` neighbours, :func:`surface_points`), unless that
-    drops more than ``CHECK_MAX_DROP`` of them (then ``surface`` itself)."""
-    kept = surface & strict
-    return kept if kept.sum() >= (1 - CHECK_MAX_DROP) * surface.sum() else surface
-
-
-def isolated_free(points: np.ndarray, radius: float, neighbours: int = 1) -> np.ndarray:
-    """(P,) bool: points of ``points`` (P, 3) with at least ``neighbours`` other points
-    within ``radius``. All True where that would keep under half of them (a cloud sparser
-    than the radius)."""
-    return _most(_neighbour_distances(points, neighbours)[:, -1] <= radius)
-
-
-def _neighbour_distances(points: np.ndarray, neighbours: int) -> np.ndarray:
-    """(P, k) distances of each point to itself and its nearest others, k <= neighbours + 1."""
-    d, _ = cloud_tree(points).query(points, k=min(len(points), neighbours + 1))
-    return np.asarray(d).reshape(len(points), -1)
-
-
-def _most(keep: np.ndarray) -> np.ndarray:
-    """``keep``, or all True where it keeps under half (a cloud sparser than the radius)."""
-    return keep if keep.sum() >= max(3, len(keep) // 2) else np.ones(len(keep), bool)
-
-
-class PoseFit(NamedTuple):
-    """fitness: fraction of points within the distance. rmse: their RMS distance.
-    score: 1 - the mean of the squared distances capped at 3 times the distance, over that
-    cap squared (a truncated least-squares fit, as TEASER++ scores): 1 for a perfect fit,
-    0 when no point is near. Unlike a count within one radius it still ranks poses whose
-    points all fall within it (sparse clouds sampled apart), and a sliding surface (a
-    floor, a wall) that fits a wrong pose at one radius seldom fits at all."""
-
-    fitness: float
-    rmse: float
-    score: float
-
-
-SCORE_TRUNCATION = 3.0  # the score's cap, in units of the inlier distance
-
-
-def pose_fit(tree: Any, points: np.ndarray, transform: np.ndarray, limit: float) -> PoseFit:
-    """Fit of ``points`` (P, 3) moved by ``transform`` (4, 4) against the cloud in ``tree``."""
-    return pose_fits(tree, points, transform[None], limit)[0]
-
-
-def pose_fits(tree: Any, points: np.ndarray, transforms: np.ndarray, limit: float) -> list:
-    """:func:`pose_fit` for each of ``transforms`` (H, 4, 4), with one KD-tree query."""
-    h, p = len(transforms), len(points)
-    if h == 0:
-        return []
-    moved = transform_points(transforms, points[None])
-    d2, _ = tree.query(moved.reshape(h * p, 3), k=1, sqr_dists=True)
-    d2 = d2.reshape(h, p)
-    inlier = d2 <= limit**2
-    count = inlier.sum(1)
-    rmse = np.sqrt(np.where(inlier, d2, 0.0).sum(1) / np.maximum(count, 1))
-    # Truncated least squares: each point's squared distance, capped, so that points with
-    # no counterpart (outliers, the part the other cloud does not see) weigh alike.
-    cap = (SCORE_TRUNCATION * limit) ** 2
-    score = 1.0 - np.minimum(d2, cap).mean(1) / cap
-    return [
-        PoseFit(c / p, float(r), float(sc)) for c, r, sc in zip(count, rmse, score, strict=True)
-    ]
-
-
 def rotation_between_deg(a: np.ndarray, b: np.ndarray) -> float:
     """The angle in degrees between the rotations of transforms ``a`` and ``b`` (4, 4)."""
     cos = (np.trace(a[:3, :3].T @ b[:3, :3]) - 1) / 2
     return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
-
-
-def random_subset(points: np.ndarray, count: int, seed: int = 0) -> np.ndarray:
-    """At most ``count`` of ``points`` (P, 3), a seeded random subset without repeats."""
-    if len(points) <= count:
-        return points
-    return points[np.random.default_rng(seed).choice(len(points), count, replace=False)]
 
 
 MaskFunction = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
@@ -206,16 +105,17 @@ def coarse_to_fine(
     predict_masks: MaskFunction | None,
     options: RobustOptions,
     times: dict[str, float],
+    prepared: PreparedPair | None = None,
 ) -> CoarseRun:
     """The pipeline of the module docstring for template (N, 3) and source (M, 3), float64
-    numpy, at any size: the features see the whole clouds, the fit and ICP at most
-    ``options.fine_points`` source points (a seeded random subset).
+    numpy, at any size: the features see the whole clouds, the fit and ICP the even
+    subsets of :func:`~masknet.registration.prepared.prepare_pair` (``prepared``: that of
+    this pair, already made).
 
     ``predict_masks(template, source)`` gives the network's masks over the clouds it is
     given ((N,) and (M,) bool: the template's overlap, the source's kept points); None
     searches without masks."""
-    full_source = source
-    source = random_subset(full_source, options.fine_points)
+    full_source, full_template = source, template
 
     def clock(stage: str, since: float) -> float:
         now = time.perf_counter()
@@ -223,14 +123,14 @@ def coarse_to_fine(
         return now
 
     tic = time.perf_counter()
-    tree = cloud_tree(template)
-    spacing = median_spacing(template, tree, sample=SPACING_SAMPLE) or 1.0
+    if prepared is None:
+        prepared = prepare_pair(full_template, full_source, options.fine_points)
+    template, tree, spacing, source = prepared[:4]
     limit = FIT_SPACINGS * spacing
     radius = float(np.linalg.norm(template - template.mean(0), axis=1).max())
     # Isolated source points (uniform outliers, stray returns) would cap every pose's
     # fitness below what a correct pose reaches: the score counts the rest.
-    surface, strict = surface_points(source, SURFACE_SPACINGS * spacing)
-    checked = check_points(surface, strict)
+    surface, checked = prepared.surface, prepared.checked
     probe = random_subset(source[surface], options.hypothesis_points * 2)
     scored: list[Scored] = []
 
@@ -272,13 +172,14 @@ def coarse_to_fine(
     if _has_open3d() and options.correspondence_hypotheses:
         # A larger template gets finer grids: features of a room at an object's
         # resolution would see walls and little else.
-        growth = float(np.clip(np.sqrt(len(template) / 1024), 1, 8))
+        growth = float(np.clip(np.sqrt(len(full_template) / 1024), 1, 8))
         voxels = [
-            max(voxel_for(template, int(count * growth), radius), spacing)
+            max(voxel_for(full_template, int(count * growth), radius), spacing)
             for count in options.feature_points
         ]
         for voxel in dict.fromkeys(voxels):  # two grids may come out alike on small clouds
-            grid_s, grid_t = feature_cloud(full_source, voxel), feature_cloud(template, voxel)
+            grid_s = feature_cloud(full_source, voxel)
+            grid_t = feature_cloud(full_template, voxel)
             grid = (grid_s, grid_t, mutual_matches(grid_s.features, grid_t.features))
             grids.append(grid)
             tic = clock("features", tic)
@@ -397,7 +298,7 @@ def coarse_to_fine(
     if predict_masks is not None:  # the template points the moved kept source covers
         # (also after an early exit, where the network never ran)
         moved = transform_points(transform, kept_source)
-        mask = cloud_tree(moved).query(template, k=1)[0] <= limit
+        mask = cloud_tree(moved).query(full_template, k=1)[0] <= limit
     if source_mask is not None and len(source) < len(full_source):
         # Each point of the whole source takes the label of its nearest subset point.
         _, nearest = cloud_tree(source).query(full_source, k=1)

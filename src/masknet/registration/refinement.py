@@ -190,8 +190,8 @@ def refine_pose(
     from masknet.geometry.knn import cloud_tree
     from masknet.geometry.normals import estimate_normals
     from masknet.geometry.sampling import nearest_sample
-    from masknet.registration.coarse import pose_fit
     from masknet.registration.icp import icp
+    from masknet.registration.prepared import pose_fit
 
     template_index, source_index = sampled
     # Each point takes the label of its nearest sample: found once for every round's masks.

@@ -20,8 +20,9 @@ from masknet.models.two_sided import TwoSidedMaskNet
 from masknet.registration.backends.base import MaskModels, PipelineRun
 from masknet.registration.coarse import MaskFunction, coarse_to_fine
 from masknet.registration.options import RobustOptions
+from masknet.registration.prepared import PreparedPair
 
-__all__ = ["network_masks", "robust_register"]
+__all__ = ["network_masks", "robust_register", "robust_register_prepared"]
 
 
 def network_masks(
@@ -56,18 +57,38 @@ def robust_register(
     times: dict[str, float],
     precision: str = "auto",
 ) -> PipelineRun:
+    """The method table's adapter of ``"robust"``: :func:`robust_register_prepared`, each
+    pair prepared here."""
+    return robust_register_prepared(
+        template, source, template_net, source_net, models, options, times, precision, None
+    )
+
+
+def robust_register_prepared(
+    template: np.ndarray,
+    source: np.ndarray,
+    template_net: np.ndarray,
+    source_net: np.ndarray,
+    models: MaskModels,
+    options: RobustOptions,
+    times: dict[str, float],
+    precision: str,
+    prepared: list[PreparedPair] | None,
+) -> PipelineRun:
     """The coarse-to-fine pipeline for template (B, N, 3) and source (B, M, 3), float64,
     one pair at a time, at full resolution; the network (``models.first``, None: no masks)
     sees template_net (B, n, 3) and source_net (B, m, 3), the clouds sampled to its size.
-    Masks are over the full clouds. Stage times are summed into ``times``. The method
-    table's adapter of ``"robust"``."""
+    Masks are over the full clouds. Stage times are summed into ``times``. ``prepared``:
+    each pair's :class:`~masknet.registration.prepared.PreparedPair`, where the caller
+    made it already (None: made here)."""
     model = models.first
     runs = []
     for b in range(template.shape[0]):
         masks = None
         if model is not None:
             masks = network_masks(model, template_net[b], source_net[b], precision)
-        runs.append(coarse_to_fine(template[b], source[b], masks, options, times))
+        ready = None if prepared is None else prepared[b]
+        runs.append(coarse_to_fine(template[b], source[b], masks, options, times, ready))
     masks = [r.mask for r in runs]
     source_masks = [r.source_mask for r in runs]
     info: dict[str, np.ndarray] = {

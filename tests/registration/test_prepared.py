@@ -1,0 +1,101 @@
+"""masknet.registration.prepared: a pair prepared once (even subsets, which points count)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from masknet.geometry.clouds import median_spacing
+from masknet.geometry.knn import cloud_tree
+from masknet.registration.prepared import (
+    check_points,
+    isolated_free,
+    pose_fit,
+    prepare_pair,
+    surface_points,
+)
+
+
+def test_isolated_points_are_found_and_a_sparse_cloud_keeps_all():
+    rng = np.random.default_rng(0)
+    surface = np.c_[rng.uniform(0, 1, (500, 2)), np.zeros(500)]
+    stray = rng.uniform(5, 9, (20, 3))
+    keep = isolated_free(np.concatenate([surface, stray]), 0.2)
+    assert keep[:500].all() and not keep[500:].any()
+    assert isolated_free(rng.uniform(0, 100, (50, 3)), 0.01).all()
+
+
+def test_a_close_pair_of_outliers_is_no_surface_with_two_neighbours_asked():
+    """Two stray points 0.1 apart keep each other at one neighbour, not at two (the
+    check of auto's fast path and of robust's early exit); the surface keeps both."""
+    rng = np.random.default_rng(0)
+    surface = np.c_[rng.uniform(0, 1, (500, 2)), np.zeros(500)]
+    pair = np.array([[5.0, 5, 5], [5.1, 5, 5]])
+    cloud = np.concatenate([surface, pair])
+    one, two = isolated_free(cloud, 0.2), isolated_free(cloud, 0.2, neighbours=2)
+    assert one[500:].all() and not two[500:].any()
+    assert one[:500].all() and two[:500].all()
+    assert all((a == b).all() for a, b in zip(surface_points(cloud, 0.2), (one, two), strict=True))
+
+
+def test_the_check_keeps_a_sparse_part_of_a_surface_that_is_more_than_a_few_points():
+    """Stray pairs are dropped from the check; a sparse part (points in pairs 0.15 apart,
+    0.5 between pairs: one neighbour each within 0.2) that is over 5% of the cloud is kept:
+    it may be the part a wrong pose misfits."""
+    rng = np.random.default_rng(0)
+    dense = np.c_[rng.uniform(0, 1, (500, 2)), np.zeros(500)]
+    pair = np.array([[5.0, 5, 5], [5.1, 5, 5]])
+    few = np.concatenate([dense, pair])
+    surface = isolated_free(few, 0.2)
+    assert check_points(surface, isolated_free(few, 0.2, neighbours=2)).sum() == 500
+    starts = 3 + 0.5 * np.arange(30)
+    sparse = np.c_[np.sort(np.r_[starts, starts + 0.15]), np.zeros((60, 2))]
+    many = np.concatenate([dense, sparse])
+    surface = isolated_free(many, 0.2)
+    assert surface[500:].all() and not isolated_free(many, 0.2, neighbours=2)[500:].any()
+    assert (check_points(surface, isolated_free(many, 0.2, neighbours=2)) == surface).all()
+
+
+def test_a_prepared_pair_is_even_where_a_random_subset_keeps_the_scanners_crowd():
+    """A room-like pair: a floor crowded at the scanner's feet (a tenth of the area, nine
+    tenths of the points) and walls. The prepared source keeps the crowd's share near its
+    area's; the fit on it ranks the right pose above the identity, which keeps the two
+    scanners' crowds together."""
+    rng = np.random.default_rng(0)
+
+    def scan(centre: np.ndarray) -> np.ndarray:
+        feet = centre[:2] + rng.normal(0, 0.5, (18_000, 2))
+        floor = np.c_[np.concatenate([feet, rng.uniform(-5, 5, (2_000, 2))]), np.zeros(20_000)]
+        u, h = rng.uniform(-5, 5, 4_000), rng.uniform(0, 3, 4_000)
+        walls = [np.c_[u, np.full(4_000, side), h] for side in (-5, 5)]
+        walls += [np.c_[np.full(4_000, side), u, h] for side in (-5, 5)]
+        return np.concatenate([floor, *walls])
+
+    template = scan(np.zeros(3))
+    shift = np.array([2.0, 1.0, 0.0])
+    source = scan(shift) - shift  # the second scanner stands at the origin of its frame
+    truth = np.eye(4)
+    truth[:3, 3] = shift
+    pair = prepare_pair(template, source, fine_points=2048)
+    crowd = np.linalg.norm(pair.source[:, :2], axis=1) < 1.0
+    assert len(pair.source) <= 2048 and len(pair.template) <= 8 * 2048
+    assert crowd.mean() < 0.2  # 18,000 of 36,000 input points lie there
+    limit = 1.5 * pair.spacing
+    right = pose_fit(pair.tree, pair.source, truth, limit).score
+    wrong = pose_fit(pair.tree, pair.source, np.eye(4), limit).score
+    assert right > wrong + 0.2
+    assert pose_fit(pair.tree, pair.source, truth, limit).fitness > 0.8
+    # A random subset against the whole template, at the whole template's spacing,
+    # counts the other way: only the crowd is dense enough to fit, and the identity
+    # lays one crowd on the other.
+    few = source[np.random.default_rng(1).choice(len(source), 2048, replace=False)]
+    tree = cloud_tree(template)
+    crowded = 1.5 * median_spacing(template, tree)
+    assert pose_fit(tree, few, np.eye(4), crowded).fitness > 0.45
+    assert pose_fit(tree, few, truth, crowded).fitness < 0.3
+
+
+def test_a_small_pair_is_prepared_whole():
+    rng = np.random.default_rng(0)
+    template, source = rng.normal(size=(500, 3)), rng.normal(size=(300, 3))
+    pair = prepare_pair(template, source, fine_points=4096)
+    assert (pair.template == template).all() and (pair.source == source).all()
