@@ -33,3 +33,45 @@ def test_icp_from_starts_equals_one_icp_per_start():
     for h in range(3):
         one = icp(template, source, starts[h], 20, relative_rmse=0.0).transform[0]
         np.testing.assert_allclose(batched[h], one, atol=1e-8)
+
+
+def _box_with_a_bump(rng: np.random.Generator) -> np.ndarray:
+    """Points on a 2 x 1 x 0.5 box surface, and a bump at one corner that breaks the
+    half-turn symmetry about its long axis."""
+    faces = []
+    for axis, size in enumerate((2.0, 1.0, 0.5)):
+        for side in (-0.5, 0.5):
+            p = rng.uniform(-0.5, 0.5, (300, 3)) * np.array([2.0, 1.0, 0.5])
+            p[:, axis] = side * size
+            faces.append(p)
+    bump = np.array([0.8, 0.4, 0.25]) + rng.normal(0, 0.06, (200, 3))
+    return np.concatenate(faces + [bump])
+
+
+def test_an_early_flip_gives_way_to_the_pose_the_clouds_are_near():
+    """A flip that passed the early exit gives way to the clouds as given when they
+    refine to a better fit; an early answer that is right gets nothing added."""
+    from masknet.registration.coarse import Scored, _as_given
+    from masknet.registration.options import RobustOptions
+    from masknet.registration.prepared import FIT_SPACINGS, prepare_pair
+
+    rng = np.random.default_rng(0)
+    template = _box_with_a_bump(rng)
+    truth = np.eye(4)
+    truth[:3, :3] = Rotation.from_euler("z", 20, degrees=True).as_matrix()
+    source = (template - truth[:3, 3]) @ truth[:3, :3]  # truth moves source onto template
+    flip = truth.copy()
+    flip[:3, :3] = truth[:3, :3] @ Rotation.from_euler("x", 180, degrees=True).as_matrix()
+    pair = prepare_pair(template, source, 4096)
+    limit = FIT_SPACINGS * pair.spacing
+    kept = pair.source[pair.surface]
+
+    def early(pose: np.ndarray) -> list:
+        return [Scored(*pose_fit(pair.tree, kept, pose, limit), pose, "fpfh")]
+
+    options = RobustOptions()
+    found = _as_given(early(flip), pair.template, kept, pair.tree, limit, options)
+    assert len(found) == 1 and found[0].score > early(flip)[0].score
+    angle = Rotation.from_matrix(found[0].pose[:3, :3] @ truth[:3, :3].T).magnitude()
+    assert np.degrees(angle) < 1.0
+    assert _as_given(early(truth), pair.template, kept, pair.tree, limit, options) == []
