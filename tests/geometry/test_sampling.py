@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from masknet.geometry.sampling import farthest_point_sample
+from masknet.geometry.sampling import PRESAMPLE, farthest_point_sample, grid_subset
 
 
 def test_small_clouds_are_kept_whole():
@@ -59,3 +59,31 @@ def test_matches_exact_fps_order_and_reports_the_kept_set_radius_when_stopping_e
     covering = np.sqrt(((points[:, None] - kept[None]) ** 2).sum(-1)).min(1).max()
     np.testing.assert_allclose(early.radius, covering, rtol=1e-5)
     assert early.radius <= 0.5
+
+
+def _crowded_square(rng: np.random.Generator, n: int) -> np.ndarray:
+    """A 10 x 10 square, nine tenths of its n points within a disc of radius 0.5 at the
+    centre (a scanner's crowd at its feet)."""
+    crowd = rng.normal(0, 0.25, (9 * n // 10, 2))
+    rest = rng.uniform(-5, 5, (n - len(crowd), 2))
+    return np.c_[np.concatenate([crowd, rest]), np.zeros(n)]
+
+
+def test_a_grid_subset_is_even_and_about_the_count_asked():
+    rng = np.random.default_rng(0)
+    square = _crowded_square(rng, 50_000)
+    kept = grid_subset(square, 2_000)
+    assert 1_800 <= len(kept) <= 2_000 and len(np.unique(kept)) == len(kept)
+    near = np.linalg.norm(square[kept, :2], axis=1) < 1.0
+    assert near.mean() < 0.1  # the disc is 3% of the area, and held 90% of the points
+    assert (grid_subset(square[:500], 2_000) == np.arange(500)).all()
+    assert (grid_subset(square, 2_000, seed=3) != kept).any()
+    assert (grid_subset(square, 2_000) == kept).all()
+
+
+def test_a_grid_subset_of_a_cloud_larger_than_the_presample_stays_even():
+    rng = np.random.default_rng(0)
+    square = _crowded_square(rng, 2 * PRESAMPLE)
+    kept = grid_subset(square, 4_000)
+    assert 3_600 <= len(kept) <= 4_000 and kept.max() < len(square)
+    assert (np.linalg.norm(square[kept, :2], axis=1) < 1.0).mean() < 0.1

@@ -30,8 +30,8 @@ __all__ = [
     "spread_mask",
 ]
 
-# Above this many points, FPS runs on a seeded uniform random subset of this size
-# first: the result is the same in distribution and the cost stays bounded.
+# Above this many points, FPS and the grid run on a seeded uniform random subset of this
+# size first: the result is the same in distribution and the cost stays bounded.
 PRESAMPLE = 100_000
 
 
@@ -94,7 +94,8 @@ def grid_subset(points: np.ndarray, count: int, seed: int = 0) -> np.ndarray:
     """Indices (K,) int64 of at most ``count`` of ``points`` (P, 3), one per occupied cell
     of a cubic grid whose edge leaves about ``count`` cells (K within 10% below ``count``
     on surfaces; a seeded random choice within each cell and among the cells when the grid
-    leaves more). Every index, in order, when P <= count.
+    leaves more; the cells are filled from a random ``PRESAMPLE`` of larger clouds). Every
+    index, in order, when P <= count.
 
     Space, not the sensor, sets the density: a random subset of a laser scan weighs the
     floor at the scanner's feet by hundreds over a wall a few metres away, and a fit on it
@@ -103,7 +104,9 @@ def grid_subset(points: np.ndarray, count: int, seed: int = 0) -> np.ndarray:
     if n <= count:
         return np.arange(n)
     rng = np.random.default_rng(seed)
-    order = rng.permutation(n)  # the first point of a cell in this order represents it
+    # The first point of a cell in this order represents it; above PRESAMPLE points, a
+    # random PRESAMPLE of them are the candidates, which bounds the cost as for FPS.
+    order = rng.permutation(n)[:PRESAMPLE]
     shuffled = points[order]
     low = shuffled.min(0)
     extent = float((shuffled.max(0) - low).max()) or 1.0

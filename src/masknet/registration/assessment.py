@@ -19,6 +19,11 @@ least 0.6 and the nearest fit lies within 3 degrees and 7.5% of the radius; ``un
 otherwise. Calibrated on ground-truth poses and poses turned 2, 5, 15
 and 45 degrees off (docs/RESULTS.md, "Did it work?", ``masknet benchmark success``).
 
+Clouds of over 32,768 points are judged on even subsets (one point per voxel,
+:func:`masknet.geometry.sampling.grid_subset`): a laser scan's crowd at the scanner's feet
+would otherwise set the spacing and the fit, and the verdict would favour any pose that
+keeps two scanners together.
+
 A result that is the right fit of an ambiguous shape (a flip of a symmetric object) is
 ``likely correct`` here: the verdict judges the fit, and ``result.info["ambiguous"]``
 says whether another pose fits as well.
