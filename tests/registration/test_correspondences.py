@@ -50,6 +50,25 @@ def test_mutual_matches_are_each_others_nearest():
     assert sorted(map(tuple, pairs)) == [(0, 1), (1, 3), (2, 4), (3, 0), (4, 2)]
 
 
+def test_large_feature_sets_match_through_trees_as_the_matrix_does(o3d, monkeypatch):
+    """Above MATRIX_MATCHES pairs the matches come from Open3D's feature KD-trees: the
+    same pairs as the distance matrix, and the fallback to every source feature's nearest
+    where fewer than 3 are mutual."""
+    import masknet.registration.correspondences as correspondences
+
+    rng = np.random.default_rng(0)
+    source = rng.random((400, 33))
+    template = np.concatenate([source[rng.permutation(400)] + 1e-3, rng.random((200, 33))])
+    by_matrix = mutual_matches(source, template)
+    monkeypatch.setattr(correspondences, "MATRIX_MATCHES", 0)
+    by_trees = mutual_matches(source, template)
+    assert len(by_trees) == 400
+    assert sorted(map(tuple, by_trees)) == sorted(map(tuple, by_matrix))
+    # Two source features nearest to one template feature: one mutual pair, so all nearest.
+    few = mutual_matches(np.array([[0.0, 0], [0.1, 0]]), np.array([[0.05, 0.01], [5.0, 5]]))
+    assert sorted(map(tuple, few)) == [(0, 0), (1, 0)]
+
+
 @pytest.mark.parametrize("scale", [1.0, 1000.0])
 def test_voxel_follows_the_cloud_not_its_unit(scale):
     shape = load_modelnet40(bundled_sample_path(), "test").points[0].astype(np.float64)

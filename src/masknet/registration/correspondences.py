@@ -75,11 +75,20 @@ def feature_cloud(points: np.ndarray, voxel: float) -> FeatureCloud:
     return FeatureCloud(np.asarray(down.points), np.asarray(fpfh.data).T.copy(), voxel)
 
 
+# Above this many source-template feature pairs, the matches come from KD-trees: the
+# distance matrix of a room's 9,500 x 6,800 FPFH features took 2.5 s on one BLAS thread,
+# Open3D's feature KD-trees 0.3 s with the same matches; at 300 x 300 the matrix is
+# faster (1.3 ms against 1.8 ms).
+MATRIX_MATCHES = 1_000_000
+
+
 def mutual_matches(source: np.ndarray, template: np.ndarray) -> np.ndarray:
     """(K, 2) index pairs (source row, template row) of features (S, D) and (T, D) that are
     each other's nearest neighbour; all of the source's nearest where fewer than 3 are."""
     if len(source) == 0 or len(template) == 0:
         return np.empty((0, 2), np.int64)
+    if len(source) * len(template) > MATRIX_MATCHES:
+        return _tree_matches(source, template)
     # A few hundred features each: one distance matrix beats two 33-D KD-trees.
     d2 = (source**2).sum(1)[:, None] - 2 * source @ template.T + (template**2).sum(1)[None]
     to_template = d2.argmin(1)
@@ -89,6 +98,24 @@ def mutual_matches(source: np.ndarray, template: np.ndarray) -> np.ndarray:
     if mutual.sum() < 3:
         mutual[:] = True
     return np.stack([rows[mutual], to_template[mutual]], axis=1)
+
+
+def _tree_matches(source: np.ndarray, template: np.ndarray) -> np.ndarray:
+    """:func:`mutual_matches` through Open3D's feature KD-trees (its
+    ``correspondences_from_features``), for feature sets too large for one matrix."""
+    reg = require_open3d("FPFH features").pipelines.registration
+
+    def feature(rows: np.ndarray):
+        out = reg.Feature()
+        out.data = np.ascontiguousarray(rows.T, dtype=np.float64)
+        return out
+
+    found = np.asarray(reg.correspondences_from_features(feature(source), feature(template), True))
+    if len(found) < 3:
+        found = np.asarray(
+            reg.correspondences_from_features(feature(source), feature(template), False)
+        )
+    return found.astype(np.int64).reshape(-1, 2)
 
 
 class PoseHypotheses(NamedTuple):
