@@ -102,3 +102,12 @@ def test_pipelines_refuse_refine_iterations(pair):
     template, source = pair
     with pytest.raises(MaskNetError, match="refine_iterations is for the rounds' methods"):
         register(template, source, method="robust", refine_iterations=10)
+
+
+def test_the_hypotheses_short_icp_takes_a_share_of_large_sources():
+    from masknet.registration.options import RobustOptions
+
+    options = RobustOptions()
+    assert options.hypothesis_size(512) == options.hypothesis_size(2048) == 128
+    assert options.hypothesis_size(4096) == 256
+    assert RobustOptions(hypothesis_points=300).hypothesis_size(4096) == 300

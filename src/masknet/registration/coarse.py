@@ -17,7 +17,7 @@ places, scores them all with one fit, and refines only the best:
    template's overlap, the source's outliers). Matches that touch a rejected point are
    dropped and RANSAC runs again on the rest; and the kept source, centred on the masked
    template's centroid, starts from each of ``hypotheses`` rotations (the 24 rotations of
-   the cube) through ``max_iterations`` of ICP at ``hypothesis_points`` points. This is
+   the cube) through ``max_iterations`` of ICP at ``hypothesis_points`` points (a sixteenth of larger clouds). This is
    where sparse or re-sampled objects, whose FPFH features say little, are found.
 4. **One score** for every hypothesis: the fitness of the kept source points against the
    whole template, from one KD-tree built once, ties broken by the inlier RMSE.
@@ -137,7 +137,8 @@ def coarse_to_fine(
     # Isolated source points (uniform outliers, stray returns) would cap every pose's
     # fitness below what a correct pose reaches: the score counts the rest.
     surface, checked = prepared.surface, prepared.checked
-    probe = random_subset(source[surface], options.hypothesis_points * 2)
+    small = options.hypothesis_size(len(source))  # points of the hypotheses' short ICP
+    probe = random_subset(source[surface], small * 2)
     scored: list[Scored] = []
 
     def refine(pose: np.ndarray, points: np.ndarray, kind: str, loose: bool = False) -> Scored:
@@ -225,9 +226,9 @@ def coarse_to_fine(
         # Every hypothesis through a short ICP at hypothesis resolution (the
         # correspondence poses against the whole template, the rotations against the
         # masked part), then scored on the same kept points.
-        points = random_subset(kept_source, options.hypothesis_points * 2)
-        src_small = random_subset(kept_source, options.hypothesis_points)
-        whole_small = random_subset(template, options.hypothesis_points)
+        points = random_subset(kept_source, small * 2)
+        src_small = random_subset(kept_source, small)
+        whole_small = random_subset(template, small)
         if scored:
             poses = icp_from_starts(
                 cloud_tree(whole_small),
@@ -250,7 +251,7 @@ def coarse_to_fine(
         fits = pose_fits(tree, points, both, limit)
         scored.extend(Scored(*f, p, "as given") for f, p in zip(fits, both, strict=True))
         target = template if mask is None or mask.sum() < 3 else template[mask]
-        target_small = random_subset(target, options.hypothesis_points)
+        target_small = random_subset(target, small)
         src_centre, tgt_centre = src_small.mean(0), target.mean(0)
         rotations = hypothesis_rotations(24)[: options.hypotheses]
         if len(rotations):
@@ -374,8 +375,9 @@ def _as_given(
     far); not kept when it fits no better, since a nearby local fit within the ambiguity
     margin would otherwise win as the least rotation (with noise sigma 0.02, a mean of
     2.84 degrees instead of 2.31)."""
-    src_small = random_subset(kept_source, options.hypothesis_points)
-    whole_small = random_subset(template, options.hypothesis_points)
+    small = options.hypothesis_size(len(kept_source))
+    src_small = random_subset(kept_source, small)
+    whole_small = random_subset(template, small)
     start = icp_from_starts(
         cloud_tree(whole_small), whole_small, src_small, np.eye(4)[None], options.max_iterations
     )[0]
