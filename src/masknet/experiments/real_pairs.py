@@ -87,6 +87,7 @@ def open3d_tutorial(
 # gives it (room_scan2 onto room_scan1): a turn about the vertical, then a shift in metres.
 ROOM_ODOMETRY_RAD = 0.6931
 ROOM_ODOMETRY_M = (1.79387, 0.720047, 0.0)
+ROOMS = "two room scans"
 CONSENSUS_GRID_M = 0.05  # the even grid the consensus is refined and scored on
 CONSENSUS_CUTS_M = (1.0, 0.5, 0.2, 0.1, 0.05)
 
@@ -177,10 +178,10 @@ def run(ctx: BenchmarkContext) -> ExperimentResult:
     if not ctx.quick:
         template, source, _ = load_pair(folder, "room_scan1.pcd", "room_scan2.pcd", None)
         pose, text = consensus_pose(template, source, {"odometry": room_odometry()})
-        pairs["two room scans"] = (template, source, pose)
-        voxels["two room scans"] = VOXELS_M
+        pairs[ROOMS] = (template, source, pose)
+        voxels[ROOMS] = VOXELS_M
         notes.append(f"Room consensus: {text}.")
-    rows = []
+    rows, room_poses = [], {}
     for title, (template, source, truth) in pairs.items():
         for unit_name, scale in (("m", 1.0), ("mm", 1000.0)):
             tpl, src = scale * template, scale * source
@@ -190,6 +191,8 @@ def run(ctx: BenchmarkContext) -> ExperimentResult:
                 result = register(tpl, src, **kwargs)
                 seconds = time.perf_counter() - tic
                 rows.append(_row(title, unit_name, name, result.transform, truth, scale, seconds))
+                if title == ROOMS and unit_name == "m" and name.startswith("default"):
+                    room_poses = {"the scans as given": np.eye(4), name: result.transform}
                 rows[-1]["path"] = str(result.info.get("path", ""))
             for voxel in voxels[title] if not ctx.quick else voxels[title][1:2]:
                 tic = time.perf_counter()
@@ -201,7 +204,47 @@ def run(ctx: BenchmarkContext) -> ExperimentResult:
         "Rotation error in degrees, translation error in metres (millimetre runs converted), "
         "time in seconds per call. " + " ".join(notes)
     )
-    return ExperimentResult(rows, summary)
+    plot = None
+    if ROOMS in pairs:
+        template, source, _ = pairs[ROOMS]
+        plot = lambda path: plot_rooms(template, source, room_poses, path)  # noqa: E731
+    return ExperimentResult(rows, summary, plot)
+
+
+def plot_rooms(
+    template: np.ndarray, source: np.ndarray, poses: dict[str, np.ndarray], path: Path
+) -> None:
+    """Top-down views of the room scans' walls, one panel per named pose (4, 4) of the
+    source: the template's points in blue, the moved source's in red, both cut to the
+    middle of the template's height (floor and ceiling left out), a seeded subset."""
+    from masknet._extras import pyplot
+    from masknet.geometry.se3 import transform_points
+
+    plt = pyplot()
+    low, high = np.percentile(template[:, 2], [30, 70])
+    rng = np.random.default_rng(0)
+
+    def walls(points: np.ndarray) -> np.ndarray:
+        band = points[(points[:, 2] > low) & (points[:, 2] < high)]
+        return band[rng.choice(len(band), min(len(band), 20_000), replace=False)]
+
+    fixed = walls(template)
+    fig, axes = plt.subplots(1, len(poses), figsize=(6 * len(poses), 6))
+    for ax, (name, pose) in zip(np.atleast_1d(axes), poses.items(), strict=True):
+        moved = walls(transform_points(np.asarray(pose, np.float64), source))
+        ax.scatter(fixed[:, 0], fixed[:, 1], s=0.3, c="tab:blue", label="room_scan1")
+        ax.scatter(moved[:, 0], moved[:, 1], s=0.3, c="tab:red", label="room_scan2, moved")
+        ax.set_title(name)
+        ax.set_aspect("equal")
+        ax.set_xlim(-6, 10)
+        ax.set_ylim(-8, 9)
+        ax.set_xlabel("x (m)")
+    np.atleast_1d(axes)[0].set_ylabel("y (m)")
+    np.atleast_1d(axes)[0].legend(loc="upper left", markerscale=20)
+    fig.suptitle("The two room scans from above: walls and furniture, floor and ceiling cut away")
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
 
 
 def _row(
