@@ -51,7 +51,12 @@ def _box_with_a_bump(rng: np.random.Generator) -> np.ndarray:
 def test_an_early_flip_gives_way_to_the_pose_the_clouds_are_near():
     """A flip that passed the early exit gives way to the clouds as given when they
     refine to a better fit; an early answer that is right gets nothing added."""
-    from masknet.registration.coarse import Scored, _as_given
+    from masknet.registration.coarse import (
+        REFINE_TOLERANCE,
+        Scored,
+        _as_given,
+        _short_icp_from_identity,
+    )
     from masknet.registration.options import RobustOptions
     from masknet.registration.prepared import FIT_SPACINGS, prepare_pair
 
@@ -70,8 +75,17 @@ def test_an_early_flip_gives_way_to_the_pose_the_clouds_are_near():
         return [Scored(*pose_fit(pair.tree, kept, pose, limit), pose, "fpfh")]
 
     options = RobustOptions()
-    found = _as_given(early(flip), pair.template, kept, pair.tree, limit, options)
+
+    def refine(pose: np.ndarray, points: np.ndarray, kind: str) -> Scored:
+        cut = options.cut(pair.spacing)
+        tf = icp(
+            pair.template, points, pose, 60, REFINE_TOLERANCE, cut, template_tree=pair.tree
+        ).transform[0]
+        return Scored(*pose_fit(pair.tree, points, tf, limit), tf, kind)
+
+    start = _short_icp_from_identity(pair.template, kept, 128, options.max_iterations)
+    found = _as_given(early(flip), start, kept, pair.tree, limit, options, refine)
     assert len(found) == 1 and found[0].score > early(flip)[0].score
     angle = Rotation.from_matrix(found[0].pose[:3, :3] @ truth[:3, :3].T).magnitude()
     assert np.degrees(angle) < 1.0
-    assert _as_given(early(truth), pair.template, kept, pair.tree, limit, options) == []
+    assert _as_given(early(truth), start, kept, pair.tree, limit, options, refine) == []

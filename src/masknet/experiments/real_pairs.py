@@ -55,13 +55,20 @@ def _cloud(o3d, points: np.ndarray):
 def _point_to_plane(o3d, template, source, start: np.ndarray, unit: float) -> tuple:
     """Open3D point-to-plane ICP of source onto template from ``start``: 5 cm pairs,
     then 2 cm (``unit`` metres per input unit); returns (transform, fitness at 2 cm)."""
-    reg = o3d.pipelines.registration
     template.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.1 / unit, max_nn=30))
-    estimate = reg.TransformationEstimationPointToPlane()
+    return _icp_at_cuts(o3d, template, source, start, (0.05 / unit, 0.02 / unit))
+
+
+def _icp_at_cuts(o3d, template, source, start: np.ndarray, cuts: tuple) -> tuple:
+    """Open3D point-to-plane ICP (50 iterations each) of the Open3D cloud ``source`` onto
+    ``template`` (with normals) from ``start`` (4, 4), pairs cut at each of ``cuts`` in
+    turn: (transform, fitness at the last cut)."""
+    reg = o3d.pipelines.registration
     pose = start
-    for distance in (0.05 / unit, 0.02 / unit):
+    for cut in cuts:
+        estimate = reg.TransformationEstimationPointToPlane()
         criteria = reg.ICPConvergenceCriteria(max_iteration=50)
-        result = reg.registration_icp(source, template, distance, pose, estimate, criteria)
+        result = reg.registration_icp(source, template, cut, pose, estimate, criteria)
         pose = np.asarray(result.transformation)
     return pose, float(result.fitness)
 
@@ -124,15 +131,9 @@ def refine_on_grid(
     at each of :data:`CONSENSUS_CUTS_M` in turn: (pose (4, 4), fitness at the last cut)."""
     from masknet.io import require_open3d
 
-    reg = require_open3d("the consensus pose").pipelines.registration
+    o3d = require_open3d("the consensus pose")
     grid_t, grid_s = grids or _even_clouds(template, source)
-    pose = start
-    for cut in CONSENSUS_CUTS_M:
-        estimate = reg.TransformationEstimationPointToPlane()
-        criteria = reg.ICPConvergenceCriteria(max_iteration=50)
-        result = reg.registration_icp(grid_s, grid_t, cut, pose, estimate, criteria)
-        pose = np.asarray(result.transformation)
-    return pose, float(result.fitness)
+    return _icp_at_cuts(o3d, grid_t, grid_s, start, CONSENSUS_CUTS_M)
 
 
 def consensus_pose(

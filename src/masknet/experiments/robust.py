@@ -73,14 +73,21 @@ def timed_errors(pairs: Pairs, **kwargs: object) -> dict[str, float]:
         ambiguous += bool(result.info.get("ambiguous", False))
         for stage, value in result.times.items():
             stages.setdefault(stage, []).append(1e3 * value)
-    rot, trans = pose_errors(estimates, truth)
-    return summarize_errors(rot, trans) | {
-        "rot_p90": float(np.percentile(rot, 90)),
-        "ms_median": 1e3 * float(np.median(seconds)),
+    return _errors_and_time(estimates, truth, seconds) | {
         "fast_share": float(np.mean([p == "fast" for p in paths])),
         "ambiguous": ambiguous,
         # mean ms per pair of each stage (register's result.times)
         "stage_ms": {stage: float(np.mean(v)) for stage, v in stages.items()},
+    }
+
+
+def _errors_and_time(estimates: np.ndarray, truth: np.ndarray, seconds: list) -> dict:
+    """Rotation and translation errors of ``estimates`` (P, 4, 4) against ``truth``, their
+    90th percentile of rotation, and the median of ``seconds`` in ms."""
+    rot, trans = pose_errors(estimates, truth)
+    return summarize_errors(rot, trans) | {
+        "rot_p90": float(np.percentile(rot, 90)),
+        "ms_median": 1e3 * float(np.median(seconds)),
     }
 
 
@@ -109,10 +116,7 @@ def timed_small_gicp(pairs: Pairs, voxel: float) -> dict[str, float]:
         )
         seconds.append(time.perf_counter() - tic)
         estimates[i] = result.T_target_source
-    rot, trans = pose_errors(estimates, truth)
-    return summarize_errors(rot, trans) | {
-        "rot_p90": float(np.percentile(rot, 90)),
-        "ms_median": 1e3 * float(np.median(seconds)),
+    return _errors_and_time(estimates, truth, seconds) | {
         "fast_share": 0.0,
         "ambiguous": 0,
         "stage_ms": {},

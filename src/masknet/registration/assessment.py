@@ -129,28 +129,28 @@ def assess_registration(
     if not single:
         raise MaskNetError("assess_registration judges one pair: (N, 3) and (M, 3) clouds")
     tf = as_rigid_transforms(transform, 1)[0]
-    full_template, full_source = (
+    even_template, even_source = (
         _subset(template_b[0], CLOUD_POINTS, 0),
         _subset(source_b[0], CLOUD_POINTS, 1),
     )
     if max_distance is None:
         spacing = max(
-            median_spacing(full_template, sample=2048), median_spacing(full_source, sample=2048)
+            median_spacing(even_template, sample=2048), median_spacing(even_source, sample=2048)
         )
         limit = DEFAULT_SPACINGS * spacing
     else:
         limit = float(max_distance)
     if not limit > 0:
         raise MaskNetError("every point of a cloud is the same point: no spacing to measure by")
-    template_pts = _subset(full_template, MAX_POINTS, 0)
-    source_pts = _subset(full_source, MAX_POINTS, 1)
-    template_tree = cloud_tree(full_template)
+    template_pts = _subset(even_template, MAX_POINTS, 0)
+    source_pts = _subset(even_source, MAX_POINTS, 1)
+    template_tree = cloud_tree(even_template)
 
     def moved_by(pose: np.ndarray) -> np.ndarray:
         return transform_points(pose, source_pts)
 
     refined = icp(
-        full_template,
+        even_template,
         source_pts,
         init=tf,
         max_iterations=20,

@@ -31,11 +31,17 @@ from masknet.geometry.se3 import transform_points
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
 from masknet.registration.backends.base import MaskModels, PipelineRun
-from masknet.registration.coarse import REFINE_TOLERANCE, rotation_between_deg
+from masknet.registration.coarse import REFINE_TOLERANCE, coarse_to_fine, rotation_between_deg
 from masknet.registration.icp import icp
 from masknet.registration.options import ICPCriteria, RobustOptions
-from masknet.registration.prepared import FIT_SPACINGS, PoseFit, pose_fit, prepare_pair
-from masknet.registration.robust import robust_register_prepared
+from masknet.registration.prepared import (
+    FIT_SPACINGS,
+    PoseFit,
+    check_points,
+    pose_fit,
+    prepare_pair,
+)
+from masknet.registration.robust import network_masks, pipeline_run
 from masknet.registration.rounds import mask_and_register
 
 __all__ = ["auto_register"]
@@ -101,7 +107,8 @@ def _one(
         kept_fine = fast.source_mask[0][near_fine] & surface
         surface = kept_fine if kept_fine.sum() >= 3 else surface
     kept = fine[surface]
-    checked = fine[prepared.checked]
+    # The check's points among those kept (a two-sided network's mask narrows both).
+    checked = fine[check_points(surface, prepared.strict)]
     sol = icp(
         fine_template,
         kept,
@@ -130,16 +137,10 @@ def _one(
     if search_model is not None and search_model is model and fast.mask is not None:
         # The fast path's network is the search's: its masks serve again.
         search_model = _GivenMasks(fast.mask[0], fast.source_mask)
-    run = robust_register_prepared(
-        template[None],
-        source[None],
-        *nets,
-        MaskModels(search_model, None),
-        options,
-        times,
-        precision,
-        [prepared],
-    )
+    masks = None
+    if search_model is not None:
+        masks = network_masks(search_model, nets[0][0], nets[1][0], precision)
+    run = pipeline_run([coarse_to_fine(template, source, masks, options, times, prepared)])
     if run.info["score"][0] < fit.score:  # the fast path's pose fits better after all
         info = _info("fast", fit, right)
         # The search's answers that fit as well and lie elsewhere make this one ambiguous.

@@ -17,8 +17,9 @@ places, scores them all with one fit, and refines only the best:
    template's overlap, the source's outliers). Matches that touch a rejected point are
    dropped and RANSAC runs again on the rest; and the kept source, centred on the masked
    template's centroid, starts from each of ``hypotheses`` rotations (the 24 rotations of
-   the cube) through ``max_iterations`` of ICP at ``hypothesis_points`` points (a sixteenth of larger clouds). This is
-   where sparse or re-sampled objects, whose FPFH features say little, are found.
+   the cube) through ``max_iterations`` of ICP at ``hypothesis_points`` points (a
+   sixteenth of larger clouds). This is where sparse or re-sampled objects, whose FPFH
+   features say little, are found.
 4. **One score** for every hypothesis: the fitness of the kept source points against the
    whole template, from one KD-tree built once, ties broken by the inlier RMSE.
 5. **Refinement of the best ``candidates``**: ``inlier_iterations`` of ICP on the kept
@@ -206,7 +207,8 @@ def coarse_to_fine(
                 break
     mask = source_mask = None
     if early is not None:
-        finals = early + _as_given(early, template, kept_source, tree, limit, options)
+        start = _short_icp_from_identity(template, kept_source, small, options.max_iterations)
+        finals = early + _as_given(early, start, kept_source, tree, limit, options, refine)
     else:
         # 2. The learned side: both masks once, then masked matches and rotations.
         if predict_masks is not None:
@@ -244,10 +246,8 @@ def coarse_to_fine(
             fits = pose_fits(tree, points, both, limit)
             scored[:] = [Scored(*f, p, k) for f, p, k in zip(fits, both, kinds, strict=True)]
         # The clouds as they are: consecutive scans often start close.
-        as_given = icp_from_starts(
-            cloud_tree(whole_small), whole_small, src_small, np.eye(4)[None], options.max_iterations
-        )
-        both = np.concatenate([np.eye(4)[None], as_given])
+        as_given = _short_icp_from_identity(template, kept_source, small, options.max_iterations)
+        both = np.stack([np.eye(4), as_given])
         fits = pose_fits(tree, points, both, limit)
         scored.extend(Scored(*f, p, "as given") for f, p in zip(fits, both, strict=True))
         target = template if mask is None or mask.sum() < 3 else template[mask]
@@ -358,44 +358,41 @@ def _voxel_labels(voxels: np.ndarray, points: np.ndarray, keep: np.ndarray) -> n
     return keep[nearest.astype(np.int64)]
 
 
+def _short_icp_from_identity(
+    template: np.ndarray, source: np.ndarray, points: int, iterations: int
+) -> np.ndarray:
+    """(4, 4): ``iterations`` of ICP from the identity on at most ``points`` of each cloud
+    (template (N, 3), source (M, 3)): the clouds as they are, at hypothesis resolution."""
+    src_small = random_subset(source, points)
+    whole_small = random_subset(template, points)
+    return icp_from_starts(
+        cloud_tree(whole_small), whole_small, src_small, np.eye(4)[None], iterations
+    )[0]
+
+
 def _as_given(
     early: list[Scored],
-    template: np.ndarray,
+    start: np.ndarray,
     kept_source: np.ndarray,
     tree: Any,
     limit: float,
     options: RobustOptions,
+    refine: Callable[[np.ndarray, np.ndarray, str], Scored],
 ) -> list[Scored]:
-    """The clouds as they are, through a short ICP at hypothesis resolution and then the
-    refinement: one more answer beside the early exit's where it fits better than they
-    do. A symmetric shape's flip can pass the early exit (a noisy ModelNet40 pair: the
-    flip fit 0.992 of its points, the truth 1.0; scores 0.967 and 0.990), and only an
-    answer found can be weighed against it. Not refined when the short ICP lands in an
-    early answer's basin or fits ``AS_GIVEN_GAP`` below the best (it seldom climbs that
-    far); not kept when it fits no better, since a nearby local fit within the ambiguity
-    margin would otherwise win as the least rotation (with noise sigma 0.02, a mean of
-    2.84 degrees instead of 2.31)."""
-    small = options.hypothesis_size(len(kept_source))
-    src_small = random_subset(kept_source, small)
-    whole_small = random_subset(template, small)
-    start = icp_from_starts(
-        cloud_tree(whole_small), whole_small, src_small, np.eye(4)[None], options.max_iterations
-    )[0]
+    """The clouds as they are (``start``, their short ICP from the identity), refined: one
+    more answer beside the early exit's where it fits better than they do. A symmetric
+    shape's flip can pass the early exit (a noisy ModelNet40 pair: the flip fit 0.992 of
+    its points, the truth 1.0; scores 0.967 and 0.990), and only an answer found can be
+    weighed against it. Not refined when ``start`` lies in an early answer's basin or fits
+    ``AS_GIVEN_GAP`` below the best (it seldom climbs that far); not kept when it fits no
+    better, since a nearby local fit within the ambiguity margin would otherwise win as
+    the least rotation (with noise sigma 0.02, a mean of 2.84 degrees instead of 2.31)."""
     if any(rotation_between_deg(start, e.pose) < options.distinct_deg for e in early):
         return []  # the early exit's own basin
     best = max(e.score for e in early)
     if pose_fit(tree, kept_source, start, limit).score < best - AS_GIVEN_GAP:
         return []
-    tf = icp(
-        template,
-        kept_source,
-        start,
-        options.inlier_iterations,
-        REFINE_TOLERANCE,
-        max_correspondence_distance=options.cut(limit / FIT_SPACINGS),
-        template_tree=tree,
-    ).transform[0]
-    found = Scored(*pose_fit(tree, kept_source, tf, limit), tf, "as given")
+    found = refine(start, kept_source, "as given")
     return [found] if found.score > best else []
 
 

@@ -18,11 +18,10 @@ from masknet.geometry.knn import cloud_tree
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
 from masknet.registration.backends.base import MaskModels, PipelineRun
-from masknet.registration.coarse import MaskFunction, coarse_to_fine
+from masknet.registration.coarse import CoarseRun, MaskFunction, coarse_to_fine
 from masknet.registration.options import RobustOptions
-from masknet.registration.prepared import PreparedPair
 
-__all__ = ["network_masks", "robust_register", "robust_register_prepared"]
+__all__ = ["network_masks", "pipeline_run", "robust_register"]
 
 
 def network_masks(
@@ -57,38 +56,23 @@ def robust_register(
     times: dict[str, float],
     precision: str = "auto",
 ) -> PipelineRun:
-    """The method table's adapter of ``"robust"``: :func:`robust_register_prepared`, each
-    pair prepared here."""
-    return robust_register_prepared(
-        template, source, template_net, source_net, models, options, times, precision, None
-    )
-
-
-def robust_register_prepared(
-    template: np.ndarray,
-    source: np.ndarray,
-    template_net: np.ndarray,
-    source_net: np.ndarray,
-    models: MaskModels,
-    options: RobustOptions,
-    times: dict[str, float],
-    precision: str,
-    prepared: list[PreparedPair] | None,
-) -> PipelineRun:
     """The coarse-to-fine pipeline for template (B, N, 3) and source (B, M, 3), float64,
     one pair at a time, at full resolution; the network (``models.first``, None: no masks)
     sees template_net (B, n, 3) and source_net (B, m, 3), the clouds sampled to its size.
-    Masks are over the full clouds. Stage times are summed into ``times``. ``prepared``:
-    each pair's :class:`~masknet.registration.prepared.PreparedPair`, where the caller
-    made it already (None: made here)."""
+    Masks are over the full clouds. Stage times are summed into ``times``. The method
+    table's adapter of ``"robust"``."""
     model = models.first
     runs = []
     for b in range(template.shape[0]):
         masks = None
         if model is not None:
             masks = network_masks(model, template_net[b], source_net[b], precision)
-        ready = None if prepared is None else prepared[b]
-        runs.append(coarse_to_fine(template[b], source[b], masks, options, times, ready))
+        runs.append(coarse_to_fine(template[b], source[b], masks, options, times))
+    return pipeline_run(runs)
+
+
+def pipeline_run(runs: list[CoarseRun]) -> PipelineRun:
+    """The :class:`PipelineRun` of a batch from each pair's :class:`CoarseRun`."""
     masks = [r.mask for r in runs]
     source_masks = [r.source_mask for r in runs]
     info: dict[str, np.ndarray] = {
