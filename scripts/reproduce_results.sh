@@ -11,3 +11,5 @@ $M evaluate --pairs 1000 --seed 0 --pretrained modelnet40_seen20 --categories un
 $M evaluate --pairs 1000 --seed 0 --pretrained modelnet40_seen20 --categories seen --inference-precision fp32 --json docs/results/eval_seen20_seen.json
 .venv/bin/python -m masknet.evaluation.timing --threads 2 --repeats 100 --data "$MASKNET_DATA" --scaling --training --json docs/results/timing.json
 $M benchmark all --threads 2 --out docs/results/full --results docs/results/full/RESULTS.md
+.venv/bin/python scripts/rounds_on_real_pair.py --scans ../shared/data/scans --out docs/results/rounds_3dmatch.json
+.venv/bin/python scripts/mask_precision_ceiling.py --out docs/results/mask_precision_ceiling.json

@@ -1,0 +1,102 @@
+"""How precise the refinement mask can be on the scan pairs of "Masks per round".
+
+    python scripts/mask_precision_ceiling.py --out docs/results/mask_precision_ceiling.json
+
+For each pair of the two scan sets of ``masknet benchmark masks-per-round`` (15 per evaluation
+scan, seed 0; the source copied from the template's points or re-sampled), the shipped
+refinement network's template scores are taken at two poses: the one that
+``register(template, source, iterations=3)`` returns, and the ground truth. The template mask
+is the scores at or above a threshold (``register`` uses 0.9); for each threshold this prints
+the mean precision and recall against the ground-truth mask. The last rows are a geometric
+rule at the ground truth, for reference: the template points within f median template
+spacings of the moved source. The scan folder is ``$MASKNET_SCANS`` (default
+../shared/data/scans).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from masknet import register
+from masknet.evaluation.registration import pair_arrays
+from masknet.experiments.rounds import scan_eval_pairs
+from masknet.geometry.clouds import median_spacing
+from masknet.geometry.knn import cloud_tree
+from masknet.geometry.se3 import transform_points
+from masknet.io import write_text_atomic
+from masknet.models.refine import RefineMaskNet
+
+THRESHOLDS = (0.5, 0.8, 0.9, 0.95, 0.97, 0.98)
+SPACINGS = (1.0, 1.5, 2.0, 3.0)
+
+
+def _precision_recall(predicted: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
+    tp = int((predicted & truth).sum())
+    return tp / max(int(predicted.sum()), 1), tp / max(int(truth.sum()), 1)
+
+
+def scan_set(shared: bool, refiner: RefineMaskNet) -> dict:
+    """Mean (precision, recall) per threshold at the returned pose and at the truth, and
+    of the geometric rule at the truth, over one scan set."""
+    pairs = scan_eval_pairs(15, shared, seed=0)
+    templates, sources, truths = pair_arrays(pairs)
+    masks = pairs.mask.numpy()
+    rows: dict[str, list] = {"returned": [], "truth": [], "rule": []}
+    for i in range(len(truths)):
+        template = templates[i].astype(np.float64)
+        source = sources[i].astype(np.float64)
+        result = register(template, source, iterations=3)
+        for name, pose in (("returned", result.transform), ("truth", truths[i])):
+            moved = transform_points(np.asarray(pose, np.float64), source)
+            scores = refiner.predict(template.astype(np.float32), moved.astype(np.float32))[0]
+            rows[name].append([_precision_recall(scores >= t, masks[i]) for t in THRESHOLDS])
+        moved = transform_points(np.asarray(truths[i], np.float64), source)
+        distance = cloud_tree(moved).query(template, k=1)[0]
+        spacing = median_spacing(template)
+        rows["rule"].append(
+            [_precision_recall(distance <= f * spacing, masks[i]) for f in SPACINGS]
+        )
+    return {name: np.asarray(values).mean(0).tolist() for name, values in rows.items()} | {
+        "pairs": len(truths)
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--out", type=Path, help="also write the figures here (JSON)")
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    refiner = RefineMaskNet.pretrained()
+    tic = time.perf_counter()
+    out: dict = {
+        "machine": f"{platform.machine()}, {args.threads} threads, torch {torch.__version__}",
+        "thresholds": THRESHOLDS,
+        "rule_spacings": SPACINGS,
+    }
+    for shared, name in ((True, "scans, shared points"), (False, "scans, re-sampled")):
+        out[name] = scan_set(shared, refiner)
+    out["seconds"] = time.perf_counter() - tic
+    print("| set | mask | at the pose | precision | recall |")
+    print("|---|---|---|---|---|")
+    for name in ("scans, shared points", "scans, re-sampled"):
+        figures = out[name]
+        for pose in ("returned", "truth"):
+            for t, (p, r) in zip(THRESHOLDS, figures[pose], strict=True):
+                print(f"| {name} | scores >= {t} | {pose} | {p:.3f} | {r:.3f} |")
+        for f, (p, r) in zip(SPACINGS, figures["rule"], strict=True):
+            print(f"| {name} | within {f} spacings | truth | {p:.3f} | {r:.3f} |")
+    print(f"\n{out['seconds'] / 60:.1f} min, {out['machine']}")
+    if args.out:
+        write_text_atomic(args.out, json.dumps(out, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
