@@ -10,6 +10,7 @@ from masknet.data import bundled_sample_path, load_modelnet40
 from masknet.evaluation.registration import pose_errors
 from masknet.registration.correspondences import (
     feature_cloud,
+    fpfh_features,
     mutual_matches,
     ransac_poses,
     voxel_for,
@@ -88,3 +89,23 @@ def test_fpfh_of_a_moved_copy_matches_itself():
     found = ransac_poses(a.points[pairs[:, 0]], b.points[pairs[:, 1]], 1.5 * voxel, 3000, 1)
     rot, _ = pose_errors(found.transform[:1], truth[None])
     assert rot[0] < 1  # a coarse pose, which ICP then refines
+
+
+def test_oriented_normals_give_a_turned_cloud_the_same_features():
+    """Normals turned towards the centroid make FPFH follow the surface: a cloud turned by
+    a large angle keeps most points' features; left as Open3D gives them, the
+    signs follow the frame and most points' features change."""
+    from masknet.io import require_open3d
+
+    o3d = require_open3d("FPFH features")
+    points = load_modelnet40(bundled_sample_path(), "test").points[0].astype(np.float64)
+    turned = points @ Rotation.from_euler("xyz", [150, 20, -70], degrees=True).as_matrix().T
+    changed = {}
+    for orient in (False, True):
+        features = []
+        for cloud in (points, turned + [3.0, -1.0, 2.0]):
+            o3d_cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cloud))
+            features.append(np.asarray(fpfh_features(o3d, o3d_cloud, 0.1, 50, orient).data).T)
+        changed[orient] = float((np.abs(features[0] - features[1]).max(1) > 1.0).mean())
+    assert changed[True] < 0.15, changed
+    assert changed[False] > 0.5, changed

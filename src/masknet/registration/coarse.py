@@ -195,9 +195,12 @@ def coarse_to_fine(
             correspondence_poses(grid, grid[2], "fpfh", probe)
             if len(scored) > before:
                 # The two best distinct poses, refined: a symmetric shape's flip can lead
-                # RANSAC's ranking, and a close second makes the answer ambiguous.
+                # RANSAC's ranking, and a close second makes the answer ambiguous. A
+                # second that fits AS_GIVEN_GAP below the best is neither (it seldom
+                # climbs that far), and its refinement is skipped.
                 # This grid's own: an earlier grid's best were refined already.
                 tops = _distinct(sorted(scored[before:], key=_rank, reverse=True), 2, limit)
+                tops = [s for s in tops if s.score >= tops[0].score - AS_GIVEN_GAP]
                 refined = [refine(s.pose, kept_source, "fpfh") for s in tops]
                 check = pose_fits(tree, source[checked], np.stack([f.pose for f in refined]), limit)
                 if max(f.fitness for f in check) >= options.accept_fitness:

@@ -12,22 +12,20 @@ from __future__ import annotations
 import numpy as np
 
 from masknet.io import require_open3d
+from masknet.registration.correspondences import fpfh_features
 
 __all__ = ["open3d_fpfh_ransac", "open3d_fgr"]
 
 
-def _cloud_and_features(o3d, points: np.ndarray, voxel_size: float, downsample: bool = False):
+def _cloud_and_features(
+    o3d, points: np.ndarray, voxel_size: float, downsample: bool = False, orient: bool = False
+):
     cloud = o3d.geometry.PointCloud(
         o3d.utility.Vector3dVector(np.ascontiguousarray(points, dtype=np.float64))
     )
     if downsample:  # the tutorial's first step, for clouds denser than the voxel
         cloud = cloud.voxel_down_sample(voxel_size)
-    search = o3d.geometry.KDTreeSearchParamHybrid
-    cloud.estimate_normals(search(radius=2 * voxel_size, max_nn=30))
-    features = o3d.pipelines.registration.compute_fpfh_feature(
-        cloud, search(radius=5 * voxel_size, max_nn=100)
-    )
-    return cloud, features
+    return cloud, fpfh_features(o3d, cloud, voxel_size, 100, orient)
 
 
 def open3d_fpfh_ransac(
@@ -39,6 +37,7 @@ def open3d_fpfh_ransac(
     seed: int = 0,
     repeatable: bool = True,
     downsample: bool = False,
+    orient_normals: bool = False,
 ) -> tuple[np.ndarray, float, float]:
     """RANSAC on FPFH matches (Open3D); returns (transform (4, 4), fitness, inlier_rmse).
 
@@ -48,6 +47,8 @@ def open3d_fpfh_ransac(
     ``repeatable=True`` (the default) runs it on one thread, which makes the same input
     and seed give the same transform (docs/RESULTS.md gives the cost). ``downsample``:
     reduce both clouds to the voxel grid first, as Open3D's tutorial does for dense scans.
+    ``orient_normals``: turn each cloud's normals towards its centroid before the features
+    (:func:`~masknet.registration.correspondences.fpfh_features`; the tutorial does not).
     """
     o3d = require_open3d("Open3D RANSAC registration")
     o3d.utility.random.seed(seed)
@@ -56,11 +57,20 @@ def open3d_fpfh_ransac(
         o3d.utility.set_max_threads(1)
         try:
             return _ransac(
-                o3d, template, source, voxel_size, max_iterations, confidence, downsample
+                o3d,
+                template,
+                source,
+                voxel_size,
+                max_iterations,
+                confidence,
+                downsample,
+                orient_normals,
             )
         finally:
             o3d.utility.set_max_threads(before)
-    return _ransac(o3d, template, source, voxel_size, max_iterations, confidence, downsample)
+    return _ransac(
+        o3d, template, source, voxel_size, max_iterations, confidence, downsample, orient_normals
+    )
 
 
 def _ransac(
@@ -71,10 +81,11 @@ def _ransac(
     max_iterations: int,
     confidence: float,
     downsample: bool = False,
+    orient: bool = False,
 ) -> tuple[np.ndarray, float, float]:
     reg = o3d.pipelines.registration
-    src, src_f = _cloud_and_features(o3d, source, voxel_size, downsample)
-    tpl, tpl_f = _cloud_and_features(o3d, template, voxel_size, downsample)
+    src, src_f = _cloud_and_features(o3d, source, voxel_size, downsample, orient)
+    tpl, tpl_f = _cloud_and_features(o3d, template, voxel_size, downsample, orient)
     distance = 1.5 * voxel_size
     result = reg.registration_ransac_based_on_feature_matching(
         src,
@@ -95,17 +106,21 @@ def _ransac(
 
 
 def open3d_fgr(
-    template: np.ndarray, source: np.ndarray, voxel_size: float = 0.05
+    template: np.ndarray,
+    source: np.ndarray,
+    voxel_size: float = 0.05,
+    orient_normals: bool = False,
 ) -> tuple[np.ndarray, float, float]:
     """Fast Global Registration (Zhou et al., 2016) on FPFH features (Open3D); returns
     (transform (4, 4), fitness, inlier_rmse).
 
     Arguments in masknet's order: template (N, 3), then source (M, 3), the points to move.
+    ``orient_normals`` as :func:`open3d_fpfh_ransac`'s.
     """
     o3d = require_open3d("Open3D fast global registration")
     reg = o3d.pipelines.registration
-    src, src_f = _cloud_and_features(o3d, source, voxel_size)
-    tpl, tpl_f = _cloud_and_features(o3d, template, voxel_size)
+    src, src_f = _cloud_and_features(o3d, source, voxel_size, orient=orient_normals)
+    tpl, tpl_f = _cloud_and_features(o3d, template, voxel_size, orient=orient_normals)
     option = reg.FastGlobalRegistrationOption(maximum_correspondence_distance=0.5 * voxel_size)
     o3d.utility.random.seed(0)  # FGR draws its tuples from Open3D's global generator
     result = reg.registration_fgr_based_on_feature_matching(src, tpl, src_f, tpl_f, option)

@@ -143,13 +143,15 @@ class RANSACOptions:
 
     voxel_size: feature scale as a fraction of the template's radius. max_iterations,
     confidence: Open3D's RANSAC criteria. seed: Open3D's random seed. repeatable: one
-    thread, so that a seed gives one answer."""
+    thread, so that a seed gives one answer. orient_normals: turn each cloud's normals
+    towards its centroid before the features (Open3D's tutorial does not)."""
 
     voxel_size: float = 0.05
     max_iterations: int = 100_000
     confidence: float = 0.999
     seed: int = 0
     repeatable: bool = True
+    orient_normals: bool = False
 
     def __post_init__(self) -> None:
         _positive("voxel_size", self.voxel_size, allow_none=False)
@@ -161,9 +163,11 @@ class RANSACOptions:
 @dataclass(frozen=True)
 class FGROptions:
     """Open3D's fast global registration on FPFH features (``method="open3d-fgr"``):
-    ``voxel_size`` as a fraction of the template's radius."""
+    ``voxel_size`` as a fraction of the template's radius; ``orient_normals`` as
+    :class:`RANSACOptions`'."""
 
     voxel_size: float = 0.05
+    orient_normals: bool = False
 
     def __post_init__(self) -> None:
         _positive("voxel_size", self.voxel_size, allow_none=False)
