@@ -6,7 +6,7 @@ places, scores them all with one fit, and refines only the best:
 
 1. **Correspondences** (:mod:`masknet.registration.correspondences`). FPFH features on a
    voxel grid that leaves about ``feature_points`` template points (so the unit does not
-   matter), nearest-neighbour matches both ways, and a batched RANSAC that returns the
+   matter; normals turned towards each cloud's centroid), nearest-neighbour matches both ways, and a batched RANSAC that returns the
    ``correspondence_hypotheses`` best distinct poses. Each gets a short ICP with a pair
    cut-off of two voxels. Strong on dense clouds and real scans, whatever the rotation.
 2. **Early exit.** When the best of those fits as a correct result does (``fitness`` of at
