@@ -25,6 +25,7 @@ marked. Times are single calls, the same pair and unit, on the same machine.
 
 from __future__ import annotations
 
+import functools
 import time
 from pathlib import Path
 
@@ -208,7 +209,7 @@ def run(ctx: BenchmarkContext) -> ExperimentResult:
     plot = None
     if ROOMS in pairs:
         template, source, _ = pairs[ROOMS]
-        plot = lambda path: plot_rooms(template, source, room_poses, path)  # noqa: E731
+        plot = functools.partial(plot_rooms, template, source, room_poses)
     return ExperimentResult(rows, summary, plot)
 
 

@@ -9,10 +9,11 @@ with and without shared points.
 
 Peers, with the voxel size (FPFH feature scale, as a fraction of the template's radius)
 swept as a user would tune it, each with its normals as Open3D's tutorial leaves them and
-oriented towards each cloud's centroid (as ``robust``'s features are): Open3D RANSAC on FPFH + 10 ICP iterations, FGR on FPFH
-+ 10 ICP iterations; and two local methods from the clouds as given, Open3D's ICP and
-(where it installs, ``masknet[peers]``) small_gicp's GICP with its voxel swept. The summary names each peer's best voxel per set
-and says which of the issue's targets hold. Every call is a single pair (batch 1), timed
+oriented towards each cloud's centroid (as ``robust``'s features are): Open3D RANSAC on
+FPFH + 10 ICP iterations, FGR on FPFH + 10 ICP iterations; and two local methods from the
+clouds as given, Open3D's ICP and (where it installs, ``masknet[peers]``) small_gicp's GICP
+with its voxel swept. The summary names each peer's best setting per set and says which of
+the issue's targets hold. Every call is a single pair (batch 1), timed
 end to end; the default's rows also count how often its fast path sufficed, and both
 count the results reported as ambiguous.
 """

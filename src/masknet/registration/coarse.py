@@ -6,8 +6,9 @@ places, scores them all with one fit, and refines only the best:
 
 1. **Correspondences** (:mod:`masknet.registration.correspondences`). FPFH features on a
    voxel grid that leaves about ``feature_points`` template points (so the unit does not
-   matter; normals turned towards each cloud's centroid), nearest-neighbour matches both ways, and a batched RANSAC that returns the
-   ``correspondence_hypotheses`` best distinct poses. Each gets a short ICP with a pair
+   matter; normals turned towards each cloud's centroid), nearest-neighbour matches both
+   ways, and a batched RANSAC that returns the ``correspondence_hypotheses`` best distinct
+   poses. Each gets a short ICP with a pair
    cut-off of two voxels. Strong on dense clouds and real scans, whatever the rotation.
 2. **Early exit.** When the best of those fits as a correct result does (``fitness`` of at
    least ``accept_fitness`` at 1.5 template spacings, the measure of
@@ -23,7 +24,8 @@ places, scores them all with one fit, and refines only the best:
 4. **One score** for every hypothesis: the fitness of the kept source points against the
    whole template, from one KD-tree built once, ties broken by the inlier RMSE.
 5. **Refinement of the best ``candidates``**: ``inlier_iterations`` of ICP on the kept
-   source with pairs cut at ``max_correspondence_distance`` (1.5 template spacings); rescored, the best wins.
+   source with pairs cut at ``max_correspondence_distance`` (1.5 template spacings);
+   rescored, the best wins.
 6. **Ambiguity.** When answers fit within ``ambiguity_margin`` of the best, each is first
    refined as far as it goes (pairs cut at twice ``max_correspondence_distance``, then at it) and
    scored again; among those still alike, the least rotation from the pose as given
@@ -83,8 +85,8 @@ AS_GIVEN_GAP = 0.1
 
 class CoarseRun(NamedTuple):
     """transform: (4, 4) source -> template. mask: (N,) bool template points within the
-    inlier distance of the moved kept source, or None without masks. source_mask: (M,) bool source points
-    kept, or None without a two-sided network. info: ``path`` (``"correspondences"``: the
+    inlier distance of the moved kept source, or None without masks. source_mask: (M,)
+    bool source points kept, or None without a two-sided network. info: ``path`` (``"correspondences"``: the
     early exit; ``"search"``: the learned side ran), ``source`` of the winning hypothesis
     (``"fpfh"``, ``"fpfh-masked"``, ``"rotation"``), ``fitness`` and ``inlier_rmse`` (the
     score's, input units), ``ambiguous`` (bool), ``runner_up`` ((4, 4) or None) and
