@@ -95,3 +95,24 @@ def test_small_blas_runs_numpy_blas_single_threaded_and_restores_it():
     register(cloud, cloud[:40], method="icp", model=Recorder())
     assert seen and set(seen) == {1}
     assert numpy_blas_threads() == before
+
+
+@pytest.mark.parametrize(("preset", "expected"), [(None, "10000"), ("123", "123")])
+def test_importing_masknet_shortens_openmp_spinning_unless_the_user_chose(preset, expected):
+    """The spin count is set before any OpenMP runtime loads, and a user's own value stays."""
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "GOMP_SPINCOUNT"}
+    if preset is not None:
+        env["GOMP_SPINCOUNT"] = preset
+    code = (
+        "import os, sys, masknet\n"
+        "assert 'torch' not in sys.modules\n"
+        "print(os.environ['GOMP_SPINCOUNT'])"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
+    )
+    assert out.stdout.strip() == expected
