@@ -89,3 +89,16 @@ def test_an_early_flip_gives_way_to_the_pose_the_clouds_are_near():
     angle = Rotation.from_matrix(found[0].pose[:3, :3] @ truth[:3, :3].T).magnitude()
     assert np.degrees(angle) < 1.0
     assert _as_given(early(truth), start, kept, pair.tree, limit, options, refine) == []
+
+
+def test_candidates_a_few_spacings_apart_are_one_basin():
+    from masknet.registration.coarse import Scored, _distinct
+
+    turned = np.eye(4)
+    turned[:3, :3] = Rotation.from_euler("z", 30, degrees=True).as_matrix()
+    shifted = np.eye(4)
+    shifted[0, 3] = 0.05
+    entries = [(np.eye(4), "a"), (shifted, "b"), (turned, "c")]
+    wrap = [Scored(1.0, 0.0, 1.0, pose, kind) for pose, kind in entries]
+    assert [e.kind for e in _distinct(wrap, 3, 0.1, 10.0)] == ["a", "c"]
+    assert [e.kind for e in _distinct(wrap, 3, 0.01, 10.0)] == ["a", "b", "c"]

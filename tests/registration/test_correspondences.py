@@ -9,6 +9,7 @@ from scipy.spatial.transform import Rotation
 from masknet.data import bundled_sample_path, load_modelnet40
 from masknet.evaluation.registration import pose_errors
 from masknet.registration.correspondences import (
+    compatible_poses,
     feature_cloud,
     fpfh_features,
     mutual_matches,
@@ -37,6 +38,36 @@ def test_ransac_finds_the_pose_among_60_percent_wrong_matches():
     assert rot[0] < 1e-6 and trans[0] < 1e-6
     assert found.inliers[0] == int((~wrong).sum())  # exactly the right matches explain it
     assert (np.diff(found.inliers) <= 0).all()
+
+
+def test_compatible_groups_find_the_pose_where_ransac_draws_no_right_sample():
+    # 20 right matches among 600: a draw of three is all right once in 27,000.
+    rng = np.random.default_rng(0)
+    truth = _pose(150, 2)
+    source = rng.uniform(-1, 1, (600, 3))
+    template = rng.uniform(-2, 2, (600, 3))
+    right = rng.choice(600, 20, replace=False)
+    template[right] = source[right] @ truth[:3, :3].T + truth[:3, 3]
+    starved = ransac_poses(source, template, threshold=0.02, trials=3000, keep=8)
+    errors = pose_errors(starved.transform, np.broadcast_to(truth, starved.transform.shape))[0]
+    assert not (errors < 1).any()  # RANSAC fails here, so the test can tell
+    found = compatible_poses(source, template, threshold=0.02, seeds=10)
+    best = found.transform[np.argmax(found.inliers)]
+    rot, trans = pose_errors(best[None], truth[None])
+    assert rot[0] < 1e-6 and trans[0] < 1e-6
+    assert found.inliers.max() == 20
+
+
+def test_compatible_groups_need_three_matches_and_cap_their_size():
+    empty = compatible_poses(np.zeros((2, 3)), np.zeros((2, 3)), 0.1)
+    assert empty.transform.shape == (0, 4, 4)
+    rng = np.random.default_rng(1)
+    source = rng.uniform(-1, 1, (1500, 3))
+    truth = _pose(30, 3)
+    template = source @ truth[:3, :3].T + truth[:3, 3]
+    found = compatible_poses(source, template, threshold=0.01, seeds=2, max_matches=200)
+    assert len(found.transform) == 2
+    assert (found.inliers == 1500).all()  # refitted on every match, not only the subset
 
 
 def test_ransac_without_enough_matches_returns_nothing():

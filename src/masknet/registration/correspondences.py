@@ -11,6 +11,9 @@ few hundred points:
 3. :func:`ransac_poses`: minimal samples of 3 matches, all solved at once by a batched
    Kabsch, pruned by edge-length consistency, scored by the matches they explain; the
    best few distinct poses, each refitted on its inliers.
+4. :func:`compatible_poses`: where few matches are right, RANSAC seldom draws three of
+   them; the matches that agree with many others on their pairwise distances (spatial
+   compatibility, as SC²-PCR seeds its search) give poses directly.
 
 The voxel follows the clouds, not their unit: :func:`voxel_for` picks the size that
 leaves about ``target`` template points, so the features see the same structure in
@@ -33,6 +36,7 @@ FPFH_NEIGHBOURS = 50
 
 __all__ = [
     "FeatureCloud",
+    "compatible_poses",
     "feature_cloud",
     "fpfh_features",
     "mutual_matches",
@@ -230,3 +234,62 @@ def ransac_poses(
         near[chosen].astype(np.float64),
     )
     return PoseHypotheses(refit, counts[chosen])
+
+
+def compatible_poses(
+    source: np.ndarray,
+    template: np.ndarray,
+    threshold: float,
+    seeds: int = 10,
+    group: int = 30,
+    max_matches: int = 1000,
+    seed: int = 0,
+) -> PoseHypotheses:
+    """Poses from groups of mutually compatible matches source (K, 3) -> template (K, 3).
+
+    Two matches are compatible when their source points and their template points lie
+    equally far apart (within ``threshold``, and farther than it: a rigid motion keeps
+    distances). Right matches are all compatible with each other; wrong ones agree only
+    by chance. The ``seeds`` matches compatible with the most others each take the
+    ``group`` matches sharing the most compatible partners with them (second-order
+    compatibility, Chen et al., SC²-PCR, CVPR 2022), and the pose of that group, refitted
+    on every match it explains within ``threshold``, is a hypothesis. Unlike RANSAC's
+    draws of three, this finds the right pose when a few percent of the matches are right
+    (a re-sampled view of a cluttered scene: 6 of 510). Above ``max_matches`` matches, a
+    seeded random subset of that many forms the groups."""
+    k = len(source)
+    empty = PoseHypotheses(np.empty((0, 4, 4)), np.empty(0, np.int64))
+    if k < 3 or seeds < 1:
+        return empty
+    rows = np.arange(k)
+    if k > max_matches:
+        rows = np.sort(np.random.default_rng(seed).choice(k, max_matches, replace=False))
+    s, t = source[rows], template[rows]
+    d_s = np.sqrt(((s[:, None] - s[None]) ** 2).sum(-1))
+    d_t = np.sqrt(((t[:, None] - t[None]) ** 2).sum(-1))
+    compatible = (np.abs(d_s - d_t) < threshold) & (np.minimum(d_s, d_t) > threshold)
+    c = compatible.astype(np.float32)
+    leaders = np.argsort(-c.sum(1), kind="stable")[:seeds]
+    second = c[leaders] * (c[leaders] @ c)  # (seeds, K'): partners shared, where compatible
+    members = np.argsort(-second, axis=1, kind="stable")[:, :group]
+    weights = np.zeros((len(leaders), k))
+    for i, (leader, team) in enumerate(zip(leaders, members, strict=True)):
+        team = team[second[i, team] > 0]
+        if len(team) >= 2:  # with its leader, three matches at least: a rotation
+            weights[i, rows[np.append(team, leader)]] = 1.0
+    weights = weights[weights.sum(1) >= 3]
+    if not len(weights):
+        return empty
+    batch = (len(weights), k, 3)
+    poses = rigid_transforms_numpy(
+        np.broadcast_to(source, batch), np.broadcast_to(template, batch), weights
+    )
+    near = ((transform_points(poses, source[None]) - template) ** 2).sum(-1) <= threshold**2
+    explained = near.sum(1) >= 3
+    poses, near = poses[explained], near[explained]
+    refit = rigid_transforms_numpy(
+        np.broadcast_to(source, (len(poses), k, 3)),
+        np.broadcast_to(template, (len(poses), k, 3)),
+        near.astype(np.float64),
+    )
+    return PoseHypotheses(refit, near.sum(1))

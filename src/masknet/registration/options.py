@@ -190,6 +190,9 @@ class RobustOptions:
         and separates a symmetric shape's flips.
     ransac_trials: minimal samples of 3 matches per RANSAC run.
     correspondence_hypotheses: distinct poses each RANSAC run returns.
+    compatibility_hypotheses: poses from groups of mutually compatible matches per grid
+        (:func:`~masknet.registration.correspondences.compatible_poses`), where a grid has
+        150 matches or more; 0 skips them.
     accept_fitness: stop after the correspondence hypotheses when the best one's fitness
         reaches this; 1.01 never stops early.
     hypotheses: starting rotations of the learned side (the 24 rotations of the cube,
@@ -212,6 +215,7 @@ class RobustOptions:
     feature_points: tuple[int, ...] = (300, 1000)
     ransac_trials: int = 3000
     correspondence_hypotheses: int = 8
+    compatibility_hypotheses: int = 10
     accept_fitness: float = 0.99
     hypotheses: int = 24
     hypothesis_points: int = 128
@@ -229,7 +233,13 @@ class RobustOptions:
             raise MaskNetError(
                 "robust: feature_points, hypothesis_points and fine_points must be >= 16"
             )
-        for name in ("ransac_trials", "correspondence_hypotheses", "hypotheses", "candidates"):
+        for name in (
+            "ransac_trials",
+            "correspondence_hypotheses",
+            "compatibility_hypotheses",
+            "hypotheses",
+            "candidates",
+        ):
             _integer(name, getattr(self, name), 0)
         for name in ("hypothesis_points", "max_iterations", "inlier_iterations", "fine_points"):
             _integer(name, getattr(self, name), 0)
