@@ -45,7 +45,7 @@ CASES = {
     "NaN rows": (
         _nan_rows(),
         "refused",
-        "3 rows contain NaN or inf; pass --drop-nonfinite (drop_nonfinite=True in Python)",
+        "3 rows contain NaN or inf; pass --drop-nonfinite to drop them (in Python: read_points",
     ),
     "two points": (SOURCE[:2], "refused", "only 2 point(s); at least 3 are needed"),
     "text": (SOURCE.astype(str), "refused", "expected numbers"),

@@ -126,4 +126,10 @@ def test_readme_python_example_runs(index, small_masknet, one_thread, tmp_path, 
         assert mask.shape == (len(namespace["noisy_scan"]),)
         assert (mask & ~real).sum() <= 10 and mask[real].mean() > 0.985
         checked.append("denoised")
+    if "pairs" in namespace:  # a pair to try: the truth moves the source onto the template
+        moved = namespace["source"] @ namespace["truth"][:3, :3].T + namespace["truth"][:3, 3]
+        gaps = np.linalg.norm(moved[:, None] - namespace["template"][None], axis=-1).min(1)
+        assert len(namespace["source"]) < len(namespace["template"])  # a partial view
+        assert gaps.max() < 1e-5  # the view's points are template points, moved
+        checked.append("pair")
     assert checked, "this README block meets no check of its values"

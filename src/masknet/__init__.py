@@ -20,7 +20,7 @@ The transform convention for every registration result is documented in
 import os
 from typing import TYPE_CHECKING
 
-from masknet.errors import MaskNetError
+from masknet.errors import MaskNetError, MaskNetWarning
 
 # GNU OpenMP's idle threads spin for about 300,000 iterations before they sleep. Torch and
 # pykdtree each bring their own pool, and Open3D its own threads: one's spinning took the
@@ -35,6 +35,7 @@ __all__ = [
     "DenoiseResult",
     "MaskNet",
     "MaskNetError",
+    "MaskNetWarning",
     "assess_registration",
     "denoise",
     "evaluate_registration",

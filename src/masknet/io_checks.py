@@ -85,8 +85,8 @@ def check_cloud(
             rows = "1 row contains" if n_bad == 1 else f"{n_bad} rows contain"
             every = " (all of them)" if n_bad == len(cloud) else ""
             raise MaskNetError(
-                f"{name}: {rows} NaN or inf{every}; pass --drop-nonfinite "
-                "(drop_nonfinite=True in Python) to drop them"
+                f"{name}: {rows} NaN or inf{every}; pass --drop-nonfinite to drop them "
+                "(in Python: read_points(..., drop_nonfinite=True), or drop the rows)"
             )
         cloud = cloud[finite]
         if len(cloud) == 0:

@@ -266,7 +266,12 @@ def run(args: argparse.Namespace) -> None:
         writers.append(
             (source_mask_path, lambda p: write_mask(p, over_rows(result.source_mask, source_rows)))
         )
-    name = ("" if args.no_mask else "Mask-") + METHOD_TITLES[args.method]
+    # Pipelines choose their own stages (the path line says which ran): named, not "Mask-X".
+    pipeline_names = {"auto": "default pipeline (auto)", "robust": "robust pipeline"}
+    if args.method in pipeline_names:
+        name = pipeline_names[args.method] + (", no masks" if args.no_mask else "")
+    else:
+        name = ("" if args.no_mask else "Mask-") + METHOD_TITLES[args.method]
     if args.html:  # written with the others, all or nothing
         layers = {"template": template, "source": source, "registered": moved}
         if result.mask is not None:
@@ -388,11 +393,11 @@ def report_path(info: dict, rotation: np.ndarray) -> None:
         print("path: scene search (the template found in SOURCE, then Mask-ICP from there)")
         return
     if path == "fast" and np.isnan(escalated):
-        why = "the fit of Mask-ICP passed"
+        why = "the fast path's fit passed"
     elif path == "fast":
         why = f"escalated (fit {escalated:.3f}), but the fast path's pose fitted best"
     elif np.isfinite(escalated):
-        why = f"escalated: the fit of Mask-ICP was {escalated:.3f}"
+        why = f"escalated: the fast path's fit was {escalated:.3f}"
     else:
         why = "method robust"
     print(f"path: {path} ({why}); best hypothesis from {info['source']}")

@@ -69,7 +69,8 @@ def check_pair(
         raise MaskNetError(f"batch sizes differ: template {t.shape[0]}, source {s.shape[0]}")
     for name, a in zip(names, (t, s), strict=True):
         if a.shape[-1] != 3 and not (a.shape[1] == 3 and a.shape[-1] > 3):
-            raise MaskNetError(f"{name} must have 3 columns (x, y, z); got shape {a.shape}")
+            shape = a.shape[1:] if single else a.shape  # the shape the caller gave
+            raise MaskNetError(f"{name} must have 3 columns (x, y, z); got shape {shape}")
         if clouds_checked():  # an entry point checked them already (errors.checks_done)
             continue
         for i, cloud in enumerate(a):  # the checks of every file read, cloud by cloud
