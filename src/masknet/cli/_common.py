@@ -29,6 +29,14 @@ def positive_int(text: str) -> int:
     return value
 
 
+def at_least_three(text: str) -> int:
+    """argparse type: an integer >= 3 (points enough for a rotation)."""
+    value = int(text)
+    if value < 3:
+        raise argparse.ArgumentTypeError(f"must be at least 3, got {value}")
+    return value
+
+
 def seed(text: str) -> int:
     """argparse type: an integer >= 0."""
     value = int(text)
@@ -73,8 +81,15 @@ def add_pair_options(p: argparse.ArgumentParser) -> None:
         help="fraction of template points the source keeps (default 0.7; "
         "1.0 when training pointnetlk, which trains on full clouds)",
     )
-    g.add_argument("--max-angle", type=float, default=45.0, help="maximum rotation, degrees")
-    g.add_argument("--max-translation", type=float, default=1.0, help="translation range per axis")
+    g.add_argument(
+        "--max-angle", type=float, default=45.0, help="maximum rotation, degrees (default 45)"
+    )
+    g.add_argument(
+        "--max-translation",
+        type=float,
+        default=1.0,
+        help="translation range per axis (default 1.0)",
+    )
     g.add_argument(
         "--noise",
         type=float,
@@ -134,7 +149,8 @@ def add_file_options(p: argparse.ArgumentParser, html: bool = True) -> None:
     p.add_argument(
         "--drop-nonfinite",
         action="store_true",
-        help="drop NaN/inf rows instead of failing (mask files still have a line per row, 0 there)",
+        help="drop NaN/inf rows instead of failing (mask files, where a command writes them, "
+        "still have a line per input row, 0 there)",
     )
     if html:
         p.add_argument(

@@ -15,7 +15,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "demo", help="run the shipped model on the bundled sample: metrics and a picture"
     )
-    p.add_argument("--out", default="masknet_demo", help="folder for the picture and metrics")
+    p.add_argument(
+        "--out",
+        default="masknet_demo",
+        help="folder for the picture and metrics (default masknet_demo)",
+    )
     p.add_argument(
         "--pairs", type=positive_int, default=240, help="pairs to evaluate (default 240)"
     )

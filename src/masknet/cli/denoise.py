@@ -45,7 +45,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "--threshold",
         type=finite_float,
         default=0.5,
-        help="masknet, refined: keep points scoring >= this",
+        help="masknet, refined: keep points scoring >= this (default 0.5)",
     )
     p.add_argument(
         "--max-distance",

@@ -13,6 +13,7 @@ from masknet.cli._common import (
     add_cloud_arguments,
     add_file_options,
     add_model_options,
+    at_least_three,
     check_html,
     check_outputs,
     load_model,
@@ -113,10 +114,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--max-points",
-        type=positive_int,
+        type=at_least_three,
         default=1024,
         help="larger clouds are farthest-point sampled to this for the networks and "
-        "ICP; the transform is applied to the full source",
+        "ICP; the transform is applied to the full source (default 1024, at least 3)",
     )
     p.add_argument(
         "--scene",
