@@ -228,12 +228,7 @@ def ransac_poses(
         cos = (np.einsum("hij,ij->h", poses[:, :3, :3], poses[i, :3, :3]) - 1) / 2
         near_pose = np.linalg.norm(poses[:, :3, 3] - poses[i, :3, 3], axis=1) < 3 * threshold
         open_ &= ~((cos > cos_limit) & near_pose)
-    refit = rigid_transforms_numpy(
-        np.broadcast_to(source, (len(chosen), k, 3)),
-        np.broadcast_to(template, (len(chosen), k, 3)),
-        near[chosen].astype(np.float64),
-    )
-    return PoseHypotheses(refit, counts[chosen])
+    return PoseHypotheses(_refit(source, template, near[chosen]), counts[chosen])
 
 
 def compatible_poses(
@@ -280,16 +275,18 @@ def compatible_poses(
     weights = weights[weights.sum(1) >= 3]
     if not len(weights):
         return empty
-    batch = (len(weights), k, 3)
-    poses = rigid_transforms_numpy(
-        np.broadcast_to(source, batch), np.broadcast_to(template, batch), weights
-    )
+    poses = _refit(source, template, weights)
     near = ((transform_points(poses, source[None]) - template) ** 2).sum(-1) <= threshold**2
-    explained = near.sum(1) >= 3
-    poses, near = poses[explained], near[explained]
-    refit = rigid_transforms_numpy(
-        np.broadcast_to(source, (len(poses), k, 3)),
-        np.broadcast_to(template, (len(poses), k, 3)),
-        near.astype(np.float64),
+    near = near[near.sum(1) >= 3]
+    return PoseHypotheses(_refit(source, template, near), near.sum(1))
+
+
+def _refit(source: np.ndarray, template: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """(H, 4, 4): for each row of ``weights`` (H, K), bool or float, the pose that best puts
+    the weighted matches source (K, 3) onto template (K, 3)."""
+    batch = (len(weights), len(source), 3)
+    return rigid_transforms_numpy(
+        np.broadcast_to(source, batch),
+        np.broadcast_to(template, batch),
+        np.asarray(weights, dtype=np.float64),
     )
-    return PoseHypotheses(refit, near.sum(1))
