@@ -21,20 +21,22 @@ if TYPE_CHECKING:
     from masknet.models import MaskNet
 
 
-def positive_int(text: str) -> int:
-    """argparse type: an integer >= 1."""
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
-    return value
+def int_at_least(low: int, name: str):
+    """An argparse type: an integer >= ``low``. argparse calls it ``name`` when the text is
+    no integer ("invalid positive_int value: 'x'")."""
+
+    def parse(text: str) -> int:
+        value = int(text)
+        if value < low:
+            raise argparse.ArgumentTypeError(f"must be at least {low}, got {value}")
+        return value
+
+    parse.__name__ = name
+    return parse
 
 
-def at_least_three(text: str) -> int:
-    """argparse type: an integer >= 3 (points enough for a rotation)."""
-    value = int(text)
-    if value < 3:
-        raise argparse.ArgumentTypeError(f"must be at least 3, got {value}")
-    return value
+positive_int = int_at_least(1, "positive_int")
+at_least_three = int_at_least(3, "at_least_three")  # points enough for a rotation
 
 
 def seed(text: str) -> int:

@@ -21,7 +21,7 @@ from masknet.cli._common import (
     progress,
 )
 from masknet.errors import MaskNetError
-from masknet.registration.methods import METHOD_TITLES, METHODS
+from masknet.registration.methods import METHOD_TITLES, METHODS, PIPELINES
 
 # Below this fraction of the template on the scan where a scene search found it, the CLI
 # warns that the object may not be in the scan.
@@ -267,10 +267,9 @@ def run(args: argparse.Namespace) -> None:
         writers.append(
             (source_mask_path, lambda p: write_mask(p, over_rows(result.source_mask, source_rows)))
         )
-    # Pipelines choose their own stages (the path line says which ran): named, not "Mask-X".
-    pipeline_names = {"auto": "default pipeline (auto)", "robust": "robust pipeline"}
-    if args.method in pipeline_names:
-        name = pipeline_names[args.method] + (", no masks" if args.no_mask else "")
+    if args.method in PIPELINES:  # they choose their own stages; the path line says which
+        name = "default pipeline (auto)" if args.method == "auto" else f"{args.method} pipeline"
+        name += ", no masks" if args.no_mask else ""
     else:
         name = ("" if args.no_mask else "Mask-") + METHOD_TITLES[args.method]
     if args.html:  # written with the others, all or nothing

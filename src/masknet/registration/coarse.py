@@ -300,7 +300,7 @@ def coarse_to_fine(
         tic = clock("hypotheses", tic)
         # 3. The best few, refined with the pair cut-off, rescored on all kept points.
         scored.sort(key=_rank, reverse=True)
-        # Candidates from different basins (distinct_deg apart): close poses refine into one.
+        # Candidates from different basins (CANDIDATE_BASIN): close poses refine into one.
         best_few = _distinct(
             scored, options.candidates, CANDIDATE_BASIN * radius, options.distinct_deg
         )

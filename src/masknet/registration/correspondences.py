@@ -25,6 +25,7 @@ from __future__ import annotations
 from typing import Any, NamedTuple
 
 import numpy as np
+from scipy.spatial.distance import cdist
 
 from masknet.geometry.align import rigid_transforms_numpy
 from masknet.geometry.se3 import transform_points
@@ -260,8 +261,7 @@ def compatible_poses(
     if k > max_matches:
         rows = np.sort(np.random.default_rng(seed).choice(k, max_matches, replace=False))
     s, t = source[rows], template[rows]
-    d_s = np.sqrt(((s[:, None] - s[None]) ** 2).sum(-1))
-    d_t = np.sqrt(((t[:, None] - t[None]) ** 2).sum(-1))
+    d_s, d_t = cdist(s, s), cdist(t, t)
     compatible = (np.abs(d_s - d_t) < threshold) & (np.minimum(d_s, d_t) > threshold)
     c = compatible.astype(np.float32)
     leaders = np.argsort(-c.sum(1), kind="stable")[:seeds]
