@@ -11,6 +11,13 @@ the mean precision and recall against the ground-truth mask. The last rows are a
 rule at the ground truth, for reference: the template points within f median template
 spacings of the moved source. The scan folder is ``$MASKNET_SCANS`` (default
 ../shared/data/scans).
+
+    python scripts/mask_precision_ceiling.py --validation ../shared/data/scans_train \
+        --out docs/results/mask_threshold_validation.json
+
+measures the same on the training scans the refinement network held out for validation
+(its record names them): the set on which ``register``'s threshold is chosen, the lowest
+of the thresholds whose precision at the returned pose is at least 0.95 on both sets.
 """
 
 from __future__ import annotations
@@ -32,9 +39,11 @@ from masknet.geometry.knn import cloud_tree
 from masknet.geometry.se3 import transform_points
 from masknet.io import write_text_atomic
 from masknet.models.refine import RefineMaskNet
+from masknet.models.weights import shipped_weights_path
 
-THRESHOLDS = (0.5, 0.8, 0.9, 0.95, 0.97, 0.98)
+THRESHOLDS = (0.5, 0.8, 0.9, 0.925, 0.95, 0.97, 0.98)
 SPACINGS = (1.0, 1.5, 2.0, 3.0)
+SETS = ("scans, shared points", "scans, re-sampled")
 
 
 def _precision_recall(predicted: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
@@ -42,10 +51,13 @@ def _precision_recall(predicted: np.ndarray, truth: np.ndarray) -> tuple[float, 
     return tp / max(int(predicted.sum()), 1), tp / max(int(truth.sum()), 1)
 
 
-def scan_set(shared: bool, refiner: RefineMaskNet) -> dict:
+def scan_set(
+    shared: bool, refiner: RefineMaskNet, folder: Path | None = None, names: list | None = None
+) -> dict:
     """Mean (precision, recall) per threshold at the returned pose and at the truth, and
-    of the geometric rule at the truth, over one scan set."""
-    pairs = scan_eval_pairs(15, shared, seed=0)
+    of the geometric rule at the truth, over one scan set (``folder`` and ``names`` as
+    :func:`scan_eval_pairs`)."""
+    pairs = scan_eval_pairs(15, shared, seed=0, folder=folder, names=names)
     templates, sources, truths = pair_arrays(pairs)
     masks = pairs.mask.numpy()
     rows: dict[str, list] = {"returned": [], "truth": [], "rule": []}
@@ -72,28 +84,46 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--out", type=Path, help="also write the figures here (JSON)")
+    parser.add_argument(
+        "--validation",
+        type=Path,
+        metavar="SCANS_TRAIN",
+        help="measure on the refiner's validation scans in this training-scan folder",
+    )
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     refiner = RefineMaskNet.pretrained()
+    names = None
+    if args.validation:
+        record = json.loads(shipped_weights_path("refinemask_scans.json").read_text())
+        names = record["training"]["task"]["val_scans"]
     tic = time.perf_counter()
     out: dict = {
         "machine": f"{platform.machine()}, {args.threads} threads, torch {torch.__version__}",
         "thresholds": THRESHOLDS,
         "rule_spacings": SPACINGS,
+        "scans": names or "evaluation scans",
     }
     for shared, name in ((True, "scans, shared points"), (False, "scans, re-sampled")):
-        out[name] = scan_set(shared, refiner)
+        out[name] = scan_set(shared, refiner, args.validation, names)
     out["seconds"] = time.perf_counter() - tic
     print("| set | mask | at the pose | precision | recall |")
     print("|---|---|---|---|---|")
-    for name in ("scans, shared points", "scans, re-sampled"):
+    for name in SETS:
         figures = out[name]
         for pose in ("returned", "truth"):
             for t, (p, r) in zip(THRESHOLDS, figures[pose], strict=True):
                 print(f"| {name} | scores >= {t} | {pose} | {p:.3f} | {r:.3f} |")
         for f, (p, r) in zip(SPACINGS, figures["rule"], strict=True):
             print(f"| {name} | within {f} spacings | truth | {p:.3f} | {r:.3f} |")
-    print(f"\n{out['seconds'] / 60:.1f} min, {out['machine']}")
+    precise = [
+        t
+        for i, t in enumerate(THRESHOLDS)
+        if all(out[name]["returned"][i][0] >= 0.95 for name in SETS)
+    ]
+    out["lowest_threshold_at_0.95"] = precise[0] if precise else None
+    print(f"\nlowest threshold with precision >= 0.95 on both: {out['lowest_threshold_at_0.95']}")
+    print(f"{out['seconds'] / 60:.1f} min, {out['machine']}")
     if args.out:
         write_text_atomic(args.out, json.dumps(out, indent=1) + "\n")
 

@@ -64,12 +64,19 @@ PIPELINES = {
 SCAN_TEMPLATE_POINTS = 4096
 
 
-def scan_eval_pairs(count_per_scan: int, shared: bool, seed: int) -> Pairs:
-    """Pairs cut from the evaluation scans (``$MASKNET_SCANS``, default
-    ../shared/data/scans): 70% views of 4,096-point templates, rotations up to 45
-    degrees, translations up to 0.5 radius, noise 0.2% of the radius; the source
-    re-sampled (``shared=False``) or copied from the template's points."""
-    folder = scans_folder()
+def scan_eval_pairs(
+    count_per_scan: int,
+    shared: bool,
+    seed: int,
+    folder: Path | None = None,
+    names: list[str] | None = None,
+) -> Pairs:
+    """Pairs cut from the evaluation scans (``folder``, default ``$MASKNET_SCANS`` or
+    ../shared/data/scans; only the scans called ``names`` where given): 70% views of
+    4,096-point templates, rotations up to 45 degrees, translations up to 0.5 radius,
+    noise 0.2% of the radius; the source re-sampled (``shared=False``) or copied from the
+    template's points."""
+    folder = scans_folder() if folder is None else Path(folder)
     if not folder.is_dir():
         raise MaskNetError(f"{folder}: scan folder not found; set MASKNET_SCANS")
     view = ViewConfig(
@@ -79,8 +86,12 @@ def scan_eval_pairs(count_per_scan: int, shared: bool, seed: int) -> Pairs:
         independent=not shared,
     )
     scans: list[Scan] = [
-        s for s in load_scans(folder, quiet=True) if len(s) >= view.min_cloud_points
+        s
+        for s in load_scans(folder, quiet=True)
+        if len(s) >= view.min_cloud_points and (names is None or s.name in names)
     ]
+    if not scans:
+        raise MaskNetError(f"{folder}: no scan of {view.min_cloud_points} points or more")
     return make_scan_test_pairs(scans, count_per_scan, view, seed=seed)[0]
 
 
