@@ -34,7 +34,37 @@ def test_a_close_pair_of_outliers_is_no_surface_with_two_neighbours_asked():
     one, two = isolated_free(cloud, 0.2), isolated_free(cloud, 0.2, neighbours=2)
     assert one[500:].all() and not two[500:].any()
     assert one[:500].all() and two[:500].all()
-    assert all((a == b).all() for a, b in zip(surface_points(cloud, 0.2), (one, two), strict=True))
+    got = surface_points(cloud, 0.2)
+    assert all((a == b).all() for a, b in zip(got[:2], (one, two), strict=True))
+    assert got[2].all()  # no spacing given: no point is a stray
+
+
+def test_a_stray_point_beside_a_surface_is_dropped_and_an_edge_is_not():
+    """A point 0.08 above a plane sampled 0.04 apart has plane points for its
+    neighbours (so the neighbour test keeps it), but no point within the fit's 1.5
+    spacings and lies off their plane: the check drops it. The points along the fold of
+    an L-shaped surface lie off their neighbours' plane too, but close to other points:
+    they stay (a wrong pose misfits edges first)."""
+    rng = np.random.default_rng(0)
+    u, v = np.meshgrid(np.arange(0.02, 1, 0.04), np.arange(0.02, 1, 0.04))
+    floor = np.c_[u.ravel(), v.ravel(), np.zeros(u.size)]  # an even grid, as prepared
+    u, w = np.meshgrid(np.arange(0.02, 1, 0.04), np.arange(0.04, 0.5, 0.04))
+    wall = np.c_[u.ravel(), np.zeros(u.size), w.ravel()]
+    surface_count = len(floor) + len(wall)
+    a, b = np.meshgrid(np.linspace(0.2, 0.8, 5), [0.4, 0.7])  # 0.15 apart at least
+    stray = np.c_[a.ravel(), b.ravel(), np.full(10, 0.08)]
+    cloud = np.concatenate([floor, wall, stray]) + rng.normal(0, 0.003, (surface_count + 10, 3))
+    spacing = median_spacing(floor)
+    surface, strict, attached = surface_points(cloud, 0.2, spacing)
+    assert surface.all() and strict.all()
+    assert not attached[surface_count:].any() and attached[:surface_count].all()
+    kept = check_points(surface, strict, attached)
+    assert not kept[surface_count:].any() and kept[:surface_count].all()
+    # Without a spacing nothing is a stray.
+    assert surface_points(cloud, 0.2)[2].all()
+    # More than CHECK_MAX_DROP of the points counted as strays are a part of the cloud,
+    # not strays: the check keeps them all.
+    assert check_points(surface, strict, np.zeros(len(cloud), bool)).all()
 
 
 def test_the_check_keeps_a_sparse_part_of_a_surface_that_is_more_than_a_few_points():

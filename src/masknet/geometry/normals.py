@@ -10,7 +10,7 @@ from torch import Tensor
 
 from masknet.geometry.knn import knn_points
 
-__all__ = ["estimate_normals"]
+__all__ = ["estimate_normals", "plane_offsets"]
 
 
 def estimate_normals(points: Tensor | np.ndarray, k: int = 16, tree: Any | None = None) -> tuple:
@@ -32,10 +32,7 @@ def estimate_normals(points: Tensor | np.ndarray, k: int = 16, tree: Any | None 
         k = min(k, len(points))
         tree = cloud_tree(points) if tree is None else tree
         idx = tree.query(points, k=k)[1].astype(np.int64).reshape(len(points), k)
-        neighbours = points[idx]
-        centred = neighbours - neighbours.mean(1, keepdims=True)
-        _, vectors = np.linalg.eigh(centred.transpose(0, 2, 1) @ centred)
-        return vectors[..., 0], idx
+        return _pca_normals(points[idx])[0], idx
     k = min(k, points.shape[1])
     with torch.no_grad():
         idx = knn_points(points, points, k).idx
@@ -46,3 +43,25 @@ def estimate_normals(points: Tensor | np.ndarray, k: int = 16, tree: Any | None 
         cov = centred.transpose(-1, -2) @ centred  # (B, N, 3, 3)
         _, vectors = torch.linalg.eigh(cov)  # ascending eigenvalues
         return vectors[..., 0].to(points.dtype), idx
+
+
+def plane_offsets(
+    points: np.ndarray, neighbours: np.ndarray, cloud: np.ndarray | None = None
+) -> np.ndarray:
+    """(N,) the distance of each point of ``points`` (N, 3) from the least-squares plane of
+    its neighbours, ``neighbours`` (N, k) indices into ``cloud`` (K, 3; ``points`` itself
+    when None), k >= 3, the point itself not among them (it would tilt the plane towards
+    itself); in the points' units. A point on a surface lies near that plane; a stray point
+    beside the surface, whose neighbours are surface points, does not."""
+    cloud = points if cloud is None else cloud
+    normals, centres = _pca_normals(cloud[neighbours])
+    return np.abs(np.einsum("ni,ni->n", normals, points - centres))
+
+
+def _pca_normals(neighbours: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit normals (N, 3) and centres (N, 3) of neighbourhoods (N, k, 3), float64: the
+    eigenvector of each covariance's smallest eigenvalue, and the mean."""
+    centres = neighbours.mean(1)
+    centred = neighbours - centres[:, None]
+    _, vectors = np.linalg.eigh(centred.transpose(0, 2, 1) @ centred)
+    return vectors[..., 0], centres

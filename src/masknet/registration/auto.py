@@ -108,7 +108,7 @@ def _one(
         surface = kept_fine if kept_fine.sum() >= 3 else surface
     kept = fine[surface]
     # The check's points among those kept (a two-sided network's mask narrows both).
-    checked = fine[check_points(surface, prepared.strict)]
+    checked = fine[check_points(surface, prepared.strict, prepared.attached)]
     sol = icp(
         fine_template,
         kept,
