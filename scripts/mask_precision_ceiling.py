@@ -33,17 +33,19 @@ import torch
 
 from masknet import register
 from masknet.evaluation.registration import pair_arrays
-from masknet.experiments.rounds import scan_eval_pairs
+from masknet.experiments.rounds import scan_eval_set
 from masknet.geometry.clouds import median_spacing
 from masknet.geometry.knn import cloud_tree
 from masknet.geometry.se3 import transform_points
 from masknet.io import write_text_atomic
 from masknet.models.refine import RefineMaskNet
 from masknet.models.weights import shipped_weights_path
+from masknet.registration.refinement import TEMPLATE_THRESHOLD
 
 THRESHOLDS = (0.5, 0.8, 0.9, 0.925, 0.95, 0.97, 0.98)
 SPACINGS = (1.0, 1.5, 2.0, 3.0)
 SETS = ("scans, shared points", "scans, re-sampled")
+REGISTER_THRESHOLD = TEMPLATE_THRESHOLD  # the per-scan figures are at register's threshold
 
 
 def _precision_recall(predicted: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
@@ -57,10 +59,11 @@ def scan_set(
     """Mean (precision, recall) per threshold at the returned pose and at the truth, and
     of the geometric rule at the truth, over one scan set (``folder`` and ``names`` as
     :func:`scan_eval_pairs`)."""
-    pairs = scan_eval_pairs(15, shared, seed=0, folder=folder, names=names)
+    pairs, scans = scan_eval_set(15, shared, seed=0, folder=folder, names=names)
     templates, sources, truths = pair_arrays(pairs)
     masks = pairs.mask.numpy()
     rows: dict[str, list] = {"returned": [], "truth": [], "rule": []}
+    per_scan: dict[str, list] = {}
     for i in range(len(truths)):
         template = templates[i].astype(np.float64)
         source = sources[i].astype(np.float64)
@@ -69,6 +72,9 @@ def scan_set(
             moved = transform_points(np.asarray(pose, np.float64), source)
             scores = refiner.predict(template.astype(np.float32), moved.astype(np.float32))[0]
             rows[name].append([_precision_recall(scores >= t, masks[i]) for t in THRESHOLDS])
+            if name == "truth":
+                at = _precision_recall(scores >= REGISTER_THRESHOLD, masks[i])
+                per_scan.setdefault(scans[i], []).append(at)
         moved = transform_points(np.asarray(truths[i], np.float64), source)
         distance = cloud_tree(moved).query(template, k=1)[0]
         spacing = median_spacing(template)
@@ -76,7 +82,8 @@ def scan_set(
             [_precision_recall(distance <= f * spacing, masks[i]) for f in SPACINGS]
         )
     return {name: np.asarray(values).mean(0).tolist() for name, values in rows.items()} | {
-        "pairs": len(truths)
+        "pairs": len(truths),
+        "per_scan_at_truth": {k: np.asarray(v).mean(0).tolist() for k, v in per_scan.items()},
     }
 
 
@@ -116,6 +123,12 @@ def main() -> None:
                 print(f"| {name} | scores >= {t} | {pose} | {p:.3f} | {r:.3f} |")
         for f, (p, r) in zip(SPACINGS, figures["rule"], strict=True):
             print(f"| {name} | within {f} spacings | truth | {p:.3f} | {r:.3f} |")
+    print(f"\nPer scan at the truth, scores >= {REGISTER_THRESHOLD}:\n")
+    print("| scan | " + " | ".join(f"{name}: precision / recall" for name in SETS) + " |")
+    print("|---|" + "---|" * len(SETS))
+    for scan in out[SETS[0]]["per_scan_at_truth"]:
+        cells = [out[name]["per_scan_at_truth"].get(scan, [np.nan, np.nan]) for name in SETS]
+        print(f"| {scan} | " + " | ".join(f"{p:.3f} / {r:.3f}" for p, r in cells) + " |")
     precise = [
         t
         for i, t in enumerate(THRESHOLDS)

@@ -38,6 +38,7 @@ __all__ = [
     "refiner_table",
     "residual_moved",
     "scan_eval_pairs",
+    "scan_eval_set",
 ]
 
 ROUNDS = 3
@@ -75,7 +76,18 @@ def scan_eval_pairs(
     ../shared/data/scans; only the scans called ``names`` where given): 70% views of
     4,096-point templates, rotations up to 45 degrees, translations up to 0.5 radius,
     noise 0.2% of the radius; the source re-sampled (``shared=False``) or copied from the
-    template's points."""
+    template's points. :func:`scan_eval_set` also names each pair's scan."""
+    return scan_eval_set(count_per_scan, shared, seed, folder, names)[0]
+
+
+def scan_eval_set(
+    count_per_scan: int,
+    shared: bool,
+    seed: int,
+    folder: Path | None = None,
+    names: list[str] | None = None,
+) -> tuple[Pairs, list[str]]:
+    """:func:`scan_eval_pairs`, and the name of the scan each pair was cut from."""
     folder = scans_folder() if folder is None else Path(folder)
     if not folder.is_dir():
         raise MaskNetError(f"{folder}: scan folder not found; set MASKNET_SCANS")
@@ -92,7 +104,7 @@ def scan_eval_pairs(
     ]
     if not scans:
         raise MaskNetError(f"{folder}: no scan of {view.min_cloud_points} points or more")
-    return make_scan_test_pairs(scans, count_per_scan, view, seed=seed)[0]
+    return make_scan_test_pairs(scans, count_per_scan, view, seed=seed)
 
 
 def _sets(ctx: BenchmarkContext, modelnet_pairs: int, per_scan: int) -> dict[str, Pairs]:

@@ -5,10 +5,12 @@
    pairs cut at ``max_correspondence_distance`` (1.5 template spacings): a geometric inlier mask, once the
    clouds are close (the nearest-neighbour refinement rule).
 2. **Check.** On even subsets of the clouds
-   (:func:`masknet.registration.prepared.prepare_pair`), the fit of the result: the share of the source's surface points (two
-   others within 2 template spacings, so that stray outliers do not count, unless that
-   drops over 5% of the points: :func:`masknet.registration.prepared.check_points`) within
-   1.5 template spacings of the template (:func:`masknet.registration.prepared.pose_fit`).
+   (:func:`masknet.registration.prepared.prepare_pair`), the fit of the result: the share of
+   the source's surface points within 1.5 template spacings of the template
+   (:func:`masknet.registration.prepared.pose_fit`). Stray outliers do not count: points
+   without two others within 2 template spacings, and points beside a surface (no other
+   point within 1.5 spacings, off their neighbours' plane), each test unless it drops over
+   5% of the points (:func:`masknet.registration.prepared.check_points`).
    A correct result fits at least ``accept_fitness``; a result stopped at a wrong pose
    fits less.
 3. **Escalation.** Below that, the coarse-to-fine pipeline of ``method="robust"``
