@@ -344,11 +344,11 @@ def run(args: argparse.Namespace) -> None:
     print("reported: " + ", ".join(f"{k} {_shown(v)}" for k, v in numbers.items()))
     on_object = source if result.source_mask is None else source[result.source_mask]
     check = assess_registration(template, on_object, result.transform)
+    print(f"did it work: {check.verdict}: {check.reason}")
     print(
-        f"did it work: {check.verdict}: {check.reason} (inlier distance {DEFAULT_SPACINGS:g} "
-        f"spacings); fit: {check.fitness:.1%} of the "
-        f"{'kept ' if result.source_mask is not None else ''}source points within "
-        f"{check.max_correspondence_distance:.3g} of {Path(args.template).name}"
+        f"fit: {check.fitness:.1%} of the {'kept ' if result.source_mask is not None else ''}"
+        f"source points within {check.max_correspondence_distance:.3g} of "
+        f"{Path(args.template).name} (the inlier distance, {DEFAULT_SPACINGS:g} spacings)"
     )
     if check.verdict != "likely correct":
         print(

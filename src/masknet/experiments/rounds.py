@@ -65,19 +65,13 @@ PIPELINES = {
 SCAN_TEMPLATE_POINTS = 4096
 
 
-def scan_eval_pairs(
-    count_per_scan: int,
-    shared: bool,
-    seed: int,
-    folder: Path | None = None,
-    names: list[str] | None = None,
-) -> Pairs:
-    """Pairs cut from the evaluation scans (``folder``, default ``$MASKNET_SCANS`` or
-    ../shared/data/scans; only the scans called ``names`` where given): 70% views of
-    4,096-point templates, rotations up to 45 degrees, translations up to 0.5 radius,
-    noise 0.2% of the radius; the source re-sampled (``shared=False``) or copied from the
-    template's points. :func:`scan_eval_set` also names each pair's scan."""
-    return scan_eval_set(count_per_scan, shared, seed, folder, names)[0]
+def scan_eval_pairs(count_per_scan: int, shared: bool, seed: int) -> Pairs:
+    """Pairs cut from the evaluation scans (``$MASKNET_SCANS``, default
+    ../shared/data/scans): 70% views of 4,096-point templates, rotations up to 45 degrees,
+    translations up to 0.5 radius, noise 0.2% of the radius; the source re-sampled
+    (``shared=False``) or copied from the template's points. :func:`scan_eval_set` takes
+    another folder and names each pair's scan."""
+    return scan_eval_set(count_per_scan, shared, seed)[0]
 
 
 def scan_eval_set(
@@ -87,7 +81,9 @@ def scan_eval_set(
     folder: Path | None = None,
     names: list[str] | None = None,
 ) -> tuple[Pairs, list[str]]:
-    """:func:`scan_eval_pairs`, and the name of the scan each pair was cut from."""
+    """:func:`scan_eval_pairs` from ``folder`` (default ``$MASKNET_SCANS`` or
+    ../shared/data/scans; only the scans called ``names`` where given), and the name of
+    the scan each pair was cut from."""
     folder = scans_folder() if folder is None else Path(folder)
     if not folder.is_dir():
         raise MaskNetError(f"{folder}: scan folder not found; set MASKNET_SCANS")

@@ -167,21 +167,26 @@ def assess_registration(
     radius = np.sqrt(((moved - moved.mean(0)) ** 2).sum(1).mean())
     nearby_shift = float(np.linalg.norm(nearest.mean(0) - moved.mean(0)) / max(radius, 1e-300))
     away = f"{nearby_deg:.1f} degrees and {nearby_shift:.0%} of the radius away"
+    # The worse direction is usually template to source: a partial view's edge leaves
+    # template points a little beyond it, so a right pose of a view reads under 100%.
+    fits = (
+        f"{overlap_fit:.0%} of the overlap fits within {limit:.3g} (input units; the worse "
+        f"of the two directions)"
+    )
     if overlap_fit < WRONG_FIT:
         verdict = "likely wrong"
         reason = (
-            f"only {overlap_fit:.0%} of the overlap fits within {limit:.3g} at the nearest "
-            f"fit ({away}); right poses fit {CORRECT_FIT:.0%} or more"
+            f"only {fits} at the nearest fit ({away}); right poses fit {CORRECT_FIT:.0%} or more"
         )
     elif nearby_deg >= WRONG_DEG or nearby_shift >= WRONG_SHIFT:
         verdict = "likely wrong"
         reason = f"a pose {away} fits better"
     elif overlap_fit >= CORRECT_FIT and nearby_deg <= CORRECT_DEG and nearby_shift <= CORRECT_SHIFT:
         verdict = "likely correct"
-        reason = f"{overlap_fit:.0%} of the overlap fits within {limit:.3g}, at a fit {away}"
+        reason = f"{fits}, and the nearest fit is {away}"
     else:
         verdict = "uncertain"
-        reason = f"{overlap_fit:.0%} of the overlap fits within {limit:.3g}, at a fit {away}"
+        reason = f"{fits}, and the nearest fit is {away}"
     return Assessment(
         verdict, reason, overlap_fit, fitness, overlap, nearby_deg, nearby_shift, limit
     )
