@@ -58,7 +58,7 @@ def scan_set(
 ) -> dict:
     """Mean (precision, recall) per threshold at the returned pose and at the truth, and
     of the geometric rule at the truth, over one scan set (``folder`` and ``names`` as
-    :func:`scan_eval_pairs`)."""
+    :func:`scan_eval_set`)."""
     pairs, scans = scan_eval_set(15, shared, seed=0, folder=folder, names=names)
     templates, sources, truths = pair_arrays(pairs)
     masks = pairs.mask.numpy()

@@ -37,8 +37,9 @@ def test_the_default_is_accurate_on_partial_pairs_and_far_ahead_of_icp():
 
 def test_with_outliers_the_fast_path_suffices_on_most_pairs_and_is_right():
     """10% uniform outliers: stray points that happen to lie close no longer count in the
-    check, so a right fast-path result passes it. Measured on these 20 pairs: 55% pass
-    (0.034 deg mean); with one neighbour asked instead of two, 15%."""
+    check, nor strays just beside the surface, so a right fast-path result passes it.
+    Measured on these 20 pairs: 80% pass (0.035 deg mean); before strays were dropped, 55%;
+    with one neighbour asked instead of two, 15%."""
     shapes = load_modelnet40(bundled_sample_path(), "test").points
     pairs = make_test_pairs(shapes, 20, PairConfig(outlier_ratio=0.1), seed=5)
     truth = pairs.transform.double().numpy()
@@ -48,5 +49,5 @@ def test_with_outliers_the_fast_path_suffices_on_most_pairs_and_is_right():
         paths.append(str(result.info["path"]))
         errors.append(pose_errors(result.transform[None], truth[i : i + 1])[0][0])
     fast = np.mean([p == "fast" for p in paths])
-    assert fast >= 0.4, paths
+    assert fast >= 0.65, paths
     assert np.mean(errors) < 0.5, errors

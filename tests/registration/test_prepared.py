@@ -129,3 +129,17 @@ def test_a_small_pair_is_prepared_whole():
     template, source = rng.normal(size=(500, 3)), rng.normal(size=(300, 3))
     pair = prepare_pair(template, source, fine_points=4096)
     assert (pair.template == template).all() and (pair.source == source).all()
+
+
+def test_a_source_thinner_than_its_template_has_no_strays_at_its_edges():
+    """A source drawn at random from an L-shaped template twenty times denser (as a scan's
+    subset is) has gaps of several template spacings everywhere; its points count as
+    strays only beyond its own spacing, so the fold and the gaps stay in the check."""
+    rng = np.random.default_rng(0)
+    u, v = np.meshgrid(np.arange(0, 4, 0.01), np.arange(0, 4, 0.01))
+    floor = np.c_[u.ravel(), v.ravel(), np.zeros(u.size)]
+    wall = np.c_[rng.uniform(0, 4, 40_000), np.zeros(40_000), rng.uniform(0, 2, 40_000)]
+    template = np.concatenate([floor, wall])
+    source = template[rng.choice(len(template), 4096, replace=False)]
+    pair = prepare_pair(template, source, 4096)
+    assert (~pair.attached).mean() < 0.005

@@ -100,6 +100,11 @@ def scan_eval_set(
     ]
     if not scans:
         raise MaskNetError(f"{folder}: no scan of {view.min_cloud_points} points or more")
+    missing = sorted(set(names or ()) - {s.name for s in scans})
+    if missing:
+        raise MaskNetError(
+            f"{folder}: scans {', '.join(missing)} missing or under {view.min_cloud_points} points"
+        )
     return make_scan_test_pairs(scans, count_per_scan, view, seed=seed)
 
 

@@ -183,10 +183,10 @@ def assess_registration(
         reason = f"a pose {away} fits better"
     elif overlap_fit >= CORRECT_FIT and nearby_deg <= CORRECT_DEG and nearby_shift <= CORRECT_SHIFT:
         verdict = "likely correct"
-        reason = f"{fits}, and the nearest fit is {away}"
+        reason = f"at the nearest fit ({away}), {fits}"
     else:
         verdict = "uncertain"
-        reason = f"{fits}, and the nearest fit is {away}"
+        reason = f"at the nearest fit ({away}), {fits}"
     return Assessment(
         verdict, reason, overlap_fit, fitness, overlap, nearby_deg, nearby_shift, limit
     )

@@ -89,7 +89,11 @@ def surface_points(
     one, two = d[:, min(1, k - 1)], d[:, min(CHECK_NEIGHBOURS, k - 1)]
     attached = np.ones(len(points), bool)
     if k >= 4 and spacing is not None:
-        alone = one > FIT_SPACINGS * spacing
+        # Far from every other point at the source's own density too: a source thinner
+        # than its template (a scan's subset is up to 8 times thinner) has gaps of several
+        # template spacings everywhere, and its edges are no strays.
+        own = np.median(one[one > 0]) if (one > 0).any() else 0.0
+        alone = one > FIT_SPACINGS * max(spacing, own)
         # The plane of the others, not the point's: it would tilt the plane to itself.
         offsets = plane_offsets(points[alone], idx[alone, 1:].astype(np.int64), points)
         attached[alone] = offsets <= PLANE_SPACINGS * spacing
@@ -191,7 +195,8 @@ class PreparedPair(NamedTuple):
     ``TEMPLATE_FACTOR * fine_points`` points); tree: its KD-tree; spacing: its median point
     spacing, input units. source: (M', 3) an even subset of the source (all of it up to
     ``fine_points``). surface, strict, attached: (M',) bool, :func:`surface_points` of the
-    source at ``SURFACE_SPACINGS`` template spacings."""
+    source at ``SURFACE_SPACINGS`` template spacings (``attached``: at ``FIT_SPACINGS``
+    and ``PLANE_SPACINGS``)."""
 
     template: np.ndarray
     tree: Any

@@ -50,9 +50,9 @@ REFINERS = ("nearest", "learned", "network")
 DEFAULT_REFINER = "learned"  # measured against the rule in docs/RESULTS.md
 # After a pipeline the learned refiner's template mask is its scores >= this, not the top k
 # with k the source points kept: two partial scans (3DMatch) share only part of each, and k
-# then covers most of the template (on the 3DMatch pair precision 0.69 against 0.42). Chosen
-# on the training scans the refiner held out: the lowest threshold with precision >= 0.95
-# on 70% views there, shared points or re-sampled (scripts/mask_precision_ceiling.py
+# then covers most of the template (on the 3DMatch pair precision 0.69 against 0.42).
+# Confirmed on the training scans the refiner held out: the lowest of a grid of thresholds
+# with precision >= 0.95 on 70% views there, shared points or re-sampled (scripts/mask_precision_ceiling.py
 # --validation; docs/RESULTS.md, "How precise the loop's mask can be").
 TEMPLATE_THRESHOLD = 0.9
 # A refined round whose pose fits worse than this below its start's (pose_fit's truncated
