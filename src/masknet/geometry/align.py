@@ -87,19 +87,29 @@ def rigid_transforms_numpy(
     weights (rows of weight 0 take no part; a problem without weight gets the identity).
     For RANSAC's minimal samples and ICP from many starts, where one batched 3x3 SVD
     replaces a Python loop."""
-    w = np.ones(source.shape[:2]) if weights is None else weights
-    total = w.sum(1)
-    norm = np.maximum(total, 1e-300)[:, None, None]
-    s_mean = (w[..., None] * source).sum(1, keepdims=True) / norm
-    y_mean = (w[..., None] * target).sum(1, keepdims=True) / norm
-    cov = ((source - s_mean) * w[..., None]).transpose(0, 2, 1) @ (target - y_mean)
+    if weights is None:  # the plain means: no weight arrays for ICP's many single solves
+        total = np.full(len(source), float(source.shape[1]))
+        s_mean = source.mean(1, keepdims=True)
+        y_mean = target.mean(1, keepdims=True)
+        cov = (source - s_mean).transpose(0, 2, 1) @ (target - y_mean)
+    else:
+        w = weights
+        total = w.sum(1)
+        norm = np.maximum(total, 1e-300)[:, None, None]
+        s_mean = (w[..., None] * source).sum(1, keepdims=True) / norm
+        y_mean = (w[..., None] * target).sum(1, keepdims=True) / norm
+        cov = ((source - s_mean) * w[..., None]).transpose(0, 2, 1) @ (target - y_mean)
     u, _, vh = np.linalg.svd(cov)
-    v, ut = vh.transpose(0, 2, 1), u.transpose(0, 2, 1)
-    fix = np.ones((len(cov), 3))
-    fix[:, 2] = np.where(np.linalg.det(v @ ut) < 0, -1.0, 1.0)
-    rot = (v * fix[:, None, :]) @ ut
+    rot = vh.transpose(0, 2, 1) @ u.transpose(0, 2, 1)
+    # R = V diag(1, 1, d) U^T with d = det(V U^T): a reflection flips V's last column.
+    flip = np.linalg.det(rot) < 0
+    if flip.any():
+        v = vh.transpose(0, 2, 1)[flip]
+        v[:, :, 2] *= -1
+        rot[flip] = v @ u[flip].transpose(0, 2, 1)
     rot[total <= 0] = np.eye(3)
-    out = np.tile(np.eye(4), (len(cov), 1, 1))
+    out = np.zeros((len(cov), 4, 4))
     out[:, :3, :3] = rot
-    out[:, :3, 3] = y_mean[:, 0] - np.einsum("bij,bj->bi", rot, s_mean[:, 0])
+    out[:, :3, 3] = y_mean[:, 0] - (rot @ s_mean.transpose(0, 2, 1))[..., 0]
+    out[:, 3, 3] = 1.0
     return out

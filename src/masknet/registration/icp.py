@@ -176,15 +176,22 @@ def _icp_pair(
     if normals is not None and np.shape(normals) != template.shape:
         raise ValueError(f"template_normals must be {template.shape}, got {np.shape(normals)}")
 
-    def match(tf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
-        moved = transform_points(tf, source)
+    def match(tf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, float, float]:
+        """The source moved by ``tf``, its nearest template points, which of them are
+        pairs (None: all), fitness and inlier MSE."""
+        moved = source @ tf[:3, :3].T + tf[:3, 3]
         d2, idx = tree.query(moved, k=1, sqr_dists=True)
-        idx = idx.astype(np.int64)
-        inlier = np.ones(len(d2), bool) if limit is None else d2 <= limit
-        count = int(inlier.sum())
-        return moved, idx, inlier, count / total, float(d2[inlier].sum() / max(count, 1))
+        if limit is None:
+            return moved, idx, None, len(d2) / total, float(d2.sum()) / max(len(d2), 1)
+        inlier = d2 <= limit
+        count = int(np.count_nonzero(inlier))
+        if count == len(d2):  # every pair kept: no copies of the clouds
+            return moved, idx, None, count / total, float(d2.sum()) / max(count, 1)
+        return moved, idx, inlier, count / total, float(d2[inlier].sum()) / max(count, 1)
 
-    def update(moved: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    def update(moved: np.ndarray, idx: np.ndarray, inlier: np.ndarray | None) -> np.ndarray:
+        if inlier is not None:
+            moved, idx = moved[inlier], idx[inlier]
         if normals is None:
             return rigid_transforms_numpy(moved[None], template[idx][None])[0]
         return _point_to_plane_step(moved, template[idx], normals[idx])
@@ -192,7 +199,7 @@ def _icp_pair(
     moved, idx, inlier, fitness, mse = match(transform)
     converged, iterations = False, 0
     for _ in range(max_iterations if fitness > 0 else 0):
-        transform = update(moved[inlier], idx[inlier]) @ transform
+        transform = update(moved, idx, inlier) @ transform
         iterations += 1
         previous = mse
         moved, idx, inlier, fitness, mse = match(transform)
