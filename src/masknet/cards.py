@@ -310,6 +310,18 @@ def render_refine_card(card: dict) -> str:
     version = f" v{card['version']}" if card.get("version") else ""
     scans = ", ".join(task.get("scans", [])) or "none"
     held = ", ".join(task.get("val_scans", [])) or "none"
+    context = card.get("architecture", {}).get("context", 0)
+    pooled = (
+        f" and, from v1.1 on, a context stage: {context} channels of each point's neighbourhood "
+        "(its features pooled over its k nearest points in its own cloud)"
+        if context
+        else ""
+    )
+    start = (
+        f"\n  --init refinemask_{card['name']}.safetensors --model-config '{{\"context\": {context}}}'"
+        if task.get("init")
+        else ""
+    )
     return f"""# Model card: `refinemask_{card["name"]}`{version}
 
 The refinement mask of the iterative loop (`masknet.models.refine.RefineMaskNet`,
@@ -317,14 +329,14 @@ The refinement mask of the iterative loop (`masknet.models.refine.RefineMaskNet`
 registration, in one frame**, it predicts the template points the source covers and the source
 points that lie on the template's object. Each point is described by its neighbours in its own
 cloud and its nearest points in the other cloud (offsets in units of the clouds' spacings, their
-lengths, and the ratio of the spacings), a point MLP and a max-pool per cloud. Load it with
+lengths, and the ratio of the spacings), a point MLP and a max-pool per cloud{pooled}. Load it with
 `RefineMaskNet.pretrained("{card["name"]}")`, or use it in `register(..., iterations=3,
 refine_masks="learned")`.
 
 ## Training actually done
 - Command: `masknet train --model refine --scans <scans_train> --epochs {train["epochs"]} --lr {train["lr"]}
   --lr-schedule {train["lr_schedule"]} --precision {train["precision"]} --val-pairs {train["val_pairs"]}
-  --scan-points {task["view"]["template_points"]} --threads {train.get("threads")}`
+  --scan-points {task["view"]["template_points"]} --threads {train.get("threads")}{start}`
 - Data, fresh every epoch and seeded: ModelNet40 training-split pairs (the paper's protocol,
   half of the batches cut as sensor-like views sampled apart from their templates), and
   {task["scan_batches"]} batches per epoch of views cut from {len(task.get("scans", []))} real

@@ -70,6 +70,21 @@ def test_masks_default_to_as_many_template_points_as_kept_source_points(net, pai
     np.testing.assert_array_equal(batch[0][1], t_mask)
 
 
+def test_with_context_starts_where_the_narrower_network_is_and_then_can_learn(net, pair, tmp_path):
+    wider = net.with_context(8)
+    assert wider.config["context"] == 8 and "context" not in net.config
+    for a, b in zip(wider.predict(*pair), net.predict(*pair), strict=True):
+        np.testing.assert_allclose(a, b, atol=1e-6)  # the new channels start at zero weight
+    head = wider.template_head[0]
+    with torch.no_grad():
+        head.weight[:, -8:] = 1.0  # once the head uses them, the neighbourhood counts
+    assert np.abs(wider.predict(*pair)[0] - net.predict(*pair)[0]).max() > 1e-3
+    path = tmp_path / "wider.safetensors"
+    wider.save(path)  # the file rebuilds its own architecture, context included
+    again = RefineMaskNet.from_file(path)
+    np.testing.assert_allclose(again.predict(*pair)[0], wider.predict(*pair)[0], atol=1e-6)
+
+
 def test_weights_round_trip(net, tmp_path, pair):
     path = tmp_path / "refine.safetensors"
     net.save(path)

@@ -22,7 +22,10 @@ through a small shared MLP:
    a residual rotation that moves far points more).
 
 A point MLP, a max-pool per cloud, and one head per role (the template's points and
-the source's) give the logits. All offsets are taken in the shared frame, scaled by the
+the source's) give the logits. With ``context`` channels (v1.1 on), each point's head
+also sees its own neighbourhood's features (their max and mean over its k nearest points
+in its cloud): whether a point lies on the seen surface is a property of a patch, not of
+one point, and the edge of a view or a hidden patch is decided by the points around it. All offsets are taken in the shared frame, scaled by the
 template's radius, so nothing depends on the unit or on where the pair sits.
 
 forward(template (B, N, 3), source (B, M, 3)) -> (template scores (B, N), source scores
@@ -44,6 +47,8 @@ from masknet.models.masknet import PAIRS_PER_CALL, predict_two_masks, select_mas
 from masknet.models.weights import SafetensorsWeights
 
 __all__ = ["RefineMaskNet", "cross_offsets", "kth_spacing"]
+
+CONTEXT_SQUEEZE = 64  # channels of each point's features that its neighbours pool
 
 
 def kth_spacing(points: Tensor, k: int) -> tuple[Tensor, Tensor]:
@@ -93,6 +98,7 @@ class RefineMaskNet(SafetensorsWeights, nn.Module):
         local_channels: Sequence[int] = (32, 64),
         point_channels: Sequence[int] = (128, 256),
         head_channels: Sequence[int] = (128, 64),
+        context: int = 0,
     ):
         super().__init__()
         self.config = {
@@ -101,13 +107,23 @@ class RefineMaskNet(SafetensorsWeights, nn.Module):
             "point_channels": list(point_channels),
             "head_channels": list(head_channels),
         }
+        if context:  # absent from v1.0 files, which rebuild without it
+            self.config["context"] = context
         self.k = k
         self.own = linear_stack([4, *local_channels])
         self.cross = linear_stack([6, *local_channels])
         self.point = linear_stack([2 * local_channels[-1], *point_channels])
         feat = point_channels[-1]
-        self.template_head = linear_stack([3 * feat, *head_channels, 1])
-        self.source_head = linear_stack([3 * feat, *head_channels, 1])
+        # The neighbourhood's features: squeezed per point, pooled over its k neighbours.
+        self.context = (
+            nn.ModuleList(
+                [nn.Linear(feat, CONTEXT_SQUEEZE), nn.Linear(3 * CONTEXT_SQUEEZE, context)]
+            )
+            if context
+            else None
+        )
+        self.template_head = linear_stack([3 * feat + context, *head_channels, 1])
+        self.source_head = linear_stack([3 * feat + context, *head_channels, 1])
 
     @classmethod
     def pretrained(
@@ -115,6 +131,20 @@ class RefineMaskNet(SafetensorsWeights, nn.Module):
     ) -> RefineMaskNet:
         """Shipped weights (default ``"scans"``; its card is ``refinemask_scans.md``)."""
         return super().pretrained(name, map_location)
+
+    def with_context(self, context: int) -> RefineMaskNet:
+        """A copy with ``context`` channels that predicts exactly what this one does: every
+        weight copied, the heads' weights on the new channels zero (a start to fine-tune)."""
+        wider = RefineMaskNet(**{**self.config, "context": context})
+        state = wider.state_dict()
+        for name, value in self.state_dict().items():
+            if state[name].shape == value.shape:
+                state[name] = value.clone()
+            else:  # a head's first layer: the old inputs first, the context's after
+                state[name] = torch.zeros_like(state[name])
+                state[name][:, : value.shape[1]] = value
+        wider.load_state_dict(state)
+        return wider
 
     def _features(
         self, points: Tensor, other: Tensor, own: tuple[Tensor, Tensor], other_spacing: Tensor
@@ -131,11 +161,23 @@ class RefineMaskNet(SafetensorsWeights, nn.Module):
             x = torch.relu(layer(x))
         return x
 
+    def _context(self, x: Tensor, idx: Tensor) -> Tensor | None:
+        """(B, P, context) from features x (B, P, C) and each point's own neighbours idx
+        (B, P, k): squeezed features, their max and mean over the neighbours, mixed."""
+        if self.context is None:
+            return None
+        squeeze, spread = self.context
+        z = torch.relu(squeeze(x))
+        around = gather_points(z, idx)  # (B, P, k, CONTEXT_SQUEEZE)
+        return torch.relu(spread(torch.cat([z, around.amax(2), around.mean(2)], dim=-1)))
+
     @staticmethod
-    def _head(layers: nn.ModuleList, x: Tensor, g_own: Tensor, g_other: Tensor) -> Tensor:
+    def _head(
+        layers: nn.ModuleList, x: Tensor, g_own: Tensor, g_other: Tensor, around: Tensor | None
+    ) -> Tensor:
         b, p, _ = x.shape
-        x = torch.cat([x, g_own[:, None].expand(b, p, -1), g_other[:, None].expand(b, p, -1)], -1)
-        return mlp(layers, x).squeeze(-1)
+        parts = [x, g_own[:, None].expand(b, p, -1), g_other[:, None].expand(b, p, -1)]
+        return mlp(layers, torch.cat(parts if around is None else [*parts, around], -1)).squeeze(-1)
 
     def forward(
         self, template: Tensor, source: Tensor, logits: bool = False
@@ -148,8 +190,9 @@ class RefineMaskNet(SafetensorsWeights, nn.Module):
         f_t = self._features(template, source, own_t, own_s[0])
         f_s = self._features(source, template, own_s, own_t[0])
         g_t, g_s = f_t.amax(dim=1), f_s.amax(dim=1)
-        t_logits = self._head(self.template_head, f_t, g_t, g_s)
-        s_logits = self._head(self.source_head, f_s, g_s, g_t)
+        c_t, c_s = self._context(f_t, own_t[1]), self._context(f_s, own_s[1])
+        t_logits = self._head(self.template_head, f_t, g_t, g_s, c_t)
+        s_logits = self._head(self.source_head, f_s, g_s, g_t, c_s)
         if logits:
             return t_logits, s_logits
         return torch.sigmoid(t_logits), torch.sigmoid(s_logits)

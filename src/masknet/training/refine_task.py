@@ -43,7 +43,11 @@ class RefineMaskTask(TwoSidedTask):
 
     def build_model(self) -> nn.Module:
         if self.init:
-            return RefineMaskNet.from_file(self.init)
+            model = RefineMaskNet.from_file(self.init)
+            context = self.model_config.get("context", 0)
+            if context and not model.config.get("context"):  # v1.0 weights, widened
+                return model.with_context(context)
+            return model
         return RefineMaskNet(**self.model_config)
 
     def train_batches(self, points: np.ndarray, batch_size: int, seed: int, epoch: int):
