@@ -93,3 +93,16 @@ $M train --model refine --scans ../shared/data/scans_train --out runs/refinemask
     --lr 1e-3 --lr-schedule cosine --threads 1 --val-pairs 256 --precision fp32 --scan-points 512 --resume
 # python scripts/ship.py refine runs/refinemask_scans scans --data $MASKNET_DATA \
 #     --eval-scans ../shared/data/scans --pairs 300 --pairs-per-scan 15 --note "..."  (the resumed schedule)
+# refinemask_scans v1.1: v1.0 widened by a context stage (its new channels at zero weight, so it
+# starts from v1.0's predictions) and fine-tuned for 4 epochs, one thread (9-10 min an epoch).
+# v1.0's file is in the history: git show c8dc743:src/masknet/resources/weights/refinemask_scans.safetensors
+mkdir -p runs && git show c8dc743:src/masknet/resources/weights/refinemask_scans.safetensors \
+    > runs/refinemask_scans_v1.0.safetensors
+git show c8dc743:src/masknet/resources/weights/refinemask_scans.json > runs/refinemask_scans_v1.0.json
+$M train --model refine --scans ../shared/data/scans_train --out runs/refinemask_context --epochs 4 \
+    --lr 3e-4 --lr-schedule cosine --threads 1 --val-pairs 256 --precision fp32 --scan-points 512 \
+    --init runs/refinemask_scans_v1.0.safetensors --model-config '{"context": 64}' \
+    $(resume runs/refinemask_context)
+# python scripts/ship.py refine runs/refinemask_context scans --data $MASKNET_DATA \
+#     --eval-scans ../shared/data/scans --pairs 300 --pairs-per-scan 15 --version 1.1 \
+#     --previous runs/refinemask_scans_v1.0.json --note "Fine-tuned from v1.0 (next line) ..."

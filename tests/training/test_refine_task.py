@@ -93,3 +93,18 @@ def test_fit_trains_resumes_and_fine_tunes(tmp_path, shapes):
     tuned = _task(init=str(best)).build_model()
     for a, b in zip(tuned.state_dict().values(), trained.state_dict().values(), strict=True):
         assert torch.equal(a, b)  # --init starts from the file's weights
+
+
+def test_fine_tuning_with_a_context_stage_widens_the_weights_it_starts_from(tmp_path, shapes):
+    torch.manual_seed(0)
+    narrow = RefineMaskNet(**SMALL).eval()
+    path = tmp_path / "narrow.safetensors"
+    narrow.save(path)
+    wide = _task(init=str(path), model_config={**SMALL, "context": 8}).build_model().eval()
+    assert wide.config["context"] == 8
+    template, source = shapes[0], shapes[0][:100]
+    np.testing.assert_allclose(
+        wide.predict(template, source)[0], narrow.predict(template, source)[0], atol=1e-6
+    )
+    same = _task(init=str(path)).build_model()  # no context asked: the file's own architecture
+    assert "context" not in same.config
