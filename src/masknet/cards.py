@@ -317,11 +317,9 @@ def render_refine_card(card: dict) -> str:
         if context
         else ""
     )
-    start = (
-        f"\n  --init refinemask_{card['name']}.safetensors --model-config '{{\"context\": {context}}}'"
-        if task.get("init")
-        else ""
-    )
+    start = f"\n  --init refinemask_{card['name']}.safetensors" if task.get("init") else ""
+    if task.get("init") and context:
+        start += f" --model-config '{{\"context\": {context}}}'"
     return f"""# Model card: `refinemask_{card["name"]}`{version}
 
 The refinement mask of the iterative loop (`masknet.models.refine.RefineMaskNet`,

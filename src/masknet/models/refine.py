@@ -25,8 +25,9 @@ A point MLP, a max-pool per cloud, and one head per role (the template's points 
 the source's) give the logits. With ``context`` channels (v1.1 on), each point's head
 also sees its own neighbourhood's features (their max and mean over its k nearest points
 in its cloud): whether a point lies on the seen surface is a property of a patch, not of
-one point, and the edge of a view or a hidden patch is decided by the points around it. All offsets are taken in the shared frame, scaled by the
-template's radius, so nothing depends on the unit or on where the pair sits.
+one point, and the edge of a view or a hidden patch is decided by the points around it.
+All offsets are taken in the shared frame, scaled by the template's radius, so nothing
+depends on the unit or on where the pair sits.
 
 forward(template (B, N, 3), source (B, M, 3)) -> (template scores (B, N), source scores
 (B, M)) in [0, 1] (logits with ``logits=True``).

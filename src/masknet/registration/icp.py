@@ -179,15 +179,14 @@ def _icp_pair(
     def match(tf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, float, float]:
         """The source moved by ``tf``, its nearest template points, which of them are
         pairs (None: all), fitness and inlier MSE."""
-        moved = source @ tf[:3, :3].T + tf[:3, 3]
+        moved = transform_points(tf, source)
         d2, idx = tree.query(moved, k=1, sqr_dists=True)
-        if limit is None:
-            return moved, idx, None, len(d2) / total, float(d2.sum()) / max(len(d2), 1)
-        inlier = d2 <= limit
-        count = int(np.count_nonzero(inlier))
+        inlier = None if limit is None else d2 <= limit
+        count = len(d2) if inlier is None else int(np.count_nonzero(inlier))
         if count == len(d2):  # every pair kept: no copies of the clouds
-            return moved, idx, None, count / total, float(d2.sum()) / max(count, 1)
-        return moved, idx, inlier, count / total, float(d2[inlier].sum()) / max(count, 1)
+            inlier = None
+        mse = float((d2 if inlier is None else d2[inlier]).sum()) / max(count, 1)
+        return moved, idx, inlier, count / total, mse
 
     def update(moved: np.ndarray, idx: np.ndarray, inlier: np.ndarray | None) -> np.ndarray:
         if inlier is not None:
