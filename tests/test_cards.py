@@ -35,3 +35,16 @@ def test_base_card_from_a_run(tmp_path):
     assert card["name"] == "demo" and card["epochs_trained"] == 2 and card["best_epoch"] == 2
     assert card["training_minutes"] == 1.0 and "2 threads" in card["machine"]
     assert cards.epochs_text(card) == "2 of 3 planned"
+
+
+def test_a_previous_run_is_described_by_what_its_task_trained_with():
+    pairs = {"keep_ratio": 0.7}
+    refine = {"name": "refinemask", "num_points": 1024, "loss": "mse", "pairs": pairs}
+    refine |= {"scans": ["a"], "view": {"template_points": 512}}
+    text = cards.training_text(refine)
+    assert "BCE on both masks" in text and "MSE" not in text  # the task fixes its loss
+    assert "512-point templates cut from scans" in text
+    masknet = {"name": "masknet", "num_points": 512, "loss": "mse", "pairs": pairs}
+    assert (
+        cards.training_text(masknet) == "512 points per ModelNet40 pair, keep ratio 0.7, MSE loss"
+    )

@@ -113,17 +113,30 @@ def previous_text(card: dict, depth: int = 0) -> str:
         return ""
     val_key = next(k for k in prev["log"][-1] if k.startswith("val_") and "loss" not in k)
     pick = min if "error" in val_key else max  # errors: lower is better; precision: higher
-    task = prev["training"]["task"]
-    loss = f", {task['loss'].upper()} loss" if task.get("loss") else ""
     lead = "**Started from**" if depth == 0 else "which started from"
     text = (
         f"{'  ' * depth}- {lead} `{prev['name']}` weights (`masknet train --init`): "
-        f"{prev['epochs_trained']} epochs, {prev['training_minutes']:.0f} minutes, "
-        f"{task['num_points']} points per training pair, keep ratio "
-        f"{task['pairs']['keep_ratio']}{loss}; best {val_key} "
+        f"{prev['epochs_trained']} epoch{'s' if prev['epochs_trained'] != 1 else ''}, "
+        f"{prev['training_minutes']:.0f} minutes, {training_text(prev['training']['task'])}; best {val_key} "
         f"{pick(float(r[val_key]) for r in prev['log']):.4f} on their own validation split.\n"
     )
     return text + previous_text(prev, depth + 1)
+
+
+# Tasks whose loss is fixed by the task (BCE on their masks), whatever ``loss`` a run
+# recorded: earlier runs recorded the command line's MaskNet default there.
+BCE_TASKS = {"masknet2": "BCE on the source scores", "refinemask": "BCE on both masks"}
+
+
+def training_text(task: dict) -> str:
+    """The points, keep ratio and loss a task (a card's ``training.task``) trained with."""
+    points = f"{task['num_points']} points per ModelNet40 pair"
+    if task.get("scans") and task.get("view"):
+        points += f", {task['view']['template_points']}-point templates cut from scans"
+    loss = BCE_TASKS.get(task.get("name", ""))
+    if loss is None:
+        loss = f"{task['loss'].upper()} loss" if task.get("loss") else ""
+    return f"{points}, keep ratio {task['pairs']['keep_ratio']}" + (f", {loss}" if loss else "")
 
 
 def resolution_note(num_points: int) -> str:

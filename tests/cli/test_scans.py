@@ -149,6 +149,8 @@ def test_train_a_refinement_mask_on_scans_and_fine_tune_it(tmp_path, scan_folder
     assert "val_template_precision" in log[0] and "val_source_f1" in log[0]
     first = RefineMaskNet.from_file(out / "best.safetensors")
     assert first.config["point_channels"] == small["point_channels"]
+    # The run records the loss the task trains with (BCE), not the MaskNet option's default.
+    assert json.loads((out / "run.json").read_text())["task"]["loss"] == "bce"
     # --init: fine-tuning starts from that file and keeps its architecture
     again = tmp_path / "refine2"
     tune = ["train", "--model", "refine", "--scans", str(scan_folder), "--out", str(again)]

@@ -11,6 +11,7 @@ from masknet.data.pairs import PairConfig
 from masknet.data.residuals import ResidualConfig
 from masknet.data.scans import Scan, ScanCropConfig
 from masknet.data.views import ViewConfig
+from masknet.errors import MaskNetError
 from masknet.geometry.se3 import transform_points
 from masknet.models.refine import RefineMaskNet
 from masknet.training import TrainConfig, fit
@@ -108,3 +109,12 @@ def test_fine_tuning_with_a_context_stage_widens_the_weights_it_starts_from(tmp_
     )
     same = _task(init=str(path)).build_model()  # no context asked: the file's own architecture
     assert "context" not in same.config
+    # An architecture that differs from the file's is refused, not silently ignored.
+    wide_path = tmp_path / "wide.safetensors"
+    wide.save(wide_path)
+    for config in ({"context": 16}, {**SMALL, "k": 4}):
+        with pytest.raises(MaskNetError, match="differs from the --init weights"):
+            _task(init=str(wide_path), model_config=config).build_model()
+    assert _task(init=str(wide_path), model_config={"context": 8}).build_model().config == (
+        wide.config
+    )

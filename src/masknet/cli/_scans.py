@@ -142,15 +142,17 @@ def scan_task(
         f"scans: {len(train)} for training, {len(val)} held out "
         f"({', '.join(s.name for s in val) or 'none'})"
     )
+    # The MaskNet task's loss option; the two-sided and refinement tasks fix their own.
+    loss = {"loss": base.loss} if task_class is ScanMaskNetTask else {}
     return task_class(
         pairs=base.pairs,
         num_points=base.num_points,
-        loss=base.loss,
         model_config=base.model_config,
         scans=train,
         val_scans=val,
         view=view_config(args, args.scan_noise, random_noise=True),
         scan_batches=args.scan_batches,
         modelnet_fraction=args.modelnet_fraction,
+        **loss,
         **extra,
     )

@@ -15,6 +15,7 @@ precision and the source F1, which picks the best weights.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -23,6 +24,7 @@ from torch import Tensor, nn
 
 from masknet.data.pairs import Pairs
 from masknet.data.residuals import ResidualConfig, residual_pairs
+from masknet.errors import MaskNetError
 from masknet.metrics import mask_metrics
 from masknet.models.refine import RefineMaskNet
 from masknet.training.scan_task import MappedEpoch, by_kind
@@ -45,6 +47,20 @@ class RefineMaskTask(TwoSidedTask):
         if self.init:
             model = RefineMaskNet.from_file(self.init)
             context = self.model_config.get("context", 0)
+            # Fine-tuning keeps the file's architecture; only a context stage may be added.
+            clash = {
+                key: value
+                for key, value in self.model_config.items()
+                if model.config.get(key) != value
+                and not (key == "context" and not model.config.get("context"))
+            }
+            if clash:
+                raise MaskNetError(
+                    f"--model-config {json.dumps(clash)} differs from the --init weights "
+                    f"({json.dumps({k: model.config.get(k) for k in clash})}): fine-tuning "
+                    "keeps their architecture (only a context stage can be added to weights "
+                    "without one)"
+                )
             if context and not model.config.get("context"):  # v1.0 weights, widened
                 return model.with_context(context)
             return model
