@@ -58,3 +58,14 @@ def test_spacing_ignores_exact_duplicates():
     doubled = np.concatenate([grid, grid])  # every point twice, as merged scans have
     assert median_spacing(doubled) == 0.5
     assert median_spacing(np.zeros((5, 3))) == 0.0  # one repeated point
+
+
+def test_spacing_is_the_median_distance_to_the_three_nearest_points():
+    # A line at spacing 1: inner points have neighbours at 1, 1 and 2, so the median of
+    # the three nearest is 1. On a random plane it is well above the nearest distance.
+    line = np.stack([np.arange(50.0), np.zeros(50), np.zeros(50)], -1)
+    assert median_spacing(line) == 1.0
+    rng = np.random.default_rng(0)
+    plane = np.concatenate([rng.random((2000, 2)), np.zeros((2000, 1))], 1)
+    nearest = np.median(np.sort(np.linalg.norm(plane[:, None] - plane[None], axis=-1), 1)[:, 1])
+    assert 1.3 < median_spacing(plane) / nearest < 1.6  # not the nearest neighbour's distance

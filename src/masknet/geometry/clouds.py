@@ -96,11 +96,15 @@ SPACING_SAMPLE = 4096
 def median_spacing(
     points: np.ndarray, tree: object | None = None, sample: int | None = None
 ) -> float:
-    """Median distance from a point of ``points`` (P, 3) to its nearest *distinct*
-    neighbour, in the cloud's units. Exact duplicates (merged scans often hold every
-    point twice) say nothing of the spacing, so zero distances are skipped. ``tree``: a
-    tree of ``points`` (:func:`masknet.geometry.knn.cloud_tree`) built by the caller; ``sample``: ask at most this
-    many points (a seeded random subset; None asks every point). A cloud of one repeated point has spacing 0."""
+    """The cloud's point spacing: the median of the distances from each point of
+    ``points`` (P, 3) to its three nearest other points, in the cloud's units. On an
+    evenly sampled surface that is about 1.45 times the median nearest-neighbour distance
+    (1.38-1.53 on ModelNet40 shapes); every "spacing" in masknet (the fit's 1.5 spacings,
+    ICP's pair cut-off, the refinement rule) is this one. Exact duplicates (merged scans
+    often hold every point twice) say nothing of the spacing, so zero distances are
+    skipped. ``tree``: a tree of ``points`` (:func:`masknet.geometry.knn.cloud_tree`)
+    built by the caller; ``sample``: ask at most this many points (a seeded random
+    subset; None asks every point). A cloud of one repeated point has spacing 0."""
     from masknet.geometry.knn import cloud_tree
 
     cloud = np.ascontiguousarray(points, dtype=np.float64)
