@@ -75,3 +75,35 @@ def test_a_refined_round_that_fits_worse_is_undone(monkeypatch):
     out = refine_pose(template, source, sampled, np.eye(4), None, 3, 0.1, times)
     np.testing.assert_array_equal(out.transform, np.eye(4))
     assert len(out.rounds) == 3 and all((r == np.eye(4)).all() for r in out.rounds)
+
+
+def test_refined_icp_pairs_with_the_wider_mask_and_the_narrow_one_is_returned(monkeypatch, shape):
+    """The learned refiner's ICP sees the template points scoring >= ICP_THRESHOLD; the
+    mask returned keeps those >= TEMPLATE_THRESHOLD."""
+    import torch
+
+    import masknet.registration.icp as icp_module
+    from masknet.models.refine import RefineMaskNet
+    from masknet.registration import refinement
+
+    torch.manual_seed(0)
+    refiner = RefineMaskNet(k=6, local_channels=[8], point_channels=[16], head_channels=[8])
+    # Scores spread over [0, 1] by the template point's x: 0.5 and 0.9 cut different sets.
+    scores = 1 / (1 + np.exp(-4 * shape[:, 0]))
+    monkeypatch.setattr(
+        refiner, "predict", lambda t, s, *a, **k: (scores[None], np.ones((1, s.shape[1])))
+    )
+    used = []
+
+    def record(template, source, init, **kwargs):
+        used.append(len(template))
+        return icp_module.ICPSolution(np.asarray(init)[None], [True], [0], 1.0, 0.0)
+
+    monkeypatch.setattr(icp_module, "icp", record)
+    times = {"mask": 0.0, "register": 0.0}
+    sampled = (np.arange(len(shape)), np.arange(len(shape)))
+    out = refinement.refine_pose(shape, shape, sampled, np.eye(4), refiner, 2, 0.1, times)
+    wide = int((scores >= refinement.ICP_THRESHOLD).sum())
+    narrow = int((scores >= refinement.TEMPLATE_THRESHOLD).sum())
+    assert narrow < wide < len(shape)
+    assert used == [wide, wide] and out.mask.sum() == narrow

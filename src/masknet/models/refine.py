@@ -47,7 +47,7 @@ from masknet.models.layers import gather_points, linear_stack, mlp, mlp_pool
 from masknet.models.masknet import PAIRS_PER_CALL, predict_two_masks, select_mask
 from masknet.models.weights import SafetensorsWeights
 
-__all__ = ["RefineMaskNet", "cross_offsets", "kth_spacing"]
+__all__ = ["RefineMaskNet", "cross_offsets", "kth_spacing", "masks_from_scores"]
 
 CONTEXT_SQUEEZE = 64  # channels of each point's features that its neighbours pool
 
@@ -229,14 +229,26 @@ class RefineMaskNet(SafetensorsWeights, nn.Module):
         is the top ``k`` scores, by default as many as there are kept source points
         (MaskNet's top-k rule), or the scores >= ``threshold`` when that is given."""
         t_scores, s_scores = self.predict(template, source, precision, normalize)
-        source_mask = s_scores >= source_threshold
-        # As the rule does: a pair with under 3 kept points keeps them all.
-        few = np.atleast_2d(source_mask).sum(-1) < 3
-        if few.any():
-            source_mask = np.where(few[:, None], True, np.atleast_2d(source_mask))
-            source_mask = source_mask.reshape(s_scores.shape)
-        if k is None and threshold is None:
-            k = torch.from_numpy(np.atleast_1d(source_mask.sum(-1)).clip(3))
-        scores = torch.from_numpy(t_scores)
-        template_mask = select_mask(scores, k=k, threshold=threshold).numpy()
-        return template_mask, source_mask
+        return masks_from_scores(t_scores, s_scores, k, threshold, source_threshold)
+
+
+def masks_from_scores(
+    template_scores: np.ndarray,
+    source_scores: np.ndarray,
+    k: int | None = None,
+    threshold: float | None = None,
+    source_threshold: float = 0.5,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:meth:`RefineMaskNet.predict_masks` from scores already predicted: template (N,) or
+    (B, N) and source (M,) or (B, M) in [0, 1] -> the two boolean masks, as there."""
+    source_mask = source_scores >= source_threshold
+    # As the rule does: a pair with under 3 kept points keeps them all.
+    few = np.atleast_2d(source_mask).sum(-1) < 3
+    if few.any():
+        source_mask = np.where(few[:, None], True, np.atleast_2d(source_mask))
+        source_mask = source_mask.reshape(source_scores.shape)
+    if k is None and threshold is None:
+        k = torch.from_numpy(np.atleast_1d(source_mask.sum(-1)).clip(3))
+    scores = torch.from_numpy(template_scores)
+    template_mask = select_mask(scores, k=k, threshold=threshold).numpy()
+    return template_mask, source_mask
