@@ -1,8 +1,9 @@
 """The resumable row cache: every table row, one JSON line in ``<out>/.rows/<experiment>.jsonl``.
 
 A row is identified by its key, the run's pairs, seed and quick flag, and a
-:func:`fingerprint` of what it depends on beyond them (package version, shipped
-weights, test shapes). ``--resume`` reads matching rows back instead of computing them.
+:func:`fingerprint` of what it depends on beyond them (package version, the package's
+code, shipped weights, test shapes). ``--resume`` reads matching rows back instead of
+computing them: only rows of the same code, so an edit never passes off an old row.
 """
 
 from __future__ import annotations
@@ -20,11 +21,15 @@ __all__ = ["append_row", "fingerprint", "read_rows", "row_id"]
 
 
 def fingerprint(points: np.ndarray) -> str:
-    """A digest of the package version, every shipped weight file and the test shapes
-    (S, N, 3)."""
+    """A digest of the package version, its Python source, every shipped weight file and
+    the test shapes (S, N, 3)."""
+    from masknet import __file__ as package_init
     from masknet import __version__
 
     digest = hashlib.sha256(__version__.encode())
+    package = Path(package_init).parent
+    for path in sorted(package.rglob("*.py")):
+        digest.update(str(path.relative_to(package)).encode() + path.read_bytes())
     for path in sorted(shipped_weights_path("").glob("*.safetensors")):
         digest.update(path.name.encode() + path.read_bytes())
     digest.update(np.ascontiguousarray(points).tobytes())
