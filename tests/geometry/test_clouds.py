@@ -61,8 +61,8 @@ def test_spacing_ignores_exact_duplicates():
 
 
 def test_spacing_is_the_median_distance_to_the_three_nearest_points():
-    # A line at spacing 1: inner points have neighbours at 1, 1 and 2, so the median of
-    # the three nearest is 1. On a random plane it is well above the nearest distance.
+    # A line at spacing 1 (inner neighbours at 1, 1 and 2): 1, a sanity check. A random
+    # plane tells the two measures apart: well above the nearest-neighbour distance.
     line = np.stack([np.arange(50.0), np.zeros(50), np.zeros(50)], -1)
     assert median_spacing(line) == 1.0
     rng = np.random.default_rng(0)

@@ -118,3 +118,7 @@ def test_fine_tuning_with_a_context_stage_widens_the_weights_it_starts_from(tmp_
     assert _task(init=str(wide_path), model_config={"context": 8}).build_model().config == (
         wide.config
     )
+    as_tuples = {key: tuple(v) if isinstance(v, list) else v for key, v in SMALL.items()}
+    assert _task(init=str(wide_path), model_config=as_tuples).build_model().config == (
+        wide.config  # the same architecture, given as tuples
+    )

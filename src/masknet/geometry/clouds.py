@@ -89,7 +89,7 @@ def as_cloud_batch(
 
 
 # Points a cloud's spacing is measured on (a seeded subset of larger clouds): the median
-# of 4,096 nearest-neighbour distances is as good as that of millions, at a fraction of it.
+# over 4,096 points' nearest neighbours is as good as that over millions, at a fraction.
 SPACING_SAMPLE = 4096
 
 

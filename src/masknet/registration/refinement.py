@@ -58,9 +58,9 @@ TEMPLATE_THRESHOLD = 0.9
 # The refined rounds' ICP pairs the kept source with the template points scoring at least
 # this, the network's own decision boundary, not TEMPLATE_THRESHOLD: a true partner left
 # out pulls its source point onto a neighbour (a bias), where a false one is mostly cut by
-# the pair distance. On 100 clean ModelNet40 pairs the default's three rounds ended 0.063
-# degrees off with the mask returned, 0.013 with this one; re-sampled scan pairs and the
-# 3DMatch pair moved within their noise (docs/RESULTS.md, "Masks per round").
+# the pair distance. On 300 clean ModelNet40 pairs the default's three rounds ended 0.069
+# degrees off with the mask returned, 0.011 with this one; on the scan pairs the means
+# moved within their noise (docs/RESULTS.md, "Masks per round").
 ICP_THRESHOLD = 0.5
 # A refined round whose pose fits worse than this below its start's (pose_fit's truncated
 # score, 0-1) is undone, and the rounds stop there.

@@ -48,9 +48,11 @@ class RefineMaskTask(TwoSidedTask):
             model = RefineMaskNet.from_file(self.init)
             context = self.model_config.get("context", 0)
             # Fine-tuning keeps the file's architecture; only a context stage may be added.
+            # Compared as JSON would store them: a tuple of channels is the file's list.
+            asked = json.loads(json.dumps(self.model_config))
             clash = {
                 key: value
-                for key, value in self.model_config.items()
+                for key, value in asked.items()
                 if model.config.get(key) != value
                 and not (key == "context" and not model.config.get("context"))
             }
