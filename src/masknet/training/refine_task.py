@@ -46,15 +46,14 @@ class RefineMaskTask(TwoSidedTask):
     def build_model(self) -> nn.Module:
         if self.init:
             model = RefineMaskNet.from_file(self.init)
-            context = self.model_config.get("context", 0)
-            # Fine-tuning keeps the file's architecture; only a context stage may be added.
-            # Compared as JSON would store them: a tuple of channels is the file's list.
+            widen = not model.config.get("context")  # v1.0 weights: a context stage may be added
+            # Fine-tuning keeps the file's architecture, compared as JSON stores it (a tuple
+            # of channels is the file's list).
             asked = json.loads(json.dumps(self.model_config))
             clash = {
                 key: value
                 for key, value in asked.items()
-                if model.config.get(key) != value
-                and not (key == "context" and not model.config.get("context"))
+                if model.config.get(key) != value and not (key == "context" and widen)
             }
             if clash:
                 raise MaskNetError(
@@ -63,8 +62,8 @@ class RefineMaskTask(TwoSidedTask):
                     "keeps their architecture (only a context stage can be added to weights "
                     "without one)"
                 )
-            if context and not model.config.get("context"):  # v1.0 weights, widened
-                return model.with_context(context)
+            if widen and asked.get("context"):
+                return model.with_context(asked["context"])
             return model
         return RefineMaskNet(**self.model_config)
 
