@@ -135,3 +135,14 @@ def test_readme_python_example_runs(index, small_masknet, one_thread, tmp_path, 
         assert gaps.max() < 1e-5  # the view's points are template points, moved
         checked.append("pair")
     assert checked, "this README block meets no check of its values"
+
+
+def test_the_weights_table_names_each_cards_version():
+    # The README's table of shipped weights against each model card's title line.
+    rows = re.findall(r"^\| `(\w+)`[^|]*\| (v[\d.]+) \| \[", README.read_text(), flags=re.M)
+    weights = README.parent / "src" / "masknet" / "resources" / "weights"
+    cards = sorted(p.stem for p in weights.glob("*.md"))
+    assert sorted(name for name, _ in rows) == cards
+    for name, version in rows:
+        title = (weights / f"{name}.md").read_text().splitlines()[0]
+        assert title == f"# Model card: `{name}` {version}", (name, version, title)

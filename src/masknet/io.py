@@ -375,6 +375,12 @@ def _read_text(name: str) -> np.ndarray:
 
 
 def _read_npy(name: str) -> np.ndarray:
+    with open(name, "rb") as head:
+        magic = head.read(6)
+    # Without NumPy's magic (or a zip's), np.load would take the file for a pickle and
+    # suggest allow_pickle, which is never the fix here.
+    if magic != b"\x93NUMPY" and not magic.startswith(b"PK\x03\x04"):
+        raise MaskNetError(f"{name}: not a .npy file (no NumPy header)")
     try:
         arr = np.load(name, allow_pickle=False)
     except (OSError, MemoryError):
@@ -444,6 +450,8 @@ def write_points(
     [0, 1] and ``normals`` (N, 3) where given; ``.xyz``/``.txt`` as text with full
     float64 precision, ``.npy`` as a float64 array (these two hold points only). Parent
     directories are created. An unsupported extension raises before anything is written.
+    NaN rows are written as they are (organised depth clouds hold them); ``read_points``
+    reads them back with ``drop_nonfinite=True``.
     """
     name = os.fspath(path)
     ext = Path(name).suffix.lower()

@@ -43,8 +43,19 @@ def over_rows(mask: np.ndarray, rows: np.ndarray) -> np.ndarray:
     return full
 
 
+# What a refusal of NaN rows suggests, for a file read and for an array given in Python.
+FILE_NONFINITE_HINT = (
+    "pass --drop-nonfinite to drop them "
+    "(in Python: read_points(..., drop_nonfinite=True), or drop the rows)"
+)
+ARRAY_NONFINITE_HINT = "drop those rows first (register takes drop_nonfinite=True)"
+
+
 def check_cloud(
-    points: object, name: str, drop_nonfinite: bool = False
+    points: object,
+    name: str,
+    drop_nonfinite: bool = False,
+    nonfinite_hint: str = FILE_NONFINITE_HINT,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Decide whether ``points`` is a usable cloud; return it as float64 (N, 3) and which
     of its rows were kept ((P,) bool). Extra columns (colour, intensity) are dropped.
@@ -53,6 +64,7 @@ def check_cloud(
         points: an (N, C) array of numbers, C >= 3.
         name: what to call it in messages: a file's path, ``"template"`` or ``"source"``.
         drop_nonfinite: drop rows holding NaN or inf instead of refusing the cloud.
+        nonfinite_hint: what the refusal of such rows suggests.
 
     Raises:
         MaskNetError: one line naming ``name`` and the problem.
@@ -84,10 +96,7 @@ def check_cloud(
         if not drop_nonfinite:
             rows = "1 row contains" if n_bad == 1 else f"{n_bad} rows contain"
             every = " (all of them)" if n_bad == len(cloud) else ""
-            raise MaskNetError(
-                f"{name}: {rows} NaN or inf{every}; pass --drop-nonfinite to drop them "
-                "(in Python: read_points(..., drop_nonfinite=True), or drop the rows)"
-            )
+            raise MaskNetError(f"{name}: {rows} NaN or inf{every}; {nonfinite_hint}")
         cloud = cloud[finite]
         if len(cloud) == 0:
             raise MaskNetError(f"{name}: all {n_bad} points contain NaN or inf; none remain")

@@ -52,6 +52,8 @@ CASES = {
         "the PLY header declares 100 vertices but the body has 300 rows",
     ),
     "garbage.npy": (lambda p: p.write_bytes(b"\x93NUMPY garbage"), "not a valid, readable .npy"),
+    # No NumPy header: numpy would take it for a pickle and suggest allow_pickle.
+    "text_as.npy": (lambda p: p.write_text("1 2 3\n4 5 6\n"), "not a .npy file (no NumPy header)"),
 }
 
 

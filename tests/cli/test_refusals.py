@@ -9,7 +9,7 @@ byte for byte as it was. Refusals by argparse (the option types of ``_common`` a
 points to ``--help`` instead of printing the usage.
 
 Each case runs in a fresh folder that is also the working directory, so that relative
-defaults (``masknet_benchmark``, ``docs/RESULTS.md``) would land there and be seen.
+defaults (``masknet_benchmark``) would land there and be seen.
 """
 
 from __future__ import annotations
@@ -145,6 +145,9 @@ REFUSALS = {
     "benchmark nope --out bench --results RESULTS.md": (
         "unknown experiment 'nope'; choose from registration, networks, ..."
     ),
+    "benchmark registration --out bench --results missing.md": (
+        "missing.md: no such results file (--results rewrites one)"
+    ),
     # denoise, evaluate, mask
     f"{DENOISE} --threshold 1.5": "--threshold must be in [0, 1], got 1.5",
     f"{EVALUATE_SCANS} --scan-noise -1": "--scan-noise must be >= 0, got -1.0",
@@ -236,7 +239,7 @@ def test_a_parser_refusal_is_one_error_line(workdir, capsys, command):
         f"{MASK} --weights @weights",
         "evaluate --data @sample --weights @weights",
         EVALUATE_SCANS,
-        "benchmark registration --quick --out bench --results none",
+        "benchmark registration --quick --out bench",
     ],
 )
 def test_the_tripwires_catch_a_command_that_gets_to_its_work(workdir, command):

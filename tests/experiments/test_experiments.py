@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import pytest
 
@@ -117,3 +118,24 @@ def test_benchmark_resume_from_the_command_line(tmp_path, monkeypatch, capsys):
     again = json.loads((tmp_path / "iterations.json").read_text())
     assert first["resumed_rows"] == 0 and again["resumed_rows"] == 2  # Mask-ICP, Mask-PointNetLK
     assert again["rows"] == first["rows"]
+
+
+def test_benchmark_rewrites_a_results_page_only_when_one_is_named(tmp_path, monkeypatch):
+    # A trial run from the repository root must leave docs/RESULTS.md as it is.
+    import masknet.experiments
+
+    monkeypatch.delenv("MASKNET_DATA", raising=False)
+    handed = []
+    monkeypatch.setattr(
+        masknet.experiments,
+        "run_experiments",
+        lambda names, ctx, results, echo: handed.append(results),
+    )
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "docs").mkdir()
+    (tmp_path / "docs" / "RESULTS.md").write_text("# results\n")
+    argv = ["benchmark", "registration", "--out", "bench", "--pairs", "5"]
+    assert main(argv) == 0
+    assert main([*argv, "--results", "docs/RESULTS.md"]) == 0
+    assert main([*argv, "--quick", "--results", "docs/RESULTS.md"]) == 0
+    assert handed == [None, Path("docs/RESULTS.md"), None]

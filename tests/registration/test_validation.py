@@ -91,7 +91,12 @@ def test_as_numpy_batch_refusals():
         as_numpy_batch(template, source[None])
     bad = source.copy()
     bad[4] = np.nan
-    with pytest.raises(MaskNetError, match="source: 1 row contains NaN or inf"):
+    # An array in Python: the hint is Python's, not the command line's --drop-nonfinite.
+    with pytest.raises(
+        MaskNetError,
+        match=r"^source: 1 row contains NaN or inf; drop those rows first \(register takes "
+        r"drop_nonfinite=True\)$",
+    ):
         as_numpy_batch(template, bad)
 
 

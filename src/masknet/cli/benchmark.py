@@ -18,7 +18,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "benchmark",
         help="reproduce the paper's experiments on seeded ModelNet40 test pairs: "
-        "table (JSON, CSV), plot (PNG) and docs/RESULTS.md",
+        "table (JSON, CSV), plot (PNG), and with --results the tables of a results page",
     )
     p.add_argument(
         "experiment",
@@ -33,7 +33,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "--quick",
         action="store_true",
         help="a small run (20 pairs, fewer settings; the bundled sample when no data is "
-        "given); leaves docs/RESULTS.md alone",
+        "given); never rewrites --results",
     )
     p.add_argument(
         "--out",
@@ -42,9 +42,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--results",
-        default="docs/RESULTS.md",
-        help="markdown file whose benchmark blocks are rewritten (default docs/RESULTS.md, "
-        "when it exists); 'none' to skip",
+        metavar="FILE",
+        help="a markdown file whose benchmark blocks to rewrite, e.g. docs/RESULTS.md "
+        "(default: none, so that a trial run leaves the published tables alone)",
     )
     p.add_argument("--threads", type=positive_int, help="torch CPU threads")
     p.add_argument(
@@ -75,8 +75,10 @@ def run(args: argparse.Namespace) -> None:
     if args.quick and data_path is None and not os.environ.get("MASKNET_DATA"):
         data_path = bundled_sample_path()
     results = None
-    if not args.quick and args.results != "none" and Path(args.results).exists():
+    if args.results and not args.quick:
         results = Path(args.results)
+        if not results.is_file():
+            raise MaskNetError(f"{results}: no such results file (--results rewrites one)")
     argv = ["masknet", "benchmark", *sys.argv[2:]] if sys.argv[1:2] == ["benchmark"] else []
     ctx = BenchmarkContext(
         data=data_path,

@@ -55,7 +55,7 @@ def check_pair(
         MaskNetWarning: a cloud of 3-10 points, or one point far out.
     """
     from masknet.errors import clouds_checked
-    from masknet.io_checks import check_cloud
+    from masknet.io_checks import ARRAY_NONFINITE_HINT, check_cloud
 
     t, s = np.asarray(template), np.asarray(source)
     if t.ndim != s.ndim or t.ndim not in (2, 3):
@@ -74,7 +74,8 @@ def check_pair(
         if clouds_checked():  # an entry point checked them already (errors.checks_done)
             continue
         for i, cloud in enumerate(a):  # the checks of every file read, cloud by cloud
-            check_cloud(cloud, name if single else f"{name} {i}")
+            label = name if single else f"{name} {i}"
+            check_cloud(cloud, label, nonfinite_hint=ARRAY_NONFINITE_HINT)
     return t, s, single
 
 

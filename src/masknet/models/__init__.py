@@ -1,5 +1,5 @@
-"""Models: the PointNet encoder, MaskNet, the two-sided MaskNet, and the learned registration
-networks."""
+"""Models: the PointNet encoder, MaskNet, the two-sided MaskNet, the refinement mask, and the
+learned registration networks."""
 
 from masknet.models.dcp import DCP
 from masknet.models.layers import RegistrationSolution
@@ -8,6 +8,7 @@ from masknet.models.pcrnet import PCRNet
 from masknet.models.pointnet import PointNetEncoder, fold_batchnorm
 from masknet.models.pointnetlk import LKSolution, PointNetLK
 from masknet.models.prnet import PRNet
+from masknet.models.refine import RefineMaskNet
 from masknet.models.rpmnet import RPMNet
 from masknet.models.two_sided import TwoSidedMaskNet
 
@@ -32,6 +33,7 @@ __all__ = [
     "PointNetEncoder",
     "REGISTRATION_NETWORKS",
     "RPMNet",
+    "RefineMaskNet",
     "RegistrationSolution",
     "ScoredMask",
     "TwoSidedMaskNet",
