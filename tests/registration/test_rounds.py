@@ -74,6 +74,37 @@ def test_later_rounds_start_from_the_pose_reached(monkeypatch, pairs, use_mask):
             np.testing.assert_allclose(got, expected, atol=1e-6)
 
 
+class _Astray:
+    """A back-end whose first round is real ICP and whose later rounds throw the source
+    half a radius off, as a learned back-end can."""
+
+    def __init__(self, run_icp) -> None:
+        self.run_icp, self.calls = run_icp, 0
+
+    def __call__(self, template, source, mask, source_mask, options) -> BackendRun:
+        self.calls += 1
+        if self.calls == 1:
+            return self.run_icp(template, source, mask, source_mask, options)
+        step = np.tile(np.eye(4), (len(source), 1, 1))
+        step[:, :3, 3] = [0.5, 0.0, 0.0]
+        return BackendRun(step, {})
+
+
+def test_a_refined_round_that_fits_worse_is_undone(monkeypatch, pairs):
+    astray = _Astray(icp_backend.run_icp)
+    monkeypatch.setattr(icp_backend, "run_icp", astray)
+    template, source = pairs.template[0].numpy(), pairs.source[0].numpy()
+    result = register(template, source, method="icp", iterations=3, refine_masks="nearest")
+    assert astray.calls == 3
+    # rounds 2 and 3 fitted worse than round 1's pose: both undone
+    np.testing.assert_array_equal(result.rounds[1], result.rounds[0])
+    np.testing.assert_array_equal(result.transformation, result.rounds[0])
+    # the paper's loop (the network again each round) keeps every round, as the paper did
+    monkeypatch.setattr(icp_backend, "run_icp", _Astray(astray.run_icp))
+    paper = register(template, source, method="icp", iterations=2, refine_masks="network")
+    assert np.abs(paper.rounds[1][:3, 3] - paper.rounds[0][:3, 3]).max() > 0.1
+
+
 def test_the_papers_loop_recentres_every_round(monkeypatch, pairs):
     spy = _Spy()
     monkeypatch.setattr(icp_backend, "run_icp", spy)
