@@ -96,8 +96,8 @@ def mask_and_register(
         )
         run = run_method(template, transform_points(start_tf, moved), mask, source_mask, options)
         reached = run.transform @ start_tf @ total
-        if fits is not None:
-            reached = fits.keep_no_worse(total, reached, guard=refining)
+        if refining and fits is not None:
+            reached = fits.keep_no_worse(total, reached)
         total = reached
         times["register"] += time.perf_counter() - tic
         rounds.append(total.copy())
@@ -116,13 +116,13 @@ class RoundFits:
     its second round went from 24.5 to 61 degrees, its fit from 0.57 to 0.35."""
 
     def __init__(self, template: np.ndarray, source: np.ndarray) -> None:
-        from masknet.geometry.clouds import median_spacing
+        from masknet.geometry.clouds import SPACING_SAMPLE, median_spacing
         from masknet.geometry.knn import cloud_tree
         from masknet.registration.prepared import FIT_SPACINGS
 
         self.trees = [cloud_tree(t) for t in template]
         self.limits = [
-            FIT_SPACINGS * (median_spacing(t, tree) or 1.0)
+            FIT_SPACINGS * (median_spacing(t, tree, SPACING_SAMPLE) or 1.0)
             for t, tree in zip(template, self.trees, strict=True)
         ]
         self.source = source
@@ -141,20 +141,15 @@ class RoundFits:
             ]
         )
 
-    def keep_no_worse(self, start: np.ndarray, reached: np.ndarray, guard: bool) -> np.ndarray:
-        """(B, 4, 4): ``reached`` where it fits no worse than ``start`` by more than
-        FIT_SLACK, else ``start``; a pair kept at its start once stays there. Without
-        ``guard`` (round 1) ``reached`` is taken as it is and scored."""
-        if guard:
-            if self.scores is None:
-                self.scores = self._scores(start)
-            new = self._scores(reached)
-            self.settled |= new < self.scores - FIT_SLACK
-            reached = np.where(self.settled[:, None, None], start, reached)
-            self.scores = np.where(self.settled, self.scores, new)
-        else:
-            self.scores = None  # scored when the first guarded round needs it
-        return reached
+    def keep_no_worse(self, start: np.ndarray, reached: np.ndarray) -> np.ndarray:
+        """(B, 4, 4): ``reached`` (B, 4, 4) where it fits no worse than ``start`` (B, 4, 4)
+        by more than FIT_SLACK, else ``start``; a pair kept at its start once stays there."""
+        if self.scores is None:  # the first guarded round: round 1's poses
+            self.scores = self._scores(start)
+        new = self._scores(reached)
+        self.settled |= new < self.scores - FIT_SLACK
+        self.scores = np.where(self.settled, self.scores, new)
+        return np.where(self.settled[:, None, None], start, reached)
 
 
 def keep_source_points(source: np.ndarray, keep: np.ndarray | None) -> np.ndarray:
