@@ -27,6 +27,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from masknet import register
+from masknet.cli import run_script
 from masknet.evaluation.registration import pose_errors
 from masknet.geometry.knn import cloud_tree
 from masknet.io import read_points, require_open3d, write_text_atomic
@@ -200,4 +201,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_script(main)

@@ -14,6 +14,7 @@ import argparse
 
 import numpy as np
 
+from masknet.cli import run_script
 from masknet.data import load_modelnet40
 from masknet.evaluation.evaluate import evaluate_masknet
 from masknet.models import MaskNet
@@ -43,4 +44,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_script(main)

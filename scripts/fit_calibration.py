@@ -17,6 +17,7 @@ import numpy as np
 import torch
 
 from masknet import evaluate_registration, register
+from masknet.cli import run_script
 from masknet.data import PairConfig, load_modelnet40, make_test_pairs
 from masknet.evaluation.registration import pair_arrays, pose_errors
 from masknet.geometry.clouds import median_spacing
@@ -67,4 +68,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_script(main)

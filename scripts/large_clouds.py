@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from masknet.cli import run_script
 from masknet.data import bundled_sample_path, load_modelnet40
 from masknet.io import read_points
 
@@ -101,4 +102,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_script(main)

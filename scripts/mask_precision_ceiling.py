@@ -36,6 +36,7 @@ import numpy as np
 import torch
 
 from masknet import register
+from masknet.cli import run_script
 from masknet.evaluation.registration import pair_arrays
 from masknet.experiments.rounds import scan_eval_set
 from masknet.geometry.clouds import median_spacing
@@ -162,4 +163,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_script(main)

@@ -23,6 +23,7 @@ import numpy as np
 import torch
 
 from masknet import evaluate_registration, register
+from masknet.cli import run_script
 from masknet.evaluation.registration import pose_errors
 from masknet.experiments.scans import THREEDMATCH_FILES, load_pair
 from masknet.geometry.clouds import median_spacing
@@ -113,4 +114,4 @@ def _f(value: float | None) -> str:
 
 
 if __name__ == "__main__":
-    main()
+    run_script(main)

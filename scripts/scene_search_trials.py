@@ -30,6 +30,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from masknet import register
+from masknet.cli import run_script
 from masknet.data import bundled_sample_path, load_modelnet40
 from masknet.data.views import hidden_point_removal
 from masknet.evaluation.registration import pose_errors
@@ -111,4 +112,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_script(main)

@@ -26,6 +26,7 @@ import numpy as np
 import torch
 
 from masknet import cards
+from masknet.cli import run_script
 from masknet.data import PairConfig, load_modelnet40, make_test_pairs
 from masknet.denoising import open3d_radius_outlier_removal, open3d_statistical_outlier_removal
 from masknet.evaluation.evaluate import evaluate_masknet, format_table
@@ -227,4 +228,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_script(main)

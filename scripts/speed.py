@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from masknet import register
+from masknet.cli import run_script
 from masknet.data import PairConfig, load_modelnet40, make_test_pairs
 from masknet.evaluation.registration import pair_arrays
 from masknet.io import write_text_atomic
@@ -72,4 +73,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_script(main)

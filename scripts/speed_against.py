@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from masknet.cli import run_script
+
 ROOT = Path(__file__).resolve().parents[1]
 
 # Run in each version's process: the public API only, so that any revision can run it.
@@ -103,4 +105,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_script(main)

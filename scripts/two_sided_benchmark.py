@@ -24,6 +24,7 @@ import numpy as np
 import torch
 
 from masknet import register
+from masknet.cli import run_script
 from masknet.data import PairConfig, load_modelnet40, make_test_pairs
 from masknet.denoising import denoise, open3d_statistical_outlier_removal
 from masknet.evaluation.registration import pair_arrays, paired_difference, pose_errors
@@ -204,4 +205,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_script(main)

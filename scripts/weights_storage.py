@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from masknet.cli import run_script
 from masknet.data import load_modelnet40
 from masknet.data.pairs import PairConfig, make_test_pairs
 from masknet.io import write_text_atomic
@@ -167,4 +168,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_script(main)

@@ -139,3 +139,27 @@ def test_train_shipped_resumes_from_the_checkpoint_training_writes():
     assert f'[ -f "$1/{CHECKPOINT}" ]' in resume_check(script)
     assert checkpoint_files(script) == {CHECKPOINT}
     assert "$(resume runs/" in script
+
+
+def test_every_script_runs_its_main_through_run_script():
+    # A MaskNetError from a script's main is then one line and exit code 2, as in the CLI.
+    for script in SCRIPTS:
+        assert script.read_text().rstrip().endswith("run_script(main)"), script.name
+
+
+def test_a_script_given_a_missing_folder_says_so_in_one_line(tmp_path):
+    done = subprocess.run(
+        [
+            sys.executable,
+            str(ROOT / "scripts" / "rounds_on_real_pair.py"),
+            "--scans",
+            str(tmp_path / "nowhere"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2, done.stderr
+    assert len(lines) == 1 and lines[0].startswith("rounds_on_real_pair.py: error: "), lines
+    assert "nowhere" in lines[0]

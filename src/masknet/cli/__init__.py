@@ -16,6 +16,8 @@ import argparse
 import os
 import sys
 import warnings
+from collections.abc import Callable
+from pathlib import Path
 
 from masknet.cli import (
     benchmark,
@@ -30,7 +32,7 @@ from masknet.cli import (
 )
 from masknet.errors import MaskNetError, MaskNetWarning
 
-__all__ = ["COMMANDS", "main", "build_parser"]
+__all__ = ["COMMANDS", "main", "build_parser", "run_script"]
 
 # Command name -> its module, in the order ``masknet --help`` lists them.
 COMMANDS = {
@@ -90,6 +92,21 @@ def main(argv: list[str] | None = None) -> int:
         warnings.simplefilter("default", MaskNetWarning)  # each message once
         warnings.showwarning = one_line
         return _run(args)
+
+
+def run_script(main: Callable[[], object]) -> None:
+    """Run a helper script's ``main()`` as ``masknet`` runs a command: a MaskNetError (a
+    missing file, a bad option) ends it with one line ``<script>: error: <problem>`` and
+    exit code 2, not a traceback; Ctrl-C with exit code 130."""
+    name = Path(sys.argv[0]).name
+    try:
+        main()
+    except MaskNetError as exc:
+        print(f"{name}: error: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
+    except KeyboardInterrupt:
+        print(f"{name}: interrupted", file=sys.stderr)
+        raise SystemExit(130) from None
 
 
 def _run(args: argparse.Namespace) -> int:
