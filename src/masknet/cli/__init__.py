@@ -98,25 +98,22 @@ def run_script(main: Callable[[], object]) -> None:
     """Run a helper script's ``main()`` as ``masknet`` runs a command: a MaskNetError (a
     missing file, a bad option) ends it with one line ``<script>: error: <problem>`` and
     exit code 2, not a traceback; Ctrl-C with exit code 130."""
-    name = Path(sys.argv[0]).name
-    try:
-        main()
-    except MaskNetError as exc:
-        print(f"{name}: error: {exc}", file=sys.stderr)
-        raise SystemExit(2) from None
-    except KeyboardInterrupt:
-        print(f"{name}: interrupted", file=sys.stderr)
-        raise SystemExit(130) from None
+    raise SystemExit(_guarded(main, Path(sys.argv[0]).name))
 
 
 def _run(args: argparse.Namespace) -> int:
+    return _guarded(lambda: COMMANDS[args.command].run(args), "masknet")
+
+
+def _guarded(call: Callable[[], object], prog: str) -> int:
+    """Run ``call``; the exit code, with one line on stderr for a refusal or Ctrl-C."""
     try:
-        COMMANDS[args.command].run(args)
+        call()
     except MaskNetError as exc:
-        print(f"masknet: error: {exc}", file=sys.stderr)
+        print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:
-        print(f"masknet: interrupted{f'; {exc}' if str(exc) else ''}", file=sys.stderr)
+        print(f"{prog}: interrupted{f'; {exc}' if str(exc) else ''}", file=sys.stderr)
         return 130
     except BrokenPipeError:  # e.g. `masknet ... | head`: stop quietly, as Unix tools do
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
