@@ -613,3 +613,17 @@ def test_colour_and_normals_pass_through_to_the_outputs(tmp_path, capsys, o3d):
         read_point_attributes(tmp_path / "d.pcd").colors, colors, atol=1 / 255
     )
     capsys.readouterr()
+
+
+def test_mask_warns_when_the_default_would_keep_the_whole_template(
+    tmp_path, small_masknet_weights, pair_files, capsys
+):
+    template, source, _ = pair_files  # given the other way round: source is the full cloud
+    out = tmp_path / "kept.xyz"
+    args = ["mask", str(source), str(template), "-o", str(out)]
+    assert main([*args, "--weights", str(small_masknet_weights)]) == 0
+    captured = capsys.readouterr()
+    assert "SOURCE has 1024 points and TEMPLATE 717" in captured.err
+    assert "kept 717 of 717" in captured.out
+    assert main([*args, "--k", "300", "--weights", str(small_masknet_weights)]) == 0
+    assert "warning" not in capsys.readouterr().err

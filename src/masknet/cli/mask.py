@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from masknet.cli._common import (
@@ -54,6 +55,15 @@ def run(args: argparse.Namespace) -> None:
         args.template, drop_nonfinite=args.drop_nonfinite
     )
     source = read_points(args.source, drop_nonfinite=args.drop_nonfinite)
+    if args.k is None and args.threshold is None and len(source) >= len(template):
+        # Top-k with k = source points would keep the whole template: most often the
+        # clouds were given the other way round.
+        print(
+            f"masknet: warning: SOURCE has {len(source)} points and TEMPLATE {len(template)}, "
+            "so top-k (k = source points) keeps every template point; TEMPLATE is the full "
+            "cloud and SOURCE the partial one (or give --k or --threshold)",
+            file=sys.stderr,
+        )
     model = load_model(args)
     mask, scores = model.predict_mask_with_scores(
         template, source, k=args.k, threshold=args.threshold, precision=args.inference_precision
