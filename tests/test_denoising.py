@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -177,3 +179,14 @@ def test_refined_denoising_of_aligned_clouds_keeps_the_real_points():
         removed.append((~result.mask & ~real).sum() / (~real).sum())
         kept.append((result.mask & real).sum() / real.sum())
     assert np.mean(removed) >= 0.60 and np.mean(kept) >= 0.995
+
+
+def test_methods_that_need_aligned_clouds_warn_when_they_are_not(clouds):
+    template, noisy = clouds
+    turned = noisy @ np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]]).T + 1.5  # 90 degrees away
+    with pytest.warns(MaskNetWarning, match=r"needs the clouds aligned"):
+        kept = denoise(template, turned, method="distance").mask
+    assert kept.mean() < 0.5
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", MaskNetWarning)  # aligned: no warning
+        denoise(template, noisy, method="distance")

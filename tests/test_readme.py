@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 
@@ -146,3 +147,15 @@ def test_the_weights_table_names_each_cards_version():
     for name, version in rows:
         title = (weights / f"{name}.md").read_text().splitlines()[0]
         assert title == f"# Model card: `{name}` {version}", (name, version, title)
+
+
+def test_the_demo_precision_in_the_readme_is_the_shipped_weights(tmp_path, one_thread):
+    # `make demo`'s figure, recomputed: the shipped weights on the bundled sample's pairs.
+    from masknet.cli import main
+
+    text = README.read_text()
+    stated = float(re.search(r"top-k precision (0\.\d+) with the shipped weights", text)[1])
+    assert main(["demo", "--out", str(tmp_path)]) == 0
+    metrics = json.loads((tmp_path / "metrics.json").read_text())["metrics"]
+    measured = metrics["top-k (k=M)"]
+    assert abs(measured["precision"] - stated) < 0.0015, (measured["precision"], stated)

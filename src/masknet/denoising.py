@@ -20,7 +20,7 @@ from typing import NamedTuple
 import numpy as np
 from torch import Tensor
 
-from masknet.errors import MaskNetError, checks_done, warns_once
+from masknet.errors import MaskNetError, checks_done, warn, warns_once
 from masknet.geometry.clouds import as_cloud_batch, median_spacing, unit_radius
 from masknet.geometry.knn import knn_points
 from masknet.geometry.sampling import farthest_point_sample, spread_mask
@@ -63,6 +63,14 @@ def _default_refiner() -> RefineMaskNet:
 
 # "distance" and "refined" need aligned clouds; "masknet" does not.
 METHODS = ("distance", "masknet", "refined")
+ALIGNED = ("distance", "refined")
+
+# Below this share of the template within 3 template spacings of the noisy cloud (and
+# under half of the noisy cloud within as much of the template), the clouds are taken to
+# be unaligned. On 40 ModelNet40 pairs (70% views, with and without
+# 10% outliers) the aligned clouds covered at least 74% of the template, and the pairs as
+# made (up to 45 degrees and a unit translation apart) a median of 2-6%.
+ALIGNED_COVERAGE = 0.2
 
 
 @small_blas
@@ -115,6 +123,8 @@ def denoise(
     if not 0 <= threshold <= 1:
         raise MaskNetError(f"threshold must be in [0, 1], got {threshold}")
     x, y = _checked_pair(template, noisy)
+    if method in ALIGNED:
+        _warn_if_apart(template, noisy, 3 * median_spacing(template), method)
     if method == "distance":
         limit = 3 * median_spacing(template) if max_distance is None else max_distance
         if not limit > 0:
@@ -148,6 +158,24 @@ def denoise(
         scores = spread_mask(y_np, sampled, scores)
     mask = scores >= threshold
     return DenoiseResult(np.asarray(noisy)[mask], mask, scores)
+
+
+def _warn_if_apart(template: np.ndarray, noisy: np.ndarray, limit: float, method: str) -> None:
+    """Warn where the clouds look unaligned: under half of ``noisy`` (P, 3) lies within
+    ``limit`` of ``template`` (N, 3) and under ALIGNED_COVERAGE of the template within
+    ``limit`` of it. A method that needs aligned clouds would then remove nearly all; a
+    scan that is mostly clutter around the object still covers the object."""
+    from masknet.geometry.knn import cloud_tree
+
+    x, y = np.asarray(template, np.float64), np.asarray(noisy, np.float64)
+    explained = float(np.mean(cloud_tree(x).query(y)[0] <= limit))
+    covered = float(np.mean(cloud_tree(y).query(x)[0] <= limit))
+    if explained < 0.5 and covered < ALIGNED_COVERAGE:
+        warn(
+            f"only {covered:.0%} of the template lies within {limit:.3g} of the noisy cloud: "
+            f"method {method!r} needs the clouds aligned (register them first and denoise "
+            "the moved scan, or use method 'masknet')"
+        )
 
 
 def _checked_pair(template: np.ndarray, noisy: np.ndarray) -> tuple[Tensor, Tensor]:

@@ -370,6 +370,8 @@ def test_register_robust_from_the_command_line(tmp_path, pair_files, capsys):
     assert main(["register", str(template), str(source), "-o", str(out), "--method", "robust"]) == 0
     text = capsys.readouterr().out
     assert text.startswith("robust pipeline:") and "path: " in text
+    reported = next(line for line in text.splitlines() if line.startswith("reported by"))
+    assert "fitness " in reported and "nan" not in reported  # what did not happen is left out
     transform = np.loadtxt(tmp_path / "r_transform.txt")
     rot = transform[:3, :3] @ pair.transform[0, :3, :3].numpy().T
     assert np.degrees(np.arccos(np.clip((np.trace(rot) - 1) / 2, -1, 1))) < 5

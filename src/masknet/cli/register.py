@@ -340,8 +340,13 @@ def run(args: argparse.Namespace) -> None:
         f"(input units); {1e3 * result.times['total']:.1f} ms"
     )
     report_path(result.info, result.R)
-    numbers = {k: v for k, v in result.info.items() if np.ndim(v) == 0 and _is_number(v)}
-    print("reported: " + ", ".join(f"{k} {_shown(v)}" for k, v in numbers.items()))
+    # NaN marks what did not happen (no runner-up, no escalation): left out.
+    numbers = {
+        k: v
+        for k, v in result.info.items()
+        if np.ndim(v) == 0 and _is_number(v) and not np.isnan(np.asarray(v, np.float64))
+    }
+    print("reported by the method: " + ", ".join(f"{k} {_shown(v)}" for k, v in numbers.items()))
     on_object = source if result.source_mask is None else source[result.source_mask]
     check = assess_registration(template, on_object, result.transform)
     print(f"did it work: {check.verdict}: {check.reason}")

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 from masknet.data.pairs import PairConfig, Pairs
+from masknet.errors import MaskNetWarning
 from masknet.evaluation.registration import batched_errors, error_summary, pair_arrays
 from masknet.experiments.context import BenchmarkContext, ExperimentResult
 from masknet.experiments.pipelines import SWEEP_PIPELINES, shipped_masknet
@@ -27,7 +29,9 @@ def register_denoise_register(pairs: Pairs, how: dict, kwargs: dict) -> dict[str
         template, source = templates[i], sources[i]
         first = register(template, source, **kwargs).transform
         moved = source @ first[:3, :3].T + first[:3, 3]
-        cleaned = denoise(template, moved, **how).points
+        with warnings.catch_warnings():  # a first pass far off is handled below
+            warnings.simplefilter("ignore", MaskNetWarning)
+            cleaned = denoise(template, moved, **how).points
         if len(cleaned) < MIN_POINTS:
             # A first pass far off leaves almost nothing near the template, too few points
             # for register(): keep its estimate.
