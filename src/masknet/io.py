@@ -369,7 +369,9 @@ def _read_text(name: str) -> np.ndarray:
         first = next((i for i, s in enumerate(lines) if s.split("#")[0].strip()), None)
         if first is not None:  # maybe a header such as "x,y,z"
             with contextlib.suppress(ValueError):
-                return load(lines[first + 1 :])
+                rows = load(lines[first + 1 :])
+                if rows.size:  # a header over numbers, not a file of words
+                    return rows
         reason = _first_line(str(exc))
         raise MaskNetError(f"{name}: cannot parse as numbers ({reason})") from exc
 
@@ -454,6 +456,8 @@ def write_points(
     reads them back with ``drop_nonfinite=True``.
     """
     name = os.fspath(path)
+    if Path(name).is_dir():
+        raise MaskNetError(f"{name}: is a directory, not a file")
     ext = Path(name).suffix.lower()
     if ext not in SUPPORTED_WRITE:
         raise MaskNetError(

@@ -54,6 +54,8 @@ CASES = {
     "garbage.npy": (lambda p: p.write_bytes(b"\x93NUMPY garbage"), "not a valid, readable .npy"),
     # No NumPy header: numpy would take it for a pickle and suggest allow_pickle.
     "text_as.npy": (lambda p: p.write_text("1 2 3\n4 5 6\n"), "not a .npy file (no NumPy header)"),
+    # One line of words is no header over numbers.
+    "words.xyz": (lambda p: p.write_text("hello world foo\n"), "cannot parse as numbers"),
 }
 
 

@@ -119,6 +119,7 @@ REFUSALS = {
     ),
     "denoise template.xyz source.npy -o kept.foo": "kept.foo: cannot write extension '.foo' (supported: ...",
     "mask template.xyz source.npy -o taken.xyz": "taken.xyz: is a directory, not a file",
+    "mask template.xyz source.npy -o scans": "scans: is a directory, not a file",
     "denoise template.xyz source.npy -o template.xyz/kept.xyz": (
         "template.xyz/kept.xyz: cannot write into template.xyz (not a writable directory)"
     ),
@@ -138,6 +139,7 @@ REFUSALS = {
     f"{EVALUATE_SCANS} --scan-names a,nope": "scans: no usable scan named nope",
     # ... and those of masknet.data.scans that --scans reaches
     f"{TRAIN} --scans nowhere": "nowhere: no such folder of scans",
+    f"{TRAIN} --scans template.xyz": "template.xyz: a file, not a folder of scans",
     f"{TRAIN} --scans scans --val-scans a,b": (
         "every scan is held out for validation; none is left to train on"
     ),

@@ -267,14 +267,14 @@ def check_outputs(
         if key in seen:
             raise MaskNetError(f"{path}: named for two outputs; give each output its own name")
         seen[key] = path
+        if path.is_dir():  # before the extension: a folder has none
+            raise MaskNetError(f"{path}: is a directory, not a file")
         ext = path.suffix.lower()
         if ext not in SUPPORTED_WRITE and ext not in text:
             raise MaskNetError(
                 f"{path}: cannot write extension {ext or '(none)'!r} "
                 f"(supported: {', '.join(SUPPORTED_WRITE)})"
             )
-        if path.is_dir():
-            raise MaskNetError(f"{path}: is a directory, not a file")
         parent = next((p for p in [path.parent, *path.parent.parents] if p.exists()), Path("."))
         if not parent.is_dir() or not _can_create_in(parent):
             raise MaskNetError(f"{path}: cannot write into {parent} (not a writable directory)")

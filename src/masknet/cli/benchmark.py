@@ -94,5 +94,6 @@ def run(args: argparse.Namespace) -> None:
     start = time.perf_counter()
     run_experiments(names, ctx, results, echo=functools.partial(print, flush=True))
     where = f" and {results}" if results else ""
-    print(f"wrote {ctx.out}/{{{','.join(names)}}}.{{json,csv,png}}{where}")
+    stems = ", ".join(str(ctx.out / name) for name in names)
+    print(f"wrote {stems} (.json, .csv, .png){where}")
     print(f"wall time {time.perf_counter() - start:.0f} s")

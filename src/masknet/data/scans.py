@@ -93,7 +93,8 @@ def load_scans(
 
     root = Path(folder)
     if not root.is_dir():
-        raise MaskNetError(f"{root}: no such folder of scans")
+        what = "a file, not a folder of scans" if root.exists() else "no such folder of scans"
+        raise MaskNetError(f"{root}: {what}")
     files = sorted(f for f in root.iterdir() if f.suffix.lower() in SCAN_EXTENSIONS)
     scans = []
     for path in files:
