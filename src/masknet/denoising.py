@@ -22,7 +22,7 @@ from torch import Tensor
 
 from masknet.errors import MaskNetError, checks_done, warn, warns_once
 from masknet.geometry.clouds import as_cloud_batch, median_spacing, unit_radius
-from masknet.geometry.knn import knn_points
+from masknet.geometry.knn import cloud_tree, knn_points
 from masknet.geometry.sampling import farthest_point_sample, spread_mask
 from masknet.models.masknet import MaskNet
 from masknet.models.refine import RefineMaskNet
@@ -67,9 +67,9 @@ ALIGNED = ("distance", "refined")
 
 # Below this share of the template within 3 template spacings of the noisy cloud (and
 # under half of the noisy cloud within as much of the template), the clouds are taken to
-# be unaligned. On 40 ModelNet40 pairs (70% views, with and without
-# 10% outliers) the aligned clouds covered at least 74% of the template, and the pairs as
-# made (up to 45 degrees and a unit translation apart) a median of 2-6%.
+# be unaligned. On 40 ModelNet40 pairs (70% views, with and without 10% outliers) the
+# aligned clouds covered at least 74% of the template, and the pairs as made (up to 45
+# degrees and a unit translation apart) a median of 2-6%.
 ALIGNED_COVERAGE = 0.2
 
 
@@ -123,10 +123,11 @@ def denoise(
     if not 0 <= threshold <= 1:
         raise MaskNetError(f"threshold must be in [0, 1], got {threshold}")
     x, y = _checked_pair(template, noisy)
+    near = 3 * median_spacing(template)  # the default rule's distance
     if method in ALIGNED:
-        _warn_if_apart(template, noisy, 3 * median_spacing(template), method)
+        _warn_if_apart(template, noisy, near, method)
     if method == "distance":
-        limit = 3 * median_spacing(template) if max_distance is None else max_distance
+        limit = near if max_distance is None else max_distance
         if not limit > 0:
             raise MaskNetError(f"max_distance must be positive, got {limit}")
         d = knn_points(y.double(), x.double(), 1).dists[0, :, 0].sqrt().numpy()
@@ -165,8 +166,6 @@ def _warn_if_apart(template: np.ndarray, noisy: np.ndarray, limit: float, method
     ``limit`` of ``template`` (N, 3) and under ALIGNED_COVERAGE of the template within
     ``limit`` of it. A method that needs aligned clouds would then remove nearly all; a
     scan that is mostly clutter around the object still covers the object."""
-    from masknet.geometry.knn import cloud_tree
-
     x, y = np.asarray(template, np.float64), np.asarray(noisy, np.float64)
     explained = float(np.mean(cloud_tree(x).query(y)[0] <= limit))
     covered = float(np.mean(cloud_tree(y).query(x)[0] <= limit))
