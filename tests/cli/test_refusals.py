@@ -120,6 +120,13 @@ REFUSALS = {
     "denoise template.xyz source.npy -o kept.foo": "kept.foo: cannot write extension '.foo' (supported: ...",
     "mask template.xyz source.npy -o taken.xyz": "taken.xyz: is a directory, not a file",
     "mask template.xyz source.npy -o scans": "scans: is a directory, not a file",
+    "mask template.xyz source.npy -o m.xyz --weights modelnet40": (
+        "modelnet40: weights file not found (shipped weights go by name: --pretrained NAME; "
+        "in Python, pretrained(NAME))"
+    ),
+    "register template.xyz source.npy -o r.xyz --two-sided --weights @weights": (
+        "--two-sided needs two-sided MaskNet weights (masknet train --model masknet2); ..."
+    ),
     "denoise template.xyz source.npy -o template.xyz/kept.xyz": (
         "template.xyz/kept.xyz: cannot write into template.xyz (not a writable directory)"
     ),

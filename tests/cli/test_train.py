@@ -58,4 +58,15 @@ def test_an_interrupt_says_where_the_run_is_and_how_to_resume(
         masknet.training, "fit", lambda *a, **k: (_ for _ in ()).throw(KeyboardInterrupt)
     )
     assert main(_train(tiny_data, tmp_path / "fresh", "--epochs", "1")) == 130
-    assert capsys.readouterr().err.strip().splitlines()[-1] == "masknet: interrupted"
+    last = capsys.readouterr().err.strip().splitlines()[-1]
+    assert last == "masknet: interrupted; before the first epoch finished: nothing was saved"
+
+
+def test_a_finished_run_says_how_to_use_its_weights(tiny_data, tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(_train(tiny_data, out, "--epochs", "1")) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert lines[-2] == f"trained 1 epoch; best weights: {out / 'best.safetensors'}"
+    assert lines[-1] == (
+        f"use them: masknet evaluate, mask and register take --weights {out / 'best.safetensors'}"
+    )

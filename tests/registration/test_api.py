@@ -224,6 +224,11 @@ def test_each_round_masks_the_moved_source(pairs):
             np.testing.assert_allclose(src, frame.points_in(expected), atol=1e-6)
 
 
+def test_a_weights_path_as_model_says_how_to_load_it(pairs):
+    with pytest.raises(MaskNetError, match=r"model must be a mask network, got str .*from_file"):
+        register(pairs.template[0].numpy(), pairs.source[0].numpy(), model="best.safetensors")
+
+
 def test_default_model_is_loaded_once(monkeypatch, pairs, small_masknet):
     from masknet.registration import api
 

@@ -131,6 +131,32 @@ def test_existing_checkpoint_needs_resume(tmp_path, shapes):
         fit(_task(), shapes, _config(tmp_path, 2))
 
 
+def test_an_earlier_run_without_its_checkpoint_is_never_overwritten(tmp_path, shapes, capsys):
+    fit(_task(), shapes, _config(tmp_path, 1))
+    (tmp_path / "checkpoint.safetensors").unlink()
+    before = (tmp_path / "best.safetensors").read_bytes()
+    for resume in (False, True):
+        with pytest.raises(MaskNetError, match="holds an earlier run .*best.safetensors"):
+            fit(_task(), shapes, _config(tmp_path, 1), resume=resume)
+    assert (tmp_path / "best.safetensors").read_bytes() == before
+    # --resume on a folder with no run at all starts fresh, and says so.
+    fit(_task(), shapes, _config(tmp_path / "new", 1), resume=True)
+    assert f"no checkpoint in {tmp_path / 'new'}: starting a fresh run" in capsys.readouterr().err
+
+
+def test_a_checkpoint_given_as_weights_points_to_best(tmp_path, shapes):
+    fit(_task(), shapes, _config(tmp_path, 1))
+    with pytest.raises(MaskNetError, match="a training checkpoint .* best.safetensors beside it"):
+        MaskNet.from_file(tmp_path / "checkpoint.safetensors")
+
+
+def test_resuming_a_finished_run_says_so(tmp_path, shapes, capsys):
+    fit(_task(), shapes, _config(tmp_path, 1))
+    capsys.readouterr()
+    fit(_task(), shapes, _config(tmp_path, 1), resume=True)
+    assert "already finished 1 of 1 epochs; raise --epochs" in capsys.readouterr().err
+
+
 def _tiny_dataset(path: Path) -> Path:
     """A ModelNet40-style .npz whose train split is the bundled sample's shapes."""
     with np.load(bundled_sample_path()) as sample:

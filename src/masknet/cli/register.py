@@ -219,6 +219,13 @@ def run(args: argparse.Namespace) -> None:
     # one round, the two-sided network for a loop).
     named = args.two_sided or args.weights or args.pretrained
     model = load_model(args, two_sided=args.two_sided) if named and not args.no_mask else None
+    from masknet.models.two_sided import TwoSidedMaskNet
+
+    if args.two_sided and model is not None and not isinstance(model, TwoSidedMaskNet):
+        raise MaskNetError(
+            f"--two-sided needs two-sided MaskNet weights (masknet train --model masknet2); "
+            f"{args.weights} holds a paper MaskNet, which masks the template only"
+        )
     options = {}
     if args.max_iterations is not None and args.method not in GLOBAL_METHODS:
         options["max_iterations"] = args.max_iterations

@@ -43,7 +43,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--data", help="ModelNet40 folder or .npz (default: $MASKNET_DATA)")
     p.add_argument(
-        "--out", required=True, help="run folder: checkpoint.safetensors, log.csv, best.safetensors"
+        "--out",
+        required=True,
+        help="run folder: best.safetensors (the weights to use), last.safetensors, "
+        "checkpoint.safetensors (for --resume), log.csv, run.json",
     )
     p.add_argument("--epochs", type=positive_int, default=100, help="epochs (default 100)")
     p.add_argument(
@@ -253,12 +256,32 @@ def run(args: argparse.Namespace) -> None:
                 f"the last finished epoch is saved in {Path(args.out) / CHECKPOINT}; "
                 "run the same command with --resume to continue"
             ) from None
-        raise
+        raise KeyboardInterrupt("before the first epoch finished: nothing was saved") from None
     if history:
-        last = history[-1]
-        print(
-            f"trained {last['epoch']} epochs; best weights: {Path(args.out) / 'best.safetensors'}"
-        )
+        epochs = history[-1]["epoch"]
+        best = Path(args.out) / "best.safetensors"
+        print(f"trained {epochs} epoch{'s' if epochs != 1 else ''}; best weights: {best}")
+        if epochs < args.epochs:
+            print(f"{args.epochs - epochs} epochs left: the same command with --resume continues")
+        else:
+            print(
+                "use them: "
+                + _USE[args.model if args.model in _USE else "network"].format(
+                    best=best, model=args.model
+                )
+            )
+
+
+# How a finished run's best weights are used, per --model.
+_USE = {
+    "masknet": "masknet evaluate, mask and register take --weights {best}",
+    "masknet2": "masknet register --two-sided and masknet denoise --method masknet take "
+    "--weights {best}",
+    "denoise": "masknet denoise --method masknet takes --weights {best}",
+    "refine": "in Python, register(template, source, iterations=3, "
+    "refine_masks=RefineMaskNet.from_file('{best}'))",
+    "network": "masknet register --method {model} --network-weights {best}",
+}
 
 
 def _training_shapes(args: argparse.Namespace):

@@ -39,7 +39,12 @@ def read_metadata(path: str | os.PathLike) -> dict[str, str]:
     network it holds); MaskNetError if it is missing or unreadable. Never unpickles."""
     path = Path(path)
     if not path.exists():
-        raise MaskNetError(f"{path}: weights file not found")
+        hint = (
+            ""
+            if path.suffix
+            else " (shipped weights go by name: --pretrained NAME; in Python, pretrained(NAME))"
+        )
+        raise MaskNetError(f"{path}: weights file not found{hint}")
     try:
         from safetensors import safe_open
 
@@ -102,6 +107,11 @@ class SafetensorsWeights:
         except Exception as exc:  # safetensors raises its own error types
             raise MaskNetError(f"{path}: not a readable safetensors file ({exc})") from None
         key = cls._config_key()
+        if key not in meta and any(k.endswith("checkpoint") for k in meta):
+            raise MaskNetError(
+                f"{path}: a training checkpoint (for masknet train --resume); the weights "
+                "to use are best.safetensors beside it"
+            )
         if key not in meta:
             others = sorted(k for k in meta if k.endswith("config"))
             hint = (

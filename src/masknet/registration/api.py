@@ -281,6 +281,12 @@ def register(
         },
     )
     check_arguments(method, iterations, k, threshold, use_mask, init, refine_iterations, max_points)
+    if model is not None and not hasattr(model, "predict_masks"):
+        raise MaskNetError(
+            f"model must be a mask network, got {type(model).__name__} {model!r:.60}; "
+            "load a file with MaskNet.from_file(path) (TwoSidedMaskNet.from_file for "
+            "two-sided weights)"
+        )
     entry = METHOD_TABLE[method]
     if entry.kind == "pipeline" and refine_iterations:
         raise MaskNetError(

@@ -137,6 +137,8 @@ def split_train_val(
 
 
 CHECKPOINT = "checkpoint.safetensors"
+# What a run writes beside its checkpoint once an epoch has finished.
+RUN_OUTPUTS = ("best.safetensors", "last.safetensors", "log.csv")
 
 
 def _checkpoint_path(out: Path) -> Path:
@@ -190,6 +192,15 @@ def fit(
         raise MaskNetError(
             f"{ckpt_path} exists: pass --resume to continue it, or choose another --out"
         )
+    if not ckpt_path.exists():
+        # An earlier run's results without its checkpoint cannot be continued, and a new
+        # run would overwrite them.
+        earlier = [name for name in RUN_OUTPUTS if (out / name).exists()]
+        if earlier:
+            raise MaskNetError(
+                f"{out} holds an earlier run ({', '.join(earlier)}) but no checkpoint to "
+                "continue; choose another --out, or move those files away"
+            )
     device = resolve_device(config.device)
     rank, world, joined = _init_distributed(device)
     if not joined:
@@ -258,8 +269,16 @@ def _fit(
         state = load_checkpoint(ckpt_path, model, optimizer, device)
         _check_resumable(ckpt_path, state.get("run_info"), run_info)
         history, best, start_epoch = state["history"], state["best"], state["epoch"]
-        if lead:
+        if lead and start_epoch >= config.epochs:
+            print(
+                f"{ckpt_path}: already finished {start_epoch} of {config.epochs} epochs; "
+                "raise --epochs to train more",
+                file=sys.stderr,
+            )
+        elif lead:
             print(f"resuming {ckpt_path} at epoch {start_epoch + 1}", file=sys.stderr)
+    elif resume and lead:
+        print(f"no checkpoint in {out}: starting a fresh run", file=sys.stderr)
 
     train_set = train_points[train_idx]
     val_batches = (
