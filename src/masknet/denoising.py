@@ -124,13 +124,14 @@ def denoise(
         raise MaskNetError(f"threshold must be in [0, 1], got {threshold}")
     x, y = _checked_pair(template, noisy)
     near = 3 * median_spacing(template)  # the default rule's distance
-    if method in ALIGNED:
-        _warn_if_apart(template, noisy, near, method)
+    if method in ALIGNED:  # each noisy point's distance to the template: the rule's, and the
+        # alignment warning's
+        d = knn_points(y.double(), x.double(), 1).dists[0, :, 0].sqrt().numpy()
+        _warn_if_apart(template, noisy, d, near, method)
     if method == "distance":
         limit = near if max_distance is None else max_distance
         if not limit > 0:
             raise MaskNetError(f"max_distance must be positive, got {limit}")
-        d = knn_points(y.double(), x.double(), 1).dists[0, :, 0].sqrt().numpy()
         mask = d <= limit
         scores = np.exp(-((d / limit) ** 2)).astype(np.float32)
         return DenoiseResult(np.asarray(noisy)[mask], mask, scores)
@@ -161,15 +162,19 @@ def denoise(
     return DenoiseResult(np.asarray(noisy)[mask], mask, scores)
 
 
-def _warn_if_apart(template: np.ndarray, noisy: np.ndarray, limit: float, method: str) -> None:
+def _warn_if_apart(
+    template: np.ndarray, noisy: np.ndarray, to_template: np.ndarray, limit: float, method: str
+) -> None:
     """Warn where the clouds look unaligned: under half of ``noisy`` (P, 3) lies within
-    ``limit`` of ``template`` (N, 3) and under ALIGNED_COVERAGE of the template within
-    ``limit`` of it. A method that needs aligned clouds would then remove nearly all; a
-    scan that is mostly clutter around the object still covers the object."""
-    x, y = np.asarray(template, np.float64), np.asarray(noisy, np.float64)
-    explained = float(np.mean(cloud_tree(x).query(y)[0] <= limit))
-    covered = float(np.mean(cloud_tree(y).query(x)[0] <= limit))
-    if explained < 0.5 and covered < ALIGNED_COVERAGE:
+    ``limit`` of ``template`` (N, 3) (``to_template``: (P,) each noisy point's distance to
+    it) and under ALIGNED_COVERAGE of the template within ``limit`` of it. A method that
+    needs aligned clouds would then remove nearly all; a scan that is mostly clutter around
+    the object still covers the object. Aligned clouds cost no more than the distances."""
+    if np.mean(to_template <= limit) >= 0.5:
+        return
+    tree = cloud_tree(np.asarray(noisy, np.float64))
+    covered = float(np.mean(tree.query(np.asarray(template, np.float64))[0] <= limit))
+    if covered < ALIGNED_COVERAGE:
         warn(
             f"only {covered:.0%} of the template lies within {limit:.3g} of the noisy cloud: "
             f"method {method!r} needs the clouds aligned (register them first and denoise "

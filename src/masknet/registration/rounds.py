@@ -96,7 +96,7 @@ def mask_and_register(
         )
         run = run_method(template, transform_points(start_tf, moved), mask, source_mask, options)
         reached = run.transform @ start_tf @ total
-        if refining and fits is not None:
+        if refining:  # (fits exists whenever a refined round runs)
             reached = fits.keep_no_worse(total, reached)
         total = reached
         times["register"] += time.perf_counter() - tic
