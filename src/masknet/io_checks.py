@@ -16,6 +16,7 @@ import os
 import numpy as np
 
 from masknet.errors import MaskNetError, warn
+from masknet.geometry.clouds import MIN_POINTS
 
 __all__ = [
     "FEW_POINTS",
@@ -100,7 +101,7 @@ def check_cloud(
         cloud = cloud[finite]
         if len(cloud) == 0:
             raise MaskNetError(f"{name}: all {n_bad} points contain NaN or inf; none remain")
-    if len(cloud) < 3:
+    if len(cloud) < MIN_POINTS:
         raise MaskNetError(f"{name}: only {len(cloud)} point(s); at least 3 are needed")
     largest = float(np.abs(cloud).max())
     if largest > FLOAT32_MAX:

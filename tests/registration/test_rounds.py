@@ -8,9 +8,9 @@ import pytest
 from masknet import register
 from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
 from masknet.geometry.clouds import Frame
-from masknet.registration.api import REFINE_POINTS
 from masknet.registration.backends import BackendRun
 from masknet.registration.backends import icp as icp_backend
+from masknet.registration.pipeline import REFINE_POINTS
 from masknet.registration.refinement import NearestNeighbourMasks
 from masknet.registration.rounds import keep_source_points
 

@@ -116,6 +116,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="start from these weights, e.g. to fine-tune: a .safetensors file or the name "
         "of shipped weights (modelnet40, scans, ...)",
     )
+    p.add_argument(
+        "--template-mask",
+        metavar="MASKNET",
+        help="registration networks: train Mask-X, on the template points this MaskNet keeps "
+        "(shipped name, e.g. modelnet40, or a .safetensors file) against the partial source; "
+        "pair with --keep-ratio 0.7",
+    )
     add_pair_options(p)
     _scans.add_train_options(p)
 
@@ -143,6 +150,10 @@ def build_task(args: argparse.Namespace) -> TrainSetup:
     if args.feature_size:
         encoder = {"encoder_channels": [64, 64, 64, 128, args.feature_size]}
     precision = args.precision
+    if args.template_mask and args.model not in NETWORK_METHODS:
+        raise MaskNetError(
+            f"--template-mask trains a registration network, not --model {args.model}"
+        )
     if args.model == "denoise":
         task = MaskNetTask.denoising(
             pair_config(args, default_outliers=0.1),
@@ -194,6 +205,10 @@ def build_task(args: argparse.Namespace) -> TrainSetup:
         return TrainSetup(task, RefineMaskNet, precision)
     if args.scans:
         raise MaskNetError(f"--scans trains MaskNet (--model masknet), not {args.model}")
+    if args.template_mask:
+        from masknet.training.registration_task import load_mask_network
+
+        load_mask_network(args.template_mask)  # a wrong name fails before the data loads
     defaults = TRAINING_DEFAULTS[args.model]
     model_config = args.model_config if args.model_config is not None else encoder
     task = RegistrationTask(
@@ -202,6 +217,7 @@ def build_task(args: argparse.Namespace) -> TrainSetup:
         name=args.model,
         iterations=args.iterations or defaults["iterations"],
         model_config=model_config,
+        template_mask=args.template_mask,
     )
     try:
         task.build_model()

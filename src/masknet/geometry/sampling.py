@@ -132,9 +132,22 @@ def spread_mask(template: np.ndarray, sampled: np.ndarray, mask: np.ndarray) -> 
     return mask[nearest_sample(template, sampled)]
 
 
+def spread_labels(points: np.ndarray, labelled: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """The one label spreader: every point of ``points`` (P, 3) takes the label of its
+    nearest point of ``labelled`` (K, 3), whose labels are ``labels`` (K, ...); returns
+    (P, ...)."""
+    return labels[nearest_of(points, labelled)]
+
+
+def nearest_of(points: np.ndarray, among: np.ndarray) -> np.ndarray:
+    """(P,) int64: for every point of ``points`` (P, 3), the row of its nearest point in
+    ``among`` (K, 3)."""
+    _, nearest = cloud_tree(among).query(points, k=1)
+    return nearest.astype(np.int64)
+
+
 def nearest_sample(points: np.ndarray, sampled: np.ndarray) -> np.ndarray:
     """For every point of ``points`` (N, 3), the position (N,) int64 in ``sampled`` (indices
     (K,)) of its nearest sampled point: ``labels[nearest_sample(...)]`` spreads labels (K,)
     of the samples to every point, for many labellings of one sample."""
-    _, nearest = cloud_tree(points[sampled]).query(points, k=1)
-    return nearest.astype(np.int64)
+    return nearest_of(points, points[sampled])

@@ -37,6 +37,7 @@ __all__ = [
     "transform_points",
     "random_rotation",
     "rotation_angle",
+    "rotation_angle_deg",
     "rotation_error_deg",
     "translation_error",
     "hypothesis_rotations",
@@ -150,18 +151,26 @@ def random_rotation(
     return so3_exp(axis * angle).to(dtype)
 
 
-def rotation_angle(rotation: Tensor) -> Tensor:
-    """Geodesic angle in radians of rotation matrices (..., 3, 3) -> (...).
+def rotation_angle(rotation: Any) -> Any:
+    """Geodesic angle in radians of rotation matrices (..., 3, 3) -> (...), numpy or torch.
 
-    atan2(sin, cos) stays accurate near 0 and pi, where arccos((tr - 1) / 2) loses
-    about half the digits (a 1e-8 rad rotation would read as ~1e-4 rad in float32).
+    The one rotation angle of the package. atan2(sin, cos) stays accurate near 0 and pi,
+    where arccos((tr - 1) / 2) loses about half the digits (a 1e-8 rad rotation would read
+    as ~1e-4 rad in float32).
     """
-    trace = rotation.diagonal(dim1=-2, dim2=-1).sum(-1)
     r = rotation
-    axis = torch.stack(
-        [r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0], r[..., 1, 0] - r[..., 0, 1]], -1
-    )
-    return torch.atan2(axis.norm(dim=-1) / 2, (trace - 1) / 2)
+    trace = r[..., 0, 0] + r[..., 1, 1] + r[..., 2, 2]
+    skew = (r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0], r[..., 1, 0] - r[..., 0, 1])
+    if isinstance(r, Tensor):
+        return torch.atan2(torch.stack(skew, -1).norm(dim=-1) / 2, (trace - 1) / 2)
+    sin = np.linalg.norm(np.stack(skew, -1), axis=-1) / 2
+    return np.arctan2(sin, (trace - 1) / 2)
+
+
+def rotation_angle_deg(rotation: Any) -> Any:
+    """:func:`rotation_angle` in degrees: (..., 3, 3) -> (...), numpy or torch."""
+    angle = rotation_angle(rotation)
+    return torch.rad2deg(angle) if isinstance(angle, Tensor) else np.degrees(angle)
 
 
 def rotation_error_deg(r_pred: Tensor, r_true: Tensor) -> Tensor:
@@ -181,8 +190,7 @@ def hypothesis_rotations(count: int) -> np.ndarray:
     from scipy.spatial.transform import Rotation
 
     cube = Rotation.create_group("O").as_matrix()
-    angles = np.arccos(np.clip((np.trace(cube, axis1=1, axis2=2) - 1) / 2, -1, 1))
-    cube = cube[np.argsort(angles, kind="stable")]
+    cube = cube[np.argsort(np.round(rotation_angle(cube), 9), kind="stable")]
     out = (
         cube[:count]
         if count <= len(cube)

@@ -42,6 +42,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from masknet.geometry.clouds import MIN_POINTS
 from masknet.geometry.knn import knn_points
 from masknet.models.layers import gather_points, linear_stack, mlp, mlp_pool
 from masknet.models.masknet import PAIRS_PER_CALL, predict_two_masks, select_mask
@@ -243,7 +244,7 @@ def masks_from_scores(
     (B, N) and source (M,) or (B, M) in [0, 1] -> the two boolean masks, as there."""
     source_mask = source_scores >= source_threshold
     # As the rule does: a pair with under 3 kept points keeps them all.
-    few = np.atleast_2d(source_mask).sum(-1) < 3
+    few = np.atleast_2d(source_mask).sum(-1) < MIN_POINTS
     if few.any():
         source_mask = np.where(few[:, None], True, np.atleast_2d(source_mask))
         source_mask = source_mask.reshape(source_scores.shape)

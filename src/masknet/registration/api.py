@@ -23,52 +23,39 @@ nearest sampled point).
 from __future__ import annotations
 
 import dataclasses
-import functools
 import time
 from typing import Any
 
 import numpy as np
-import torch
 
-from masknet.errors import MaskNetError, checks_done, warns_once
-from masknet.geometry.clouds import MIN_POINTS, SPACING_SAMPLE, Frame, median_spacing
-from masknet.geometry.sampling import spread_mask
-from masknet.geometry.se3 import transform_points
-from masknet.models import REGISTRATION_NETWORKS
+from masknet.errors import checks_done, warns_once
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
-from masknet.registration.backends.base import MaskModels
-from masknet.registration.evaluation import inlier_fit
 from masknet.registration.methods import (
     GLOBAL_METHODS,
     INITS,
-    METHOD_TABLE,
     METHOD_TITLES,
     METHODS,
     NETWORK_METHODS,
-    adapter,
     default_method,
 )
 from masknet.registration.methods import (
     method_options as options_for,
 )
 from masknet.registration.options import ICPCriteria
-from masknet.registration.refinement import (
-    DEFAULT_REFINER,
-    Refiner,
-    refine_pose,
-    resolve_refiner,
+from masknet.registration.pipeline import (
+    check_clouds,
+    enter_frame,
+    leave_frame,
+    measure_fit,
+    plan_call,
+    refine_plain,
+    run_method,
 )
+from masknet.registration.refinement import DEFAULT_REFINER, Refiner
 from masknet.registration.result import RegistrationResult
-from masknet.registration.rounds import mask_and_register
-from masknet.registration.sampling import fit_to_network
-from masknet.registration.scene import SceneMatch, SceneSearch, is_scene, locate, polish
-from masknet.registration.validation import (
-    as_numpy_batch,
-    check_arguments,
-    finite_rows,
-    spread_rows,
-)
+from masknet.registration.scene import SceneSearch
+from masknet.registration.validation import check_arguments
 from masknet.runtime import small_blas
 
 __all__ = [
@@ -82,69 +69,7 @@ __all__ = [
 ]
 
 
-def _search_scene(
-    template: np.ndarray, source: np.ndarray, single: bool, scene: bool | SceneSearch | None
-) -> SceneMatch | None:
-    """The scene search's result for one pair (B = 1) where ``scene`` asks for it, else None.
-
-    ``scene=None`` searches when :func:`~masknet.registration.scene.is_scene`, and falls
-    back to registering the clouds as they are where the search finds nothing to register
-    (no region large enough, or under 3 scene points on the template); an explicit
-    search raises MaskNetError there.
-    """
-    options = scene if isinstance(scene, SceneSearch) else SceneSearch()
-    if scene is False or (scene is None and not single):
-        return None
-    if not single:
-        raise MaskNetError("scene search takes one pair, not a batch")
-    if scene is None and not is_scene(template[0], source[0], options):
-        return None
-    try:
-        found = locate(template[0], source[0], options)
-        if found.source_mask.sum() < MIN_POINTS:
-            raise MaskNetError(
-                f"scene search: {int(found.source_mask.sum())} scene points lie on the template "
-                f"where it fits best; at least {MIN_POINTS} are needed to register"
-            )
-    except MaskNetError:
-        if scene is None:
-            return None
-        raise
-    return found
-
-
-@functools.lru_cache(maxsize=1)
-def _default_model() -> MaskNet:
-    """The shipped MaskNet weights, loaded once per process."""
-    return MaskNet.pretrained()
-
-
-@functools.lru_cache(maxsize=1)
-def _default_two_sided() -> TwoSidedMaskNet:
-    """The shipped two-sided MaskNet, the robust method's default, loaded once."""
-    return TwoSidedMaskNet.pretrained()
-
-
-@functools.cache
-def _default_network(method: str) -> torch.nn.Module:
-    """The shipped weights of a learned registration network, loaded once per process."""
-    return REGISTRATION_NETWORKS[method].pretrained().eval()
-
-
-def _info_out(info: dict, frame: Frame) -> dict:
-    """A method's report in input units: RMSEs scaled, the runner-up pose mapped out."""
-    out = dict(info)
-    if "inlier_rmse" in out:
-        out["inlier_rmse"] = np.asarray(out["inlier_rmse"]) * frame.scale
-    if "runner_up" in out:
-        pose = np.asarray(out["runner_up"], dtype=np.float64)
-        out["runner_up"] = np.where(np.isfinite(pose), frame.transforms_out(pose), np.nan)
-    return out
-
-
 # Keywords that, with no method named, ask for Mask-ICP's rounds.
-# The most points of each cloud the refiner sees in the rounds after a pipeline.
-REFINE_POINTS = 4096
 _ICP_FIELDS = tuple(f.name for f in dataclasses.fields(ICPCriteria))
 
 
@@ -281,210 +206,32 @@ def register(
         },
     )
     check_arguments(method, iterations, k, threshold, use_mask, init, refine_iterations, max_points)
-    if model is not None and not hasattr(model, "predict_masks"):
-        raise MaskNetError(
-            f"model must be a mask network, got {type(model).__name__} {model!r:.60}; "
-            "load a file with MaskNet.from_file(path) (TwoSidedMaskNet.from_file for "
-            "two-sided weights)"
-        )
-    entry = METHOD_TABLE[method]
-    if entry.kind == "pipeline" and refine_iterations:
-        raise MaskNetError(
-            f"refine_iterations is for the rounds' methods; {method!r} refines itself "
-            "(ICP with a pair cut-off on the source points it keeps)"
-        )
-    opts = options_for(method, options, method_options)
-    template_rows = source_rows = None
-    if drop_nonfinite:
-        template, source, template_rows, source_rows = finite_rows(template, source)
-    tpl_full, src_full, single = as_numpy_batch(template, source)
+    plan = plan_call(
+        method,
+        options_for(method, options, method_options),
+        model,
+        use_mask=use_mask,
+        iterations=iterations,
+        refine_iterations=refine_iterations,
+        k=k,
+        threshold=threshold,
+        precision=precision,
+        init=init,
+        max_points=max_points,
+        scene=scene,
+        refine_masks=refine_masks,
+        drop_nonfinite=drop_nonfinite,
+        max_iterations=method_options.get("max_iterations"),
+    )
+    times = {"sample": 0.0, "mask": 0.0, "register": 0.0, "refine": 0.0}
+    clouds = check_clouds(template, source, plan)
     # Checked once, here: the stages (the networks check clouds given to them) do not
     # check or warn again.
     with checks_done():
-        found = _search_scene(tpl_full, src_full, single, scene)
-        auto_scene = found is not None and method == "auto"
-        if found is not None:  # the method registers the object's points, from the pose found
-            scene_source = src_full[0]
-            src_full = transform_points(found.transform, scene_source[found.source_mask])[None]
-            init = "identity"  # the search placed them: a centroid shift would undo that
-            if method == "auto":  # the search is the global stage: Mask-ICP from its pose
-                method, entry = "icp", METHOD_TABLE["icp"]
-                opts = ICPCriteria(max_iterations=method_options.get("max_iterations", 10))
-        # A loop and robust mask with the two-sided network by default (it rejects outliers).
-        two_sided_default = method == "robust" or (iterations > 1 and entry.kind != "pipeline")
-        search_model = None  # auto's escalation: the two-sided network masks both clouds
-        if use_mask and method == "auto":
-            search_model = model if isinstance(model, TwoSidedMaskNet) else _default_two_sided()
-        if use_mask and model is None:
-            # One round is the paper's Mask-X (auto's fast path too: with the two-sided
-            # network there, fewer clean pairs pass the check and it is slower; with it given
-            # as model=, the escalation reuses its masks). A loop starts from the two-sided
-            # network, which also rejects source outliers; its clean-pair cost after one round
-            # is recovered by the refined rounds (docs/RESULTS.md, masks per round).
-            model = _default_two_sided() if two_sided_default else _default_model()
-        # Refined rounds exist only in a loop (robust and auto refine by ICP with a cut-off).
-        refiner = resolve_refiner(refine_masks, model if use_mask and iterations > 1 else None)
-        if entry.kind == "network" and opts.network is None:
-            opts = dataclasses.replace(opts, network=_default_network(method))
-
-        # Everything runs in one frame (the template's centroid, its RMS radius): the result
-        # does not depend on the unit or the origin. Distances given in input units follow.
-        frame, tpl_input = Frame.of(tpl_full, src_full), tpl_full
-        tpl_full, src_full = frame.points_in(tpl_full), frame.points_in(src_full)
-        if getattr(opts, "max_correspondence_distance", None) is not None:
-            opts = dataclasses.replace(
-                opts, max_correspondence_distance=opts.max_correspondence_distance / frame.scale
-            )
-        times = {"sample": 0.0, "mask": 0.0, "register": 0.0, "refine": 0.0}
-        tic = time.perf_counter()
-        tpl, src, template_index, source_index = fit_to_network(
-            tpl_full, src_full, single, max_points
-        )
-        times["sample"] = time.perf_counter() - tic
-
-        if entry.kind == "pipeline":  # full resolution; the networks see the sampled clouds
-            models = MaskModels(model if use_mask else None, search_model)
-            run = adapter(method)(tpl_full, src_full, tpl, src, models, opts, times, precision)
-            total, mask, source_mask, info = run
-            inliers, rounds = None, [total[0] if single else total]
-            if iterations > 1:  # refined Mask-ICP rounds from the pipeline's pose
-                total, mask, source_mask, refined = _refined_rounds(
-                    tpl_full,
-                    src_full,
-                    total,
-                    refiner,
-                    iterations - 1,
-                    opts,
-                    times,
-                )
-                rounds += [r[0] if single else r for r in refined]
-            template_index = source_index = None  # the masks cover the full clouds already
-        else:
-            state = mask_and_register(
-                tpl,
-                src,
-                method,
-                model if use_mask else None,
-                iterations,
-                opts,
-                times,
-                k=k,
-                threshold=threshold,
-                precision=precision,
-                init=init,
-                refiner=refiner,
-            )
-            total, mask, source_mask = state.transform, state.mask, state.source_mask
-            info, inliers = state.run.info, state.run.correspondence_inliers
-            rounds = [r[0] if single else r for r in state.rounds]
-        if refine_iterations:
-            tic = time.perf_counter()
-            moved = transform_points(total, src)
-            run = adapter("icp")(
-                tpl, moved, None, None, ICPCriteria(max_iterations=refine_iterations)
-            )
-            total = run.transform @ total
-            times["refine"] = time.perf_counter() - tic
-        if entry.kind != "pipeline" or iterations > 1:
-            # Open3D's fitness of the pose returned, over every source point against the
-            # whole template, at the cut-off given or else 1.5 template spacings: the
-            # rounds' own figure counted masked points at the sampled size (and with no
-            # cut-off every pair, always 1), and the networks report none.
-            cut = getattr(opts, "max_correspondence_distance", None)
-            fit = inlier_fit(tpl_full, transform_points(total, src_full), cut)
-            info = {**info, "fitness": fit.fitness, "inlier_rmse": fit.inlier_rmse}
-
-        total = frame.transforms_out(total)
-        rounds = [
-            frame.transforms_out(r[None] if single else r)[0 if single else ...] for r in rounds
-        ]
-        info = _info_out(info, frame)
-        if source_index is not None and source_mask is not None:
-            source_mask = spread_mask(src_full[0], source_index, source_mask[0])[None]
-        if found is not None:  # back to the whole scene, then full-resolution ICP on the object
-            total = total @ found.transform
-            tic = time.perf_counter()
-            search_options = scene if isinstance(scene, SceneSearch) else None
-            on_object = scene_source[found.source_mask]
-            total = polish(tpl_input[0], on_object, [total[0], found.transform], search_options)[
-                None
-            ]
-            times["refine"] += time.perf_counter() - tic
-            rounds = [r @ found.transform for r in rounds]
-            if "runner_up" in info:  # also back to the whole scene
-                info["runner_up"] = info["runner_up"] @ found.transform
-            on_object = found.source_mask.copy()
-            if source_mask is not None:
-                on_object[on_object] = source_mask[0]
-            source_mask = on_object[None]
-            if auto_scene:
-                info["path"] = np.array(["scene search"])
-            times["search"] = found.seconds
-        if template_index is not None:
-            if mask is not None:
-                mask = spread_mask(tpl_full[0], template_index, mask[0])[None]
-            if inliers is not None:  # points the network never saw are not inliers
-                full = np.zeros(tpl_full.shape[:2], bool)
-                full[:, template_index] = inliers
-                inliers = full
-
-        if template_rows is not None:  # dropped rows are neither inliers nor kept
-            mask, inliers = (spread_rows(m, template_rows) for m in (mask, inliers))
-            source_mask = spread_rows(source_mask, source_rows)
-
-        def out(a: np.ndarray) -> np.ndarray:
-            return a[0] if single else a
-
-        times["total"] = time.perf_counter() - start
-        return RegistrationResult(
-            R=out(total[:, :3, :3].copy()),
-            t=out(total[:, :3, 3].copy()),
-            transform=out(total),
-            mask=None if mask is None else out(mask),
-            times=times,
-            info={key: out(value) for key, value in info.items()},
-            rounds=rounds,
-            sampled=(tpl.shape[1], src.shape[1]) if single else None,
-            correspondence_inliers=None if inliers is None else out(inliers),
-            source_mask=None if source_mask is None else out(source_mask),
-            method=method,
-            scene=found,
-        )
-
-
-def _refined_rounds(
-    template: np.ndarray,
-    source: np.ndarray,
-    start: np.ndarray,
-    refiner: Refiner | None,
-    rounds: int,
-    options: Any,
-    times: dict[str, float],
-) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, list[np.ndarray]]:
-    """A pipeline's pose (B, 4, 4) for template (B, N, 3) and source (B, M, 3) taken through
-    ``rounds`` refined Mask-ICP rounds, pair by pair (:func:`refine_pose`). Returns the transforms (B, 4, 4), the
-    masks (B, N) and (B, M) or None, and the transform after each round."""
-    poses = []
-    for b in range(template.shape[0]):
-        t, s = template[b], source[b]
-        # The refiner sees the clouds at full resolution up to REFINE_POINTS: on real scans
-        # its masks are more precise there than at the first round's size, spread.
-        _, _, t_index, s_index = fit_to_network(t[None], s[None], True, REFINE_POINTS)
-        sampled = (
-            np.arange(len(t)) if t_index is None else t_index,
-            np.arange(len(s)) if s_index is None else s_index,
-        )
-        spacing = median_spacing(t, sample=SPACING_SAMPLE) or 1.0
-        poses.append(
-            refine_pose(t, s, sampled, start[b], refiner, rounds, options.cut(spacing), times)
-        )
-    transform = np.stack([p.transform for p in poses])
-    history = [np.stack([p.rounds[r] for p in poses]) for r in range(rounds)]
-    if refiner is None:
-        return transform, None, None, history
-    return (
-        transform,
-        np.stack([p.mask for p in poses]),
-        np.stack([p.source_mask for p in poses]),
-        history,
-    )
+        pair, plan = enter_frame(clouds, plan, times)
+        found = run_method(pair, plan, times)
+        found = refine_plain(pair, found, plan, times)
+        found = measure_fit(pair, found, plan)
+        result = leave_frame(pair, found, plan, times)
+    times["total"] = time.perf_counter() - start
+    return result

@@ -46,9 +46,10 @@ from masknet.geometry.sampling import grid_subset
 from masknet.geometry.se3 import transform_points
 from masknet.registration.coarse import rotation_between_deg
 from masknet.registration.evaluation import DEFAULT_SPACINGS, given_cut
+from masknet.registration.fit import overlap_fit as implied_overlap_fit
 from masknet.registration.validation import as_numpy_batch, as_rigid_transforms
 
-__all__ = ["Assessment", "assess_registration"]
+__all__ = ["Assessment", "RULE_VERDICTS", "assess_registration", "verdict_rule"]
 
 NEAR = 3.0  # the overlap a pose implies: points within this many inlier distances
 CORRECT_FIT, WRONG_FIT = 0.6, 0.5  # overlap fit: likely correct at or above, wrong below
@@ -61,6 +62,26 @@ MAX_POINTS = 8192  # points asked per cloud (an even subset of larger clouds)
 # `likely correct` (68%).
 CLOUD_POINTS = 32768
 VERDICTS = ("likely correct", "uncertain", "likely wrong")
+# Which rule of verdict_rule decided, and the verdict it gives.
+RULE_VERDICTS = {
+    "overlap": "likely wrong",  # under WRONG_FIT of the overlap fits
+    "nearby": "likely wrong",  # a fit WRONG_DEG or WRONG_SHIFT away
+    "correct": "likely correct",  # CORRECT_FIT, within CORRECT_DEG and CORRECT_SHIFT
+    "between": "uncertain",  # none of the above
+}
+
+
+def verdict_rule(overlap_fit: float, nearby_deg: float, nearby_shift: float) -> str:
+    """The rule that decides the verdict (a key of :data:`RULE_VERDICTS`), from the overlap
+    fit at the nearest fit, and how far that fit lies: degrees, and the source centroid's
+    shift over its RMS radius. The rules apply in this order."""
+    if overlap_fit < WRONG_FIT:
+        return "overlap"
+    if nearby_deg >= WRONG_DEG or nearby_shift >= WRONG_SHIFT:
+        return "nearby"
+    if overlap_fit >= CORRECT_FIT and nearby_deg <= CORRECT_DEG and nearby_shift <= CORRECT_SHIFT:
+        return "correct"
+    return "between"
 
 
 class Assessment(NamedTuple):
@@ -86,15 +107,6 @@ class Assessment(NamedTuple):
 
 def _subset(points: np.ndarray, count: int, seed: int) -> np.ndarray:
     return points[grid_subset(points, count, seed)]
-
-
-def _overlap_fit(near_to: object, points: np.ndarray, limit: float) -> tuple[float, float, float]:
-    """(share within ``limit`` among points within NEAR ``limit``, share within ``limit``,
-    share within NEAR ``limit``) of ``points`` against the cloud of the tree ``near_to``."""
-    d, _ = near_to.query(points, k=1, distance_upper_bound=NEAR * limit)
-    near = np.isfinite(d)
-    close = int((d <= limit).sum())
-    return close / max(int(near.sum()), 1), close / len(points), float(near.mean())
 
 
 def assess_registration(
@@ -158,10 +170,10 @@ def assess_registration(
         template_tree=template_tree,
     ).transform[0]
     moved, nearest = moved_by(tf), moved_by(refined)
-    _, fitness, overlap = _overlap_fit(template_tree, moved, limit)
+    _, fitness, overlap = implied_overlap_fit(template_tree, moved, limit, NEAR)
     # The fit of the nearest fitting pose: the surfaces there, not a few spacings off.
-    source_fit, _, _ = _overlap_fit(template_tree, nearest, limit)
-    template_fit, _, _ = _overlap_fit(cloud_tree(nearest), template_pts, limit)
+    source_fit, _, _ = implied_overlap_fit(template_tree, nearest, limit, NEAR)
+    template_fit, _, _ = implied_overlap_fit(cloud_tree(nearest), template_pts, limit, NEAR)
     overlap_fit = min(source_fit, template_fit)
     nearby_deg = rotation_between_deg(refined, tf)
     radius = np.sqrt(((moved - moved.mean(0)) ** 2).sum(1).mean())
@@ -173,19 +185,15 @@ def assess_registration(
         f"{overlap_fit:.0%} of the overlap fits within {limit:.3g} (input units; the worse "
         f"of the two directions)"
     )
-    if overlap_fit < WRONG_FIT:
-        verdict = "likely wrong"
+    rule = verdict_rule(overlap_fit, nearby_deg, nearby_shift)
+    verdict = RULE_VERDICTS[rule]
+    if rule == "overlap":
         reason = (
             f"only {fits} at the nearest fit ({away}); right poses fit {CORRECT_FIT:.0%} or more"
         )
-    elif nearby_deg >= WRONG_DEG or nearby_shift >= WRONG_SHIFT:
-        verdict = "likely wrong"
+    elif rule == "nearby":
         reason = f"a pose {away} fits better"
-    elif overlap_fit >= CORRECT_FIT and nearby_deg <= CORRECT_DEG and nearby_shift <= CORRECT_SHIFT:
-        verdict = "likely correct"
-        reason = f"at the nearest fit ({away}), {fits}"
     else:
-        verdict = "uncertain"
         reason = f"at the nearest fit ({away}), {fits}"
     return Assessment(
         verdict, reason, overlap_fit, fitness, overlap, nearby_deg, nearby_shift, limit

@@ -28,7 +28,9 @@ import time
 
 import numpy as np
 
+from masknet.geometry.clouds import MIN_POINTS
 from masknet.geometry.knn import cloud_tree
+from masknet.geometry.sampling import spread_labels
 from masknet.geometry.se3 import transform_points
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
@@ -103,11 +105,9 @@ def _one(
     fine_template, tree, spacing, fine, surface = prepared[:5]
     source_mask = None
     if fast.source_mask is not None:  # a two-sided network: its kept points, spread
-        near_net = cloud_tree(nets[1][0]).query(source, k=1)[1].astype(np.int64)
-        source_mask = fast.source_mask[0][near_net]
-        near_fine = cloud_tree(nets[1][0]).query(fine, k=1)[1].astype(np.int64)
-        kept_fine = fast.source_mask[0][near_fine] & surface
-        surface = kept_fine if kept_fine.sum() >= 3 else surface
+        source_mask = spread_labels(source, nets[1][0], fast.source_mask[0])
+        kept_fine = spread_labels(fine, nets[1][0], fast.source_mask[0]) & surface
+        surface = kept_fine if kept_fine.sum() >= MIN_POINTS else surface
     kept = fine[surface]
     # The check's points among those kept (a two-sided network's mask narrows both).
     checked = fine[check_points(surface, prepared.strict, prepared.attached)]

@@ -52,8 +52,10 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from masknet.geometry.clouds import MIN_POINTS
 from masknet.geometry.knn import cloud_tree
-from masknet.geometry.se3 import hypothesis_rotations, transform_points
+from masknet.geometry.sampling import spread_labels
+from masknet.geometry.se3 import hypothesis_rotations, rotation_angle_deg, transform_points
 from masknet.registration.correspondences import (
     FeatureCloud,
     compatible_poses,
@@ -121,8 +123,7 @@ class CoarseRun(NamedTuple):
 
 def rotation_between_deg(a: np.ndarray, b: np.ndarray) -> float:
     """The angle in degrees between the rotations of transforms ``a`` and ``b`` (4, 4)."""
-    cos = (np.trace(a[:3, :3].T @ b[:3, :3]) - 1) / 2
-    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+    return float(rotation_angle_deg(a[:3, :3].T @ b[:3, :3]))
 
 
 MaskFunction = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
@@ -247,7 +248,7 @@ def coarse_to_fine(
         # 2. The learned side: both masks once, then masked matches and rotations.
         if predict_masks is not None:
             mask, source_mask = predict_masks(template, source)
-            if (source_mask & surface).sum() >= 3:
+            if (source_mask & surface).sum() >= MIN_POINTS:
                 kept_source = source[source_mask & surface]
             else:
                 source_mask = np.ones(len(source), bool)
@@ -256,7 +257,7 @@ def coarse_to_fine(
                 keep_s = _voxel_labels(grid[0].points, source, source_mask)
                 keep_t = _voxel_labels(grid[1].points, template, mask)
                 masked = grid[2][keep_s[grid[2][:, 0]] & keep_t[grid[2][:, 1]]]
-                if len(masked) >= 3:
+                if len(masked) >= MIN_POINTS:
                     correspondence_poses(grid, masked, "fpfh-masked", probe)
                 tic = clock("ransac", tic)
         # Every hypothesis through a short ICP at hypothesis resolution (the
@@ -284,7 +285,7 @@ def coarse_to_fine(
         both = np.stack([np.eye(4), as_given])
         fits = pose_fits(tree, points, both, limit)
         scored.extend(Scored(*f, p, "as given") for f, p in zip(fits, both, strict=True))
-        target = template if mask is None or mask.sum() < 3 else template[mask]
+        target = template if mask is None or mask.sum() < MIN_POINTS else template[mask]
         target_small = random_subset(target, small)
         src_centre, tgt_centre = src_small.mean(0), target.mean(0)
         rotations = hypothesis_rotations(24)[: options.hypotheses]
@@ -344,8 +345,7 @@ def coarse_to_fine(
         mask = cloud_tree(moved).query(full_template, k=1)[0] <= limit
     if source_mask is not None and len(source) < len(full_source):
         # Each point of the whole source takes the label of its nearest subset point.
-        _, nearest = cloud_tree(source).query(full_source, k=1)
-        source_mask = source_mask[nearest.astype(np.int64)]
+        source_mask = spread_labels(full_source, source, source_mask)
     info = {
         "path": "correspondences" if early is not None else "search",
         "source": winner.kind,
@@ -390,8 +390,7 @@ def _has_open3d() -> bool:
 
 def _voxel_labels(voxels: np.ndarray, points: np.ndarray, keep: np.ndarray) -> np.ndarray:
     """(V,) bool: whether the input point nearest each voxel centre (V, 3) is kept."""
-    _, nearest = cloud_tree(points).query(voxels, k=1)
-    return keep[nearest.astype(np.int64)]
+    return spread_labels(voxels, points, keep)
 
 
 def _short_icp_from_identity(

@@ -28,6 +28,7 @@ import numpy as np
 from scipy.spatial.distance import cdist
 
 from masknet.geometry.align import rigid_transforms_numpy
+from masknet.geometry.clouds import MIN_POINTS
 from masknet.geometry.se3 import transform_points
 from masknet.io import require_open3d
 
@@ -125,7 +126,7 @@ def mutual_matches(source: np.ndarray, template: np.ndarray) -> np.ndarray:
     to_source = d2.argmin(0)
     rows = np.arange(len(source))
     mutual = to_source[to_template] == rows
-    if mutual.sum() < 3:
+    if mutual.sum() < MIN_POINTS:
         mutual[:] = True
     return np.stack([rows[mutual], to_template[mutual]], axis=1)
 
@@ -141,7 +142,7 @@ def _tree_matches(source: np.ndarray, template: np.ndarray) -> np.ndarray:
         return out
 
     found = np.asarray(reg.correspondences_from_features(feature(source), feature(template), True))
-    if len(found) < 3:
+    if len(found) < MIN_POINTS:
         found = np.asarray(
             reg.correspondences_from_features(feature(source), feature(template), False)
         )
@@ -180,7 +181,7 @@ def ransac_poses(
     """
     k = len(source)
     empty = PoseHypotheses(np.empty((0, 4, 4)), np.empty(0, np.int64))
-    if k < 3:
+    if k < MIN_POINTS:
         return empty
     rng = np.random.default_rng(seed)
     all_poses, all_near = [], []
@@ -255,7 +256,7 @@ def compatible_poses(
     seeded random subset of that many forms the groups."""
     k = len(source)
     empty = PoseHypotheses(np.empty((0, 4, 4)), np.empty(0, np.int64))
-    if k < 3 or seeds < 1:
+    if k < MIN_POINTS or seeds < 1:
         return empty
     rows = np.arange(k)
     if k > max_matches:
@@ -272,12 +273,12 @@ def compatible_poses(
         team = team[second[i, team] > 0]
         if len(team) >= 2:  # with its leader, three matches at least: a rotation
             weights[i, rows[np.append(team, leader)]] = 1.0
-    weights = weights[weights.sum(1) >= 3]
+    weights = weights[weights.sum(1) >= MIN_POINTS]
     if not len(weights):
         return empty
     poses = _refit(source, template, weights)
     near = ((transform_points(poses, source[None]) - template) ** 2).sum(-1) <= threshold**2
-    near = near[near.sum(1) >= 3]
+    near = near[near.sum(1) >= MIN_POINTS]
     return PoseHypotheses(_refit(source, template, near), near.sum(1))
 
 

@@ -22,51 +22,16 @@ Example::
 from __future__ import annotations
 
 import warnings
-from typing import NamedTuple
 
 import numpy as np
 
 from masknet.errors import MaskNetError
-from masknet.geometry.clouds import SPACING_SAMPLE, median_spacing
-from masknet.geometry.knn import cloud_tree
 from masknet.geometry.se3 import transform_points
+from masknet.registration.fit import RegistrationQuality, inlier_fit
 from masknet.registration.options import DEFAULT_SPACINGS
 from masknet.registration.validation import as_numpy_batch, as_rigid_transforms
 
 __all__ = ["DEFAULT_SPACINGS", "RegistrationQuality", "evaluate_registration", "inlier_fit"]
-
-
-class RegistrationQuality(NamedTuple):
-    """fitness: () or (B,), the fraction of source points within
-    ``max_correspondence_distance`` of the template. inlier_rmse: () or (B,), the root mean
-    square distance of those points, in input units (0 where there are none, as Open3D).
-    max_correspondence_distance: () or (B,), the distance used."""
-
-    fitness: np.ndarray
-    inlier_rmse: np.ndarray
-    max_correspondence_distance: np.ndarray
-
-
-def inlier_fit(
-    template: np.ndarray, moved: np.ndarray, max_correspondence_distance: float | None = None
-) -> RegistrationQuality:
-    """The measure itself, for checked numpy batches: template (B, N, 3) and the source
-    already moved (B, M, 3); the cut-off in their units, or None for ``DEFAULT_SPACINGS``
-    template spacings. Returns (B,) arrays."""
-    fitness, rmse, limits = [], [], []
-    for tpl, src in zip(template, moved, strict=True):
-        tree = cloud_tree(tpl)
-        if max_correspondence_distance is None:
-            limit = DEFAULT_SPACINGS * median_spacing(tpl, tree, sample=SPACING_SAMPLE)
-        else:
-            limit = float(max_correspondence_distance)
-        d2 = tree.query(np.ascontiguousarray(src, dtype=np.float64), k=1, sqr_dists=True)[0]
-        inlier = d2 <= limit**2
-        count = int(inlier.sum())
-        fitness.append(count / len(d2))
-        rmse.append(np.sqrt(d2[inlier].sum() / max(count, 1)))
-        limits.append(limit)
-    return RegistrationQuality(np.array(fitness), np.array(rmse), np.array(limits))
 
 
 def given_cut(

@@ -25,12 +25,11 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from masknet.geometry.clouds import SPACING_SAMPLE, median_spacing
+from masknet.geometry.clouds import MIN_POINTS, SPACING_SAMPLE, median_spacing
 from masknet.geometry.knn import cloud_tree
 from masknet.geometry.normals import plane_offsets
 from masknet.geometry.sampling import grid_subset
-from masknet.geometry.se3 import transform_points
-from masknet.registration.evaluation import DEFAULT_SPACINGS
+from masknet.registration.fit import FIT_SPACINGS, PoseFit, pose_fit, pose_fits
 
 __all__ = [
     "CHECK_MAX_DROP",
@@ -48,8 +47,6 @@ __all__ = [
     "surface_points",
 ]
 
-# The inlier distance of the score, in template spacings: evaluate_registration's default.
-FIT_SPACINGS = DEFAULT_SPACINGS
 # A source point with no other source point within this many template spacings is
 # isolated: it takes no part in the score.
 SURFACE_SPACINGS = 2.0
@@ -131,48 +128,7 @@ def _neighbour_distances(points: np.ndarray, neighbours: int) -> np.ndarray:
 
 def _most(keep: np.ndarray) -> np.ndarray:
     """``keep``, or all True where it keeps under half (a cloud sparser than the radius)."""
-    return keep if keep.sum() >= max(3, len(keep) // 2) else np.ones(len(keep), bool)
-
-
-class PoseFit(NamedTuple):
-    """fitness: fraction of points within the distance. rmse: their RMS distance.
-    score: 1 - the mean of the squared distances capped at 3 times the distance, over that
-    cap squared (a truncated least-squares fit, as TEASER++ scores): 1 for a perfect fit,
-    0 when no point is near. Unlike a count within one radius it still ranks poses whose
-    points all fall within it (sparse clouds sampled apart), and a sliding surface (a
-    floor, a wall) that fits a wrong pose at one radius seldom fits at all."""
-
-    fitness: float
-    rmse: float
-    score: float
-
-
-SCORE_TRUNCATION = 3.0  # the score's cap, in units of the inlier distance
-
-
-def pose_fit(tree: Any, points: np.ndarray, transform: np.ndarray, limit: float) -> PoseFit:
-    """Fit of ``points`` (P, 3) moved by ``transform`` (4, 4) against the cloud in ``tree``."""
-    return pose_fits(tree, points, transform[None], limit)[0]
-
-
-def pose_fits(tree: Any, points: np.ndarray, transforms: np.ndarray, limit: float) -> list:
-    """:func:`pose_fit` for each of ``transforms`` (H, 4, 4), with one KD-tree query."""
-    h, p = len(transforms), len(points)
-    if h == 0:
-        return []
-    moved = transform_points(transforms, points[None])
-    d2, _ = tree.query(moved.reshape(h * p, 3), k=1, sqr_dists=True)
-    d2 = d2.reshape(h, p)
-    inlier = d2 <= limit**2
-    count = inlier.sum(1)
-    rmse = np.sqrt(np.where(inlier, d2, 0.0).sum(1) / np.maximum(count, 1))
-    # Truncated least squares: each point's squared distance, capped, so that points with
-    # no counterpart (outliers, the part the other cloud does not see) weigh alike.
-    cap = (SCORE_TRUNCATION * limit) ** 2
-    score = 1.0 - np.minimum(d2, cap).mean(1) / cap
-    return [
-        PoseFit(c / p, float(r), float(sc)) for c, r, sc in zip(count, rmse, score, strict=True)
-    ]
+    return keep if keep.sum() >= max(MIN_POINTS, len(keep) // 2) else np.ones(len(keep), bool)
 
 
 def random_subset(points: np.ndarray, count: int, seed: int = 0) -> np.ndarray:

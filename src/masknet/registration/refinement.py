@@ -62,9 +62,6 @@ TEMPLATE_THRESHOLD = 0.9
 # degrees off with the mask returned, 0.011 with this one; on the scan pairs the means
 # moved within their noise (docs/RESULTS.md, "Masks per round").
 ICP_THRESHOLD = 0.5
-# A refined round whose pose fits worse than this below its start's (pose_fit's truncated
-# score, 0-1) is undone, and the rounds stop there.
-FIT_SLACK = 0.02
 
 
 class Refiner(Protocol):
@@ -200,8 +197,8 @@ def refine_pose(
     from masknet.geometry.knn import cloud_tree
     from masknet.geometry.normals import estimate_normals
     from masknet.geometry.sampling import nearest_sample
+    from masknet.registration.fit import fits_worse, pose_fit
     from masknet.registration.icp import icp
-    from masknet.registration.prepared import pose_fit
 
     template_index, source_index = sampled
     # Each point takes the label of its nearest sample: found once for every round's masks.
@@ -254,7 +251,7 @@ def refine_pose(
         # Point-to-plane steps on a sparse shape's poor normals can slide far (one of 300
         # ModelNet40 pairs: 3 -> 104 degrees, its fit 0.85 -> 0); a better pose on re-sampled
         # scans fits about as well (within 0.007) by this point-to-point measure.
-        if new_fit < fit - FIT_SLACK:
+        if fits_worse(new_fit, fit):
             settled = True
         else:
             total, fit = moved_to, new_fit

@@ -8,6 +8,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from masknet.geometry.se3 import rotation_angle_deg
+
 if TYPE_CHECKING:
     from masknet.registration.scene import SceneMatch
 
@@ -107,6 +109,6 @@ class RegistrationResult:
 
     @property
     def rotation_deg(self) -> np.ndarray:
-        """The angle of ``R`` in degrees, arccos((trace R - 1) / 2): () or (B,)."""
-        cos = (np.trace(self.R, axis1=-2, axis2=-1) - 1) / 2
-        return np.degrees(np.arccos(np.clip(cos, -1, 1)))
+        """The angle of ``R`` in degrees (:func:`~masknet.geometry.se3.rotation_angle_deg`):
+        () or (B,)."""
+        return rotation_angle_deg(self.R)

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from masknet.geometry.knn import cloud_tree
+from masknet.geometry.sampling import spread_labels
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
 from masknet.registration.backends.base import MaskModels, PipelineRun
@@ -39,9 +39,10 @@ def network_masks(
         t_mask, s_mask = model.predict_masks(template_net, source_net, precision=precision)
         if s_mask is None:  # a one-sided network keeps every source point
             s_mask = np.ones(len(source_net), bool)
-        t_near = cloud_tree(template_net).query(template, k=1)[1].astype(np.int64)
-        s_near = cloud_tree(source_net).query(source, k=1)[1].astype(np.int64)
-        return t_mask[t_near], s_mask[s_near]
+        return (
+            spread_labels(template, template_net, t_mask),
+            spread_labels(source, source_net, s_mask),
+        )
 
     return predict
 

@@ -17,8 +17,9 @@ from masknet.errors import MaskNetError
 from masknet.geometry.clouds import MIN_POINTS
 from masknet.geometry.se3 import transform_points
 from masknet.registration.backends.base import BackendRun
+from masknet.registration.fit import RoundFits
 from masknet.registration.methods import adapter
-from masknet.registration.refinement import FIT_SLACK, Refiner
+from masknet.registration.refinement import Refiner
 
 __all__ = ["RoundsResult", "initial_transform", "keep_source_points", "mask_and_register"]
 
@@ -108,50 +109,6 @@ def mask_and_register(
     return RoundsResult(total, mask, source_mask, run, rounds)
 
 
-class RoundFits:
-    """The refined rounds' guard, for template (B, N, 3) and source (B, M, 3): the fit of a
-    pose (:func:`~masknet.registration.prepared.pose_fit`'s truncated score, 0-1, at 1.5
-    template spacings, one KD-tree per template built once). A learned back-end such as
-    PointNetLK can leave a pair further off than it started; on the README's sample pair
-    its second round went from 24.5 to 61 degrees, its fit from 0.57 to 0.35."""
-
-    def __init__(self, template: np.ndarray, source: np.ndarray) -> None:
-        from masknet.geometry.clouds import SPACING_SAMPLE, median_spacing
-        from masknet.geometry.knn import cloud_tree
-        from masknet.registration.prepared import FIT_SPACINGS
-
-        self.trees = [cloud_tree(t) for t in template]
-        self.limits = [
-            FIT_SPACINGS * (median_spacing(t, tree, SPACING_SAMPLE) or 1.0)
-            for t, tree in zip(template, self.trees, strict=True)
-        ]
-        self.source = source
-        self.settled = np.zeros(len(template), bool)
-        self.scores: np.ndarray | None = None
-
-    def _scores(self, poses: np.ndarray) -> np.ndarray:
-        from masknet.registration.prepared import pose_fit
-
-        return np.array(
-            [
-                pose_fit(tree, points, pose, limit).score
-                for tree, points, pose, limit in zip(
-                    self.trees, self.source, poses, self.limits, strict=True
-                )
-            ]
-        )
-
-    def keep_no_worse(self, start: np.ndarray, reached: np.ndarray) -> np.ndarray:
-        """(B, 4, 4): ``reached`` (B, 4, 4) where it fits no worse than ``start`` (B, 4, 4)
-        by more than FIT_SLACK, else ``start``; a pair kept at its start once stays there."""
-        if self.scores is None:  # the first guarded round: round 1's poses
-            self.scores = self._scores(start)
-        new = self._scores(reached)
-        self.settled |= new < self.scores - FIT_SLACK
-        self.scores = np.where(self.settled, self.scores, new)
-        return np.where(self.settled[:, None, None], start, reached)
-
-
 def keep_source_points(source: np.ndarray, keep: np.ndarray | None) -> np.ndarray:
     """One pair's kept source points: source (1, M, 3) and ``keep`` (1, M) bool ->
     (1, M', 3), each kept point once; unchanged where nothing is rejected or fewer than 3
@@ -193,7 +150,7 @@ def usable(keep: np.ndarray | None) -> np.ndarray | None:
     sensible to register), or None."""
     if keep is None:
         return None
-    return np.where((keep.sum(1) >= 3)[:, None], keep, True)
+    return np.where((keep.sum(1) >= MIN_POINTS)[:, None], keep, True)
 
 
 def initial_transform(

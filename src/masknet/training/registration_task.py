@@ -1,10 +1,16 @@
 """The training task of every learned registration network (PointNetLK, DCP, PRNet,
-PCRNet, RPM-Net): seeded pairs, a transform loss, and the network's own regulariser."""
+PCRNet, RPM-Net): seeded pairs, a transform loss, and the network's own regulariser.
+
+With ``template_mask`` set, the network trains on what it sees inside Mask-X: the
+template points a frozen MaskNet keeps (top-k, k = M) against the partial source.
+A max-pooled feature such as PointNetLK's is changed by the few points a mask gets
+wrong; training on the mask's own mistakes teaches the features to ignore them."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numpy as np
 import torch
 from torch import Tensor, nn
 
@@ -38,6 +44,9 @@ class RegistrationTask(PairTask):
     name: the network, a key of REGISTRATION_NETWORKS.
     iterations: refinement iterations per training pair.
     model_config: keyword arguments of the network's class.
+    template_mask: None (the whole template, the papers' training), or the MaskNet whose
+        top-k mask picks the template points the network is given (a shipped name such
+        as ``"modelnet40"``, or a ``.safetensors`` file): Mask-X training.
     """
 
     name: str = "pointnetlk"
@@ -45,6 +54,7 @@ class RegistrationTask(PairTask):
     model_config: dict = field(default_factory=dict)
     metric: str = "rotation_error_deg"
     maximize: bool = False
+    template_mask: str | None = None
 
     @classmethod
     def for_network(cls, name: str, pairs: PairConfig | None = None, **kwargs) -> RegistrationTask:
@@ -68,6 +78,8 @@ class RegistrationTask(PairTask):
         template = batch.template.to(device, dtype)
         source = batch.source.to(device, dtype)
         truth = batch.transform.to(device, dtype)
+        if self.template_mask is not None:
+            template = self._masked_template(batch).to(device, dtype)
         solution = model(template, source, max_iterations=self.iterations)
         estimate = solution.transform.to(dtype)
         eye = torch.eye(4, device=device, dtype=dtype)
@@ -80,5 +92,31 @@ class RegistrationTask(PairTask):
             "transform_loss": transform_loss.item(),
         }
 
+    def _masked_template(self, batch: Pairs) -> Tensor:
+        """(B, M, 3): the template points the frozen MaskNet keeps for each pair."""
+        network = getattr(self, "_mask_network", None)
+        if network is None:
+            network = load_mask_network(self.template_mask)
+            self._mask_network = network
+        mask = network.predict_mask(batch.template.numpy(), batch.source.numpy())
+        index = torch.from_numpy(np.stack([np.flatnonzero(m) for m in mask]))
+        return torch.gather(batch.template, 1, index[..., None].expand(-1, -1, 3))
+
     def describe_extra(self) -> dict:
-        return {"iterations": self.iterations, "auxiliary_weight": self.auxiliary_weight}
+        extra = {"iterations": self.iterations, "auxiliary_weight": self.auxiliary_weight}
+        if self.template_mask is not None:
+            extra["template_mask"] = self.template_mask
+        return extra
+
+
+def load_mask_network(name: str) -> nn.Module:
+    """A frozen MaskNet in eval mode: shipped weights by name, or a ``.safetensors`` file."""
+    from pathlib import Path
+
+    from masknet.models import MaskNet
+
+    if Path(name).suffix == ".safetensors" or Path(name).exists():
+        network = MaskNet.from_file(name)
+    else:
+        network = MaskNet.pretrained(name)
+    return network.eval().requires_grad_(False)

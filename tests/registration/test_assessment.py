@@ -1,0 +1,119 @@
+"""assess_registration: each rule of the verdict, alone and through the whole measure."""
+
+import numpy as np
+import pytest
+import torch
+
+from masknet.data import bundled_sample_path, load_modelnet40
+from masknet.errors import MaskNetError
+from masknet.geometry.se3 import so3_exp
+from masknet.registration.assessment import (
+    CORRECT_DEG,
+    CORRECT_FIT,
+    CORRECT_SHIFT,
+    RULE_VERDICTS,
+    WRONG_DEG,
+    WRONG_FIT,
+    WRONG_SHIFT,
+    assess_registration,
+    verdict_rule,
+)
+
+
+@pytest.fixture(scope="module")
+def shape() -> np.ndarray:
+    return load_modelnet40(bundled_sample_path()).points[3].astype(np.float64)
+
+
+def turned(points: np.ndarray, degrees: float, shift: float = 0.0) -> np.ndarray:
+    """(4, 4): a turn by ``degrees`` about a fixed axis through the points' centroid, then a
+    shift of ``shift`` along x."""
+    axis = np.array([0.3, 0.8, 0.5]) / np.linalg.norm([0.3, 0.8, 0.5])
+    rotation = so3_exp(torch.tensor(axis * np.radians(degrees))).numpy()
+    pose = np.eye(4)
+    centre = points.mean(0)
+    pose[:3, :3] = rotation
+    pose[:3, 3] = centre - rotation @ centre + [shift, 0.0, 0.0]
+    return pose
+
+
+@pytest.mark.parametrize(
+    ("overlap_fit", "degrees", "shift", "rule"),
+    [
+        (WRONG_FIT - 0.01, 0.0, 0.0, "overlap"),  # a poor fit, however near
+        (1.0, WRONG_DEG, 0.0, "nearby"),  # a fit as far as WRONG_DEG
+        (1.0, 0.0, WRONG_SHIFT, "nearby"),  # or as far as WRONG_SHIFT
+        (WRONG_FIT - 0.01, WRONG_DEG, 0.0, "overlap"),  # the overlap rule comes first
+        (CORRECT_FIT, CORRECT_DEG, CORRECT_SHIFT, "correct"),  # every bound inclusive
+        (CORRECT_FIT - 0.01, 0.0, 0.0, "between"),  # fits, but not well enough
+        (1.0, CORRECT_DEG + 0.1, 0.0, "between"),  # a few degrees from the fit
+        (1.0, 0.0, CORRECT_SHIFT + 0.01, "between"),  # a little shifted from it
+    ],
+)
+def test_each_rule_decides_at_its_bound(overlap_fit, degrees, shift, rule):
+    assert verdict_rule(overlap_fit, degrees, shift) == rule
+
+
+def test_the_rules_give_the_three_verdicts():
+    assert sorted(set(RULE_VERDICTS.values())) == ["likely correct", "likely wrong", "uncertain"]
+
+
+@pytest.mark.parametrize(
+    ("degrees", "shift", "verdict", "reason"),
+    [
+        (0.0, 0.0, "likely correct", "at the nearest fit"),
+        (2.0, 0.0, "likely correct", "at the nearest fit"),
+        (5.0, 0.0, "uncertain", "at the nearest fit"),
+        (10.0, 0.0, "likely wrong", "fits better"),  # the nearby rule, by its angle
+        (0.0, 0.3, "likely wrong", "fits better"),  # the nearby rule, by its shift
+        (0.0, 6.0, "likely wrong", "only 0% of the overlap"),  # nothing near: the overlap rule
+    ],
+)
+def test_verdict_of_poses_off_the_truth(shape, degrees, shift, verdict, reason):
+    partial = shape[shape[:, 0] < np.quantile(shape[:, 0], 0.7)]
+    check = assess_registration(shape, partial, turned(partial, degrees, shift))
+    assert check.verdict == verdict, check
+    assert reason in check.reason
+    if verdict != "likely wrong" or shift < 1:
+        # The nearest fit is the truth: a short ICP finds the turn that was made.
+        assert check.nearby_deg == pytest.approx(degrees, abs=0.2)
+
+
+def test_a_wrong_pose_whose_nearest_fit_fits_well_is_caught_by_distance(shape):
+    """10 degrees off: the overlap fit at the nearest fit is perfect, so only the distance
+    to that fit can say the pose is wrong."""
+    check = assess_registration(shape, shape, turned(shape, 10.0))
+    assert check.overlap_fit >= CORRECT_FIT
+    assert check.nearby_deg >= WRONG_DEG
+    assert check.verdict == "likely wrong"
+
+
+def test_units_do_not_change_the_verdict(shape):
+    pose = turned(shape, 5.0)
+    in_mm = pose.copy()
+    in_mm[:3, 3] *= 1000
+    a = assess_registration(shape, shape, pose)
+    b = assess_registration(shape * 1000, shape * 1000, in_mm)
+    assert a.verdict == b.verdict == "uncertain"
+    assert b.max_correspondence_distance == pytest.approx(1000 * a.max_correspondence_distance)
+    assert b.nearby_deg == pytest.approx(a.nearby_deg, abs=1e-3)
+
+
+def test_a_given_distance_is_used(shape):
+    check = assess_registration(shape, shape, np.eye(4), max_correspondence_distance=0.05)
+    assert check.max_correspondence_distance == 0.05
+
+
+@pytest.mark.parametrize(
+    ("template", "source", "transform", "match"),
+    [
+        ("batch", "batch", np.eye(4), "one pair"),
+        (None, None, np.full((4, 4), np.nan), "transform"),
+        (None, None, np.diag([2.0, 1.0, 1.0, 1.0]), "rigid"),
+    ],
+)
+def test_refusals(shape, template, source, transform, match):
+    template = {None: shape, "batch": np.stack([shape, shape])}[template]
+    source = {None: shape, "batch": np.stack([shape, shape])}[source]
+    with pytest.raises(MaskNetError, match=match):
+        assess_registration(template, source, transform)
