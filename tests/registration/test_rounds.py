@@ -10,9 +10,9 @@ from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_
 from masknet.geometry.clouds import Frame
 from masknet.registration.backends import BackendRun
 from masknet.registration.backends import icp as icp_backend
+from masknet.registration.backends.base import keep_source_points
 from masknet.registration.pipeline import REFINE_POINTS
 from masknet.registration.refinement import NearestNeighbourMasks
-from masknet.registration.rounds import keep_source_points
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 

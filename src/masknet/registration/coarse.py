@@ -145,207 +145,24 @@ def coarse_to_fine(
     ``predict_masks(template, source)`` gives the network's masks over the clouds it is
     given ((N,) and (M,) bool: the template's overlap, the source's kept points); None
     searches without masks."""
-    full_source, full_template = source, template
-
-    def clock(stage: str, since: float) -> float:
-        now = time.perf_counter()
-        times[stage] = times.get(stage, 0.0) + now - since
-        return now
-
-    tic = time.perf_counter()
-    if prepared is None:
-        prepared = prepare_pair(full_template, full_source, options.fine_points)
-    template, tree, spacing, source = prepared[:4]
-    limit = FIT_SPACINGS * spacing
-    radius = float(np.linalg.norm(template - template.mean(0), axis=1).max())
-    # Isolated source points (uniform outliers, stray returns) would cap every pose's
-    # fitness below what a correct pose reaches: the score counts the rest.
-    surface, checked = prepared.surface, prepared.checked
-    small = options.hypothesis_size(len(source))  # points of the hypotheses' short ICP
-    probe = random_subset(source[surface], small * 2)
-    scored: list[Scored] = []
-
-    def refine(pose: np.ndarray, points: np.ndarray, kind: str, loose: bool = False) -> Scored:
-        """ICP from ``pose`` with pairs cut at ``max_correspondence_distance`` (first at twice that
-        with ``loose``), scored on ``points``. The tight cut-off alone can stop a few
-        degrees short: from 3 degrees off a clean pair it settled 1.1 degrees off, where
-        a looser one first reaches the exact pose."""
-        tf = pose
-        for cut in ((2 * options.cut(spacing),) if loose else ()) + (options.cut(spacing),):
-            tf = icp(
-                template,
-                points,
-                tf,
-                options.inlier_iterations,
-                REFINE_TOLERANCE,
-                max_correspondence_distance=cut,
-                template_tree=tree,
-            ).transform[0]
-        return Scored(*pose_fit(tree, points, tf, limit), tf, kind)
-
-    # 1. Correspondence hypotheses at each grid, in order, scored as RANSAC left them;
-    # the best two refined, and the search ends at the first grid whose best fits.
-    grids: list[tuple[FeatureCloud, FeatureCloud, np.ndarray]] = []  # source, template, matches
-
-    def correspondence_poses(grid: tuple, pairs: np.ndarray, kind: str, points: np.ndarray):
-        found = ransac_poses(
-            grid[0].points[pairs[:, 0]],
-            grid[1].points[pairs[:, 1]],
-            1.5 * grid[0].voxel,
-            trials=options.ransac_trials,
-            keep=options.correspondence_hypotheses,
-        )
-        poses = found.transform
-        if len(pairs) >= COMPATIBILITY_MIN_MATCHES:
-            compatible = compatible_poses(
-                grid[0].points[pairs[:, 0]],
-                grid[1].points[pairs[:, 1]],
-                1.5 * grid[0].voxel,
-                seeds=options.compatibility_hypotheses,
-            )
-            poses = np.concatenate([poses, compatible.transform])
-        fits = pose_fits(tree, points, poses, limit)
-        scored.extend(Scored(*f, p, kind) for f, p in zip(fits, poses, strict=True))
-
-    early: list[Scored] | None = None
-    kept_source = source[surface]
-    if _has_open3d() and options.correspondence_hypotheses:
-        # A larger template gets finer grids: features of a room at an object's
-        # resolution would see walls and little else.
-        growth = float(np.clip(np.sqrt(len(full_template) / 1024), 1, 8))
-        voxels = [
-            max(voxel_for(full_template, int(count * growth), radius), spacing)
-            for count in options.feature_points
-        ]
-        for voxel in dict.fromkeys(voxels):  # two grids may come out alike on small clouds
-            grid_s = feature_cloud(full_source, voxel)
-            grid_t = feature_cloud(full_template, voxel)
-            grid = (grid_s, grid_t, mutual_matches(grid_s.features, grid_t.features))
-            grids.append(grid)
-            tic = clock("features", tic)
-            before = len(scored)
-            correspondence_poses(grid, grid[2], "fpfh", probe)
-            if len(scored) > before:
-                # The two best distinct poses, refined: a symmetric shape's flip can lead
-                # RANSAC's ranking, and a close second makes the answer ambiguous. A
-                # second that fits AS_GIVEN_GAP below the best is neither (it seldom
-                # climbs that far), and its refinement is skipped.
-                # This grid's own: an earlier grid's best were refined already.
-                tops = _distinct(sorted(scored[before:], key=_rank, reverse=True), 2, limit)
-                tops = [s for s in tops if s.score >= tops[0].score - AS_GIVEN_GAP]
-                refined = [refine(s.pose, kept_source, "fpfh") for s in tops]
-                check = pose_fits(tree, source[checked], np.stack([f.pose for f in refined]), limit)
-                if max(f.fitness for f in check) >= options.accept_fitness:
-                    early = refined
-            tic = clock("ransac", tic)
-            if early is not None:
-                break
+    search = _Search(template, source, options, times, prepared)
+    early = search.correspondences()  # 1. hypotheses from FPFH matches; the early exit
     mask = source_mask = None
     if early is not None:
-        start = _short_icp_from_identity(template, kept_source, small, options.max_iterations)
-        finals = early + _as_given(early, start, kept_source, tree, limit, options, refine)
-    else:
-        # 2. The learned side: both masks once, then masked matches and rotations.
+        finals = early + search.as_given_after_exit(early)
+    else:  # 2. the learned side: both masks once, then masked matches and rotations
         if predict_masks is not None:
-            mask, source_mask = predict_masks(template, source)
-            if (source_mask & surface).sum() >= MIN_POINTS:
-                kept_source = source[source_mask & surface]
-            else:
-                source_mask = np.ones(len(source), bool)
-            tic = clock("mask", tic)
-            for grid in grids:  # the matches that touch no rejected point, again
-                keep_s = _voxel_labels(grid[0].points, source, source_mask)
-                keep_t = _voxel_labels(grid[1].points, template, mask)
-                masked = grid[2][keep_s[grid[2][:, 0]] & keep_t[grid[2][:, 1]]]
-                if len(masked) >= MIN_POINTS:
-                    correspondence_poses(grid, masked, "fpfh-masked", probe)
-                tic = clock("ransac", tic)
-        # Every hypothesis through a short ICP at hypothesis resolution (the
-        # correspondence poses against the whole template, the rotations against the
-        # masked part), then scored on the same kept points.
-        points = random_subset(kept_source, small * 2)
-        src_small = random_subset(kept_source, small)
-        whole_small = random_subset(template, small)
-        if scored:
-            poses = icp_from_starts(
-                cloud_tree(whole_small),
-                whole_small,
-                src_small,
-                np.stack([s.pose for s in scored]),
-                options.max_iterations,
-            )
-            # Both as found and after the short ICP: on a large scene the ICP at
-            # hypothesis resolution can move a good pose off.
-            both = np.concatenate([np.stack([s.pose for s in scored]), poses])
-            kinds = [s.kind for s in scored] * 2
-            fits = pose_fits(tree, points, both, limit)
-            scored[:] = [Scored(*f, p, k) for f, p, k in zip(fits, both, kinds, strict=True)]
-        # The clouds as they are: consecutive scans often start close.
-        as_given = _short_icp_from_identity(template, kept_source, small, options.max_iterations)
-        both = np.stack([np.eye(4), as_given])
-        fits = pose_fits(tree, points, both, limit)
-        scored.extend(Scored(*f, p, "as given") for f, p in zip(fits, both, strict=True))
-        target = template if mask is None or mask.sum() < MIN_POINTS else template[mask]
-        target_small = random_subset(target, small)
-        src_centre, tgt_centre = src_small.mean(0), target.mean(0)
-        rotations = hypothesis_rotations(24)[: options.hypotheses]
-        if len(rotations):
-            starts = np.tile(np.eye(4), (len(rotations), 1, 1))
-            starts[:, :3, :3] = rotations
-            starts[:, :3, 3] = tgt_centre - rotations @ src_centre
-            poses = icp_from_starts(
-                cloud_tree(target_small), target_small, src_small, starts, options.max_iterations
-            )
-            fits = pose_fits(tree, points, poses, limit)
-            scored.extend(Scored(*f, p, "rotation") for f, p in zip(fits, poses, strict=True))
-        tic = clock("hypotheses", tic)
-        # 3. The best few, refined with the pair cut-off, rescored on all kept points.
-        scored.sort(key=_rank, reverse=True)
-        # Candidates from different basins (CANDIDATE_BASIN): close poses refine into one.
-        best_few = _distinct(
-            scored, options.candidates, CANDIDATE_BASIN * radius, options.distinct_deg
-        )
-        finals = [refine(s.pose, kept_source, s.kind) for s in best_few]
-        tic = clock("refine", tic)
-    if not finals:  # no hypothesis at all (too few points for features): the identity
-        finals = [Scored(*pose_fit(tree, kept_source, np.eye(4), limit), np.eye(4), "identity")]
-    # Refined answers that met in one basin are one answer: only different poses that fit
-    # alike make the choice below (and its re-refinement) necessary.
-    finals = _distinct(sorted(finals, key=_rank, reverse=True), len(finals), limit)
-    # Among answers that fit alike (within the margin), the least rotation from the pose
-    # as given wins: the data cannot choose, and the input is the only other evidence. The
-    # result says so (ambiguous, with the runner-up).
-    alike = [f for f in finals if f.score >= finals[0].score - options.ambiguity_margin]
-    if len(alike) > 1:
-        # Before the input decides, the fits each answer reaches when refined as far as
-        # it goes (a looser cut-off first) rank them; the answers keep their poses and
-        # their own fits, as a looser cut-off can also move a right pose on a partial scan.
-        reached = {id(f): refine(f.pose, kept_source, f.kind, loose=True).score for f in finals}
-        finals.sort(key=lambda f: reached[id(f)], reverse=True)
-        top = reached[id(finals[0])]
-        alike = [f for f in finals if reached[id(f)] >= top - options.ambiguity_margin]
-    else:
-        reached = {id(f): f.score for f in finals}
-    winner = min(alike, key=lambda f: rotation_between_deg(f.pose, np.eye(4)))
-    rival = next(
-        (
-            f
-            for f in finals
-            if f is not winner and rotation_between_deg(f.pose, winner.pose) >= options.distinct_deg
-        ),
-        None,
-    )
-    ambiguous = (
-        rival is not None and reached[id(rival)] >= reached[id(winner)] - options.ambiguity_margin
-    )
+            mask, source_mask = search.masks(predict_masks)
+        finals = search.hypotheses(mask)
+    winner, rival, ambiguous = search.choose(finals)
     transform = winner.pose
     if predict_masks is not None:  # the template points the moved kept source covers
         # (also after an early exit, where the network never ran)
-        moved = transform_points(transform, kept_source)
-        mask = cloud_tree(moved).query(full_template, k=1)[0] <= limit
-    if source_mask is not None and len(source) < len(full_source):
+        moved = transform_points(transform, search.kept_source)
+        mask = cloud_tree(moved).query(template, k=1)[0] <= search.limit
+    if source_mask is not None and len(search.source) < len(source):
         # Each point of the whole source takes the label of its nearest subset point.
-        source_mask = spread_labels(full_source, source, source_mask)
+        source_mask = spread_labels(source, search.source, source_mask)
     info = {
         "path": "correspondences" if early is not None else "search",
         "source": winner.kind,
@@ -356,9 +173,251 @@ def coarse_to_fine(
         "runner_up": None if rival is None else rival.pose,
         "runner_up_fitness": float("nan") if rival is None else rival.fitness,
         "runner_up_score": float("nan") if rival is None else rival.score,
-        "hypotheses": len(scored),
+        "hypotheses": len(search.scored),
     }
     return CoarseRun(transform, mask, source_mask, info)
+
+
+class _Search:
+    """One pair's search: the prepared pair, every hypothesis scored so far (``scored``),
+    and the stages of :func:`coarse_to_fine`, each a method. Stage times go to ``times``."""
+
+    def __init__(
+        self,
+        template: np.ndarray,
+        source: np.ndarray,
+        options: RobustOptions,
+        times: dict[str, float],
+        prepared: PreparedPair | None,
+    ) -> None:
+        self.tic = time.perf_counter()
+        if prepared is None:
+            prepared = prepare_pair(template, source, options.fine_points)
+        self.full_template, self.full_source = template, source
+        self.template, self.tree, self.spacing, self.source = prepared[:4]
+        self.options, self.times = options, times
+        self.limit = FIT_SPACINGS * self.spacing
+        self.radius = float(np.linalg.norm(self.template - self.template.mean(0), axis=1).max())
+        # Isolated source points (uniform outliers, stray returns) would cap every pose's
+        # fitness below what a correct pose reaches: the score counts the rest.
+        self.surface, self.checked = prepared.surface, prepared.checked
+        self.small = options.hypothesis_size(len(self.source))  # the hypotheses' short ICP
+        self.probe = random_subset(self.source[self.surface], self.small * 2)
+        self.kept_source = self.source[self.surface]
+        self.scored: list[Scored] = []
+        # (source grid, template grid, their mutual matches), for the masked RANSAC
+        self.grids: list[tuple[FeatureCloud, FeatureCloud, np.ndarray]] = []
+
+    def clock(self, stage: str) -> None:
+        """Add the seconds since the last clock to ``stage``."""
+        now = time.perf_counter()
+        self.times[stage] = self.times.get(stage, 0.0) + now - self.tic
+        self.tic = now
+
+    def refine(
+        self, pose: np.ndarray, points: np.ndarray, kind: str, loose: bool = False
+    ) -> Scored:
+        """ICP from ``pose`` with pairs cut at ``max_correspondence_distance`` (first at twice
+        that with ``loose``), scored on ``points``. The tight cut-off alone can stop a few
+        degrees short: from 3 degrees off a clean pair it settled 1.1 degrees off, where a
+        looser one first reaches the exact pose."""
+        tf, cut = pose, self.options.cut(self.spacing)
+        for limit in ((2 * cut,) if loose else ()) + (cut,):
+            tf = icp(
+                self.template,
+                points,
+                tf,
+                self.options.inlier_iterations,
+                REFINE_TOLERANCE,
+                max_correspondence_distance=limit,
+                template_tree=self.tree,
+            ).transform[0]
+        return Scored(*pose_fit(self.tree, points, tf, self.limit), tf, kind)
+
+    def score(self, poses: np.ndarray, points: np.ndarray, kinds: list[str] | str) -> None:
+        """Score ``poses`` (H, 4, 4) on ``points`` and add them to the hypotheses."""
+        kinds = [kinds] * len(poses) if isinstance(kinds, str) else kinds
+        fits = pose_fits(self.tree, points, poses, self.limit)
+        self.scored.extend(Scored(*f, p, k) for f, p, k in zip(fits, poses, kinds, strict=True))
+
+    def correspondence_poses(self, grid: tuple, pairs: np.ndarray, kind: str) -> None:
+        """RANSAC's best poses from the matches ``pairs`` of ``grid`` (and, with enough
+        matches, poses of mutually compatible groups), scored on the probe points."""
+        source_points, template_points = grid[0].points[pairs[:, 0]], grid[1].points[pairs[:, 1]]
+        threshold = 1.5 * grid[0].voxel
+        poses = ransac_poses(
+            source_points,
+            template_points,
+            threshold,
+            trials=self.options.ransac_trials,
+            keep=self.options.correspondence_hypotheses,
+        ).transform
+        if len(pairs) >= COMPATIBILITY_MIN_MATCHES:
+            compatible = compatible_poses(
+                source_points,
+                template_points,
+                threshold,
+                seeds=self.options.compatibility_hypotheses,
+            )
+            poses = np.concatenate([poses, compatible.transform])
+        self.score(poses, self.probe, kind)
+
+    def correspondences(self) -> list[Scored] | None:
+        """Correspondence hypotheses at each grid, in order, scored as RANSAC left them; the
+        best two refined. The refined answers where one fits as a right pose does (the
+        early exit), else None once every grid is done."""
+        options = self.options
+        if not (_has_open3d() and options.correspondence_hypotheses):
+            return None
+        # A larger template gets finer grids: features of a room at an object's
+        # resolution would see walls and little else.
+        growth = float(np.clip(np.sqrt(len(self.full_template) / 1024), 1, 8))
+        voxels = [
+            max(voxel_for(self.full_template, int(count * growth), self.radius), self.spacing)
+            for count in options.feature_points
+        ]
+        for voxel in dict.fromkeys(voxels):  # two grids may come out alike on small clouds
+            grid_s = feature_cloud(self.full_source, voxel)
+            grid_t = feature_cloud(self.full_template, voxel)
+            grid = (grid_s, grid_t, mutual_matches(grid_s.features, grid_t.features))
+            self.grids.append(grid)
+            self.clock("features")
+            before = len(self.scored)
+            self.correspondence_poses(grid, grid[2], "fpfh")
+            early = self._exit_at(self.scored[before:]) if len(self.scored) > before else None
+            self.clock("ransac")
+            if early is not None:
+                return early
+        return None
+
+    def _exit_at(self, found: list[Scored]) -> list[Scored] | None:
+        """The two best distinct poses of one grid (``found``), refined, where one fits as a
+        right pose does (``accept_fitness`` over the checked points); else None. A
+        symmetric shape's flip can lead RANSAC's ranking, and a close second makes the
+        answer ambiguous. A second that fits AS_GIVEN_GAP below the best is neither (it
+        seldom climbs that far), and its refinement is skipped."""
+        tops = _distinct(sorted(found, key=_rank, reverse=True), 2, self.limit)
+        tops = [s for s in tops if s.score >= tops[0].score - AS_GIVEN_GAP]
+        refined = [self.refine(s.pose, self.kept_source, "fpfh") for s in tops]
+        poses = np.stack([f.pose for f in refined])
+        check = pose_fits(self.tree, self.source[self.checked], poses, self.limit)
+        return refined if max(f.fitness for f in check) >= self.options.accept_fitness else None
+
+    def as_given_after_exit(self, early: list[Scored]) -> list[Scored]:
+        """The clouds as they are, beside the early exit's answers (:func:`_as_given`)."""
+        start = _short_icp_from_identity(
+            self.template, self.kept_source, self.small, self.options.max_iterations
+        )
+        return _as_given(
+            early, start, self.kept_source, self.tree, self.limit, self.options, self.refine
+        )
+
+    def masks(self, predict_masks: MaskFunction) -> tuple[np.ndarray, np.ndarray]:
+        """The network's masks, once; the kept source narrowed to them; RANSAC again on
+        each grid's matches that touch no rejected point."""
+        mask, source_mask = predict_masks(self.template, self.source)
+        if (source_mask & self.surface).sum() >= MIN_POINTS:
+            self.kept_source = self.source[source_mask & self.surface]
+        else:
+            source_mask = np.ones(len(self.source), bool)
+        self.clock("mask")
+        for grid in self.grids:
+            keep_s = _voxel_labels(grid[0].points, self.source, source_mask)
+            keep_t = _voxel_labels(grid[1].points, self.template, mask)
+            masked = grid[2][keep_s[grid[2][:, 0]] & keep_t[grid[2][:, 1]]]
+            if len(masked) >= MIN_POINTS:
+                self.correspondence_poses(grid, masked, "fpfh-masked")
+            self.clock("ransac")
+        return mask, source_mask
+
+    def hypotheses(self, mask: np.ndarray | None) -> list[Scored]:
+        """Every hypothesis through a short ICP at hypothesis resolution (the correspondence
+        poses against the whole template, the rotations against the masked part), scored
+        on the same kept points; the best few from different basins, refined."""
+        options, small = self.options, self.small
+        points = random_subset(self.kept_source, small * 2)
+        src_small = random_subset(self.kept_source, small)
+        whole_small = random_subset(self.template, small)
+        if self.scored:
+            found = np.stack([s.pose for s in self.scored])
+            poses = icp_from_starts(
+                cloud_tree(whole_small), whole_small, src_small, found, options.max_iterations
+            )
+            # Both as found and after the short ICP: on a large scene the ICP at
+            # hypothesis resolution can move a good pose off.
+            kinds = [s.kind for s in self.scored] * 2
+            self.scored.clear()
+            self.score(np.concatenate([found, poses]), points, kinds)
+        # The clouds as they are: consecutive scans often start close.
+        as_given = _short_icp_from_identity(
+            self.template, self.kept_source, small, options.max_iterations
+        )
+        self.score(np.stack([np.eye(4), as_given]), points, "as given")
+        target = self.template if mask is None or mask.sum() < MIN_POINTS else self.template[mask]
+        target_small = random_subset(target, small)
+        rotations = hypothesis_rotations(24)[: options.hypotheses]
+        if len(rotations):
+            starts = np.tile(np.eye(4), (len(rotations), 1, 1))
+            starts[:, :3, :3] = rotations
+            starts[:, :3, 3] = target.mean(0) - rotations @ src_small.mean(0)
+            poses = icp_from_starts(
+                cloud_tree(target_small), target_small, src_small, starts, options.max_iterations
+            )
+            self.score(poses, points, "rotation")
+        self.clock("hypotheses")
+        # The best few, refined with the pair cut-off, rescored on all kept points;
+        # candidates from different basins (CANDIDATE_BASIN): close poses refine into one.
+        self.scored.sort(key=_rank, reverse=True)
+        best_few = _distinct(
+            self.scored, options.candidates, CANDIDATE_BASIN * self.radius, options.distinct_deg
+        )
+        finals = [self.refine(s.pose, self.kept_source, s.kind) for s in best_few]
+        self.clock("refine")
+        return finals
+
+    def choose(self, finals: list[Scored]) -> tuple[Scored, Scored | None, bool]:
+        """The answer among the refined ``finals``, the runner-up (a pose ``distinct_deg``
+        or more away), and whether the choice is ambiguous (the runner-up fits within
+        ``ambiguity_margin``)."""
+        options = self.options
+        if not finals:  # no hypothesis at all (too few points for features): the identity
+            fit = pose_fit(self.tree, self.kept_source, np.eye(4), self.limit)
+            finals = [Scored(*fit, np.eye(4), "identity")]
+        # Refined answers that met in one basin are one answer: only different poses that
+        # fit alike make the choice below (and its re-refinement) necessary.
+        finals = _distinct(sorted(finals, key=_rank, reverse=True), len(finals), self.limit)
+        # Among answers that fit alike (within the margin), the least rotation from the
+        # pose as given wins: the data cannot choose, and the input is the only other
+        # evidence. The result says so (ambiguous, with the runner-up).
+        alike = [f for f in finals if f.score >= finals[0].score - options.ambiguity_margin]
+        reached = {id(f): f.score for f in finals}
+        if len(alike) > 1:
+            # Before the input decides, the fits each answer reaches when refined as far
+            # as it goes (a looser cut-off first) rank them; the answers keep their poses
+            # and their own fits, as a looser cut-off can also move a right pose on a
+            # partial scan.
+            reached = {
+                id(f): self.refine(f.pose, self.kept_source, f.kind, loose=True).score
+                for f in finals
+            }
+            finals.sort(key=lambda f: reached[id(f)], reverse=True)
+            top = reached[id(finals[0])]
+            alike = [f for f in finals if reached[id(f)] >= top - options.ambiguity_margin]
+        winner = min(alike, key=lambda f: rotation_between_deg(f.pose, np.eye(4)))
+        rival = next(
+            (
+                f
+                for f in finals
+                if f is not winner
+                and rotation_between_deg(f.pose, winner.pose) >= options.distinct_deg
+            ),
+            None,
+        )
+        ambiguous = (
+            rival is not None
+            and reached[id(rival)] >= reached[id(winner)] - options.ambiguity_margin
+        )
+        return winner, rival, ambiguous
 
 
 class Scored(NamedTuple):

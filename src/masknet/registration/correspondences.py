@@ -205,8 +205,7 @@ def ransac_poses(
         consistent &= edges_s.min(1) > threshold  # a degenerate sample fixes no rotation
         if consistent.any():
             poses = rigid_transforms_numpy(s[consistent], t[consistent])
-            moved = transform_points(poses, source[None])
-            near = ((moved - template) ** 2).sum(-1) <= threshold**2  # (H, K)
+            near = matches_within(poses, source, template, threshold)  # (H, K)
             all_poses.append(poses)
             all_near.append(near)
             best = max(best, int(near.sum(1).max()))
@@ -277,9 +276,17 @@ def compatible_poses(
     if not len(weights):
         return empty
     poses = _refit(source, template, weights)
-    near = ((transform_points(poses, source[None]) - template) ** 2).sum(-1) <= threshold**2
+    near = matches_within(poses, source, template, threshold)
     near = near[near.sum(1) >= MIN_POINTS]
     return PoseHypotheses(_refit(source, template, near), near.sum(1))
+
+
+def matches_within(
+    poses: np.ndarray, source: np.ndarray, template: np.ndarray, threshold: float
+) -> np.ndarray:
+    """(H, K) bool: the matches, source (K, 3) to template (K, 3), that each of ``poses``
+    (H, 4, 4) brings within ``threshold``: a pose's consensus."""
+    return ((transform_points(poses, source[None]) - template) ** 2).sum(-1) <= threshold**2
 
 
 def _refit(source: np.ndarray, template: np.ndarray, weights: np.ndarray) -> np.ndarray:

@@ -8,20 +8,17 @@ frame; only the networks' own calls hold tensors.
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
 from typing import Any, NamedTuple
 
 import numpy as np
 
-from masknet.errors import MaskNetError
-from masknet.geometry.clouds import MIN_POINTS
 from masknet.geometry.se3 import transform_points
-from masknet.registration.backends.base import BackendRun
+from masknet.registration.backends.base import BackendRun, check_template_points, usable
 from masknet.registration.fit import RoundFits
 from masknet.registration.methods import adapter
 from masknet.registration.refinement import Refiner
 
-__all__ = ["RoundsResult", "initial_transform", "keep_source_points", "mask_and_register"]
+__all__ = ["RoundsResult", "initial_transform", "mask_and_register"]
 
 
 class RoundsResult(NamedTuple):
@@ -107,50 +104,6 @@ def mask_and_register(
         mask, source_mask = refiner.predict_masks(template, transform_points(total, source))
         times["mask"] += time.perf_counter() - tic
     return RoundsResult(total, mask, source_mask, run, rounds)
-
-
-def keep_source_points(source: np.ndarray, keep: np.ndarray | None) -> np.ndarray:
-    """One pair's kept source points: source (1, M, 3) and ``keep`` (1, M) bool ->
-    (1, M', 3), each kept point once; unchanged where nothing is rejected or fewer than 3
-    points are kept. A batch keeps one shape, so its back-ends take the mask instead (ICP's
-    ``source_valid``) or run pair by pair (the networks)."""
-    if keep is None or source.shape[0] != 1:
-        return source
-    kept = np.flatnonzero(keep[0])
-    return source[:, kept] if 3 <= len(kept) < source.shape[1] else source
-
-
-def check_template_points(fewest: int) -> None:
-    """MaskNetError where a mask keeps fewer than 3 template points of a pair (``fewest``,
-    the smallest count of a batch): nothing can be registered onto them."""
-    if fewest < MIN_POINTS:
-        raise MaskNetError(
-            f"the mask kept {fewest} template point(s); registration needs at least "
-            f"{MIN_POINTS} (lower the threshold, or use top-k)"
-        )
-
-
-def points_in_use(
-    template: np.ndarray,
-    source: np.ndarray,
-    mask: np.ndarray | None,
-    source_mask: np.ndarray | None,
-) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-    """Pair by pair, the template points in use (N', 3) and the kept source points
-    (M', 3) of template (B, N, 3) and source (B, M, 3): for back-ends that take one pair
-    at a time."""
-    keep = usable(source_mask)
-    for i in range(template.shape[0]):
-        target = template[i] if mask is None else template[i][mask[i]]
-        yield target, source[i] if keep is None else source[i][keep[i]]
-
-
-def usable(keep: np.ndarray | None) -> np.ndarray | None:
-    """``keep`` (B, M) bool with pairs that keep under 3 points set to keep all (nothing
-    sensible to register), or None."""
-    if keep is None:
-        return None
-    return np.where((keep.sum(1) >= MIN_POINTS)[:, None], keep, True)
 
 
 def initial_transform(

@@ -47,7 +47,7 @@ Example::
 from __future__ import annotations
 
 import time
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
@@ -269,79 +269,18 @@ def locate(
     radius = max(_radius(template), 1e-12)
     tpl = (template - centre) / radius  # template frame, unit radius
     scn = (scene - centre) / radius
-
     # 1-2. Thinned scene and candidate centres (those with enough scene around them).
     thin = _voxel_thin(scn, opts.voxel)
     # Nearest neighbours in the hot loop, in float32 (the refinement is float64).
     thin_tree = cloud_tree(thin, np.float32)
-    # A scene too large for the budget is searched on a coarser grid (less reliably).
-    spacing = opts.spacing
-    centres = _voxel_thin(thin, spacing)
-    while len(centres) * opts.hypotheses > opts.max_placements:
-        spacing *= 1.25
-        centres = _voxel_thin(thin, spacing)
-    # A region is large enough when its min_region_points-th nearest point lies within it.
-    need = min(opts.min_region_points, len(thin))
-    kth, _ = thin_tree.query(centres.astype(np.float32), k=need, distance_upper_bound=opts.crop)
-    enough = np.isfinite(np.asarray(kth).reshape(len(centres), need)[:, -1])
-    centres = centres[enough if need >= opts.min_region_points else np.zeros(len(centres), bool)]
-    if not len(centres):
-        raise MaskNetError(
-            f"scene search: no region of the scene holds {opts.min_region_points} points "
-            f"within {opts.crop} template radii"
-        )
-
-    # 3. Every rotation at every centre: ICP of the template onto the scene, all
-    # placements at once against one KD-tree of the thinned scene.
+    centres, spacing = _candidate_centres(thin, thin_tree, opts)
     sensor = None if opts.viewpoint is None else (np.asarray(opts.viewpoint) - centre) / radius
     normals = None if sensor is None else _outward_normals(tpl)
-    pick = farthest_point_sample(tpl, opts.hypothesis_points).indices
-    small, small_normals = tpl[pick], None if normals is None else normals[pick]
-    rotations = hypothesis_rotations(opts.hypotheses)
-    count = len(centres) * len(rotations)
-    poses = np.tile(np.eye(4), (count, 1, 1))  # template -> scene
-    poses[:, :3, :3] = np.tile(rotations, (len(centres), 1, 1))
-    poses[:, :3, 3] = np.repeat(centres, len(rotations), axis=0)
-    for iteration in range(opts.max_iterations):
-        moved, matched, d2 = _nearest(poses, small, thin, thin_tree)
-        facing = _facing(poses, moved, small_normals, sensor)
-        if iteration and iteration % PRUNE_EVERY == 0:
-            # Placements that fit worst are dropped as they go: the right one fits early.
-            keep = np.argsort(_scores(d2, facing, opts.trim), kind="stable")
-            keep = keep[: max(len(keep) // 4, opts.candidates)]
-            poses, moved, matched, d2 = poses[keep], moved[keep], matched[keep], d2[keep]
-            facing = None if facing is None else facing[keep]
-        # Trimmed ICP: only the best ``trim`` of each placement's pairs move it, so the
-        # template's parts that the scan does not see do not pull it.
-        weights = _trim_weights(d2, facing, opts.trim)
-        poses = rigid_transforms_numpy(moved, matched, weights) @ poses
-
-    # 4. Trimmed fit of every placement: the best few go on.
-    moved, _, d2 = _nearest(poses, small, thin, thin_tree)
-    scores = _scores(d2, _facing(poses, moved, small_normals, sensor), opts.trim)
-    best = np.argsort(scores, kind="stable")[: opts.candidates]
-
+    # 3-4. Every rotation at every centre, the best few kept.
+    placed = _Placement(tpl, normals, sensor, opts)
+    poses, count = placed.search(centres, thin, thin_tree)
     # 5. The best placements at finer resolution against the thinned scene, rescored.
-    pick = farthest_point_sample(tpl, opts.refine_points).indices
-    fine, fine_normals = tpl[pick], None if normals is None else normals[pick]
-    refined = []
-    for pose in poses[best]:
-        around = thin[np.linalg.norm(thin - pose[:3, 3], axis=1) <= opts.crop + 1.0]
-        for _ in range(1 if sensor is None else 2):  # the side facing the sensor moves
-            seen = _seen(pose, fine, fine_normals, sensor)
-            run = icp(
-                around,
-                fine[seen],
-                pose,
-                max_iterations=2 * opts.max_iterations,
-                max_correspondence_distance=opts.refine_distance,
-            )
-            pose = run.transform[0]
-        seen = _seen(pose, fine, fine_normals, sensor)
-        fit = trimmed_fit(transform_points(pose, fine[seen])[None], around[None], opts.trim)[0]
-        refined.append((fit if seen.mean() >= MIN_FACING else np.inf, pose))
-    pose = min(refined, key=lambda item: item[0])[1]
-
+    pose = placed.best_refined(poses, thin)
     # Last: the full template against the full-resolution scene around the object.
     tolerance = _inlier_distance(tpl, opts)
     around = scn[np.linalg.norm(scn - pose[:3, 3], axis=1) <= 1.0 + opts.refine_distance]
@@ -361,7 +300,6 @@ def locate(
     rmse = float(np.sqrt(np.square(dist[close]).mean())) * radius if close.any() else 0.0
     near = cloud_tree(moved_tpl).query(scn, k=1, distance_upper_bound=tolerance)[0]
     source_mask = np.isfinite(near)  # (P,) bool: scene points on the moved template
-
     # pose maps unit-frame template -> unit-frame scene; invert and leave the unit frame:
     # template = centre + radius * tpl, scene = centre + radius * scn.
     inverse = np.linalg.inv(pose)
@@ -370,6 +308,102 @@ def locate(
     transform[:3, 3] = centre + radius * inverse[:3, 3] - inverse[:3, :3] @ centre
     seconds = time.perf_counter() - tic
     return SceneMatch(transform, source_mask, coverage, rmse, len(centres), count, seconds, spacing)
+
+
+def _candidate_centres(
+    thin: np.ndarray, thin_tree: Any, opts: SceneSearch
+) -> tuple[np.ndarray, float]:
+    """Centres (C, 3) on a grid over the thinned scene (T, 3) with enough scene around
+    them, and the grid's spacing (coarser than asked for a scene too large for the
+    budget, and then searched less reliably)."""
+    spacing = opts.spacing
+    centres = _voxel_thin(thin, spacing)
+    while len(centres) * opts.hypotheses > opts.max_placements:
+        spacing *= 1.25
+        centres = _voxel_thin(thin, spacing)
+    # A region is large enough when its min_region_points-th nearest point lies within it.
+    need = min(opts.min_region_points, len(thin))
+    kth, _ = thin_tree.query(centres.astype(np.float32), k=need, distance_upper_bound=opts.crop)
+    enough = np.isfinite(np.asarray(kth).reshape(len(centres), need)[:, -1])
+    centres = centres[enough if need >= opts.min_region_points else np.zeros(len(centres), bool)]
+    if not len(centres):
+        raise MaskNetError(
+            f"scene search: no region of the scene holds {opts.min_region_points} points "
+            f"within {opts.crop} template radii"
+        )
+    return centres, spacing
+
+
+class _Placement:
+    """The template (unit frame, (N, 3)), its outward normals (N, 3) and the sensor (3,) (both
+    None without a viewpoint), for placing it in a scene."""
+
+    def __init__(
+        self,
+        tpl: np.ndarray,
+        normals: np.ndarray | None,
+        sensor: np.ndarray | None,
+        opts: SceneSearch,
+    ) -> None:
+        self.tpl, self.normals, self.sensor, self.opts = tpl, normals, sensor, opts
+
+    def search(
+        self, centres: np.ndarray, thin: np.ndarray, thin_tree: Any
+    ) -> tuple[np.ndarray, int]:
+        """Every rotation at every centre (C, 3): trimmed ICP of the template onto the thinned
+        scene (T, 3), all placements at once against one KD-tree. The best ``candidates``
+        poses (K, 4, 4), template -> scene, best first, and how many placements started."""
+        opts, sensor = self.opts, self.sensor
+        pick = farthest_point_sample(self.tpl, opts.hypothesis_points).indices
+        small = self.tpl[pick]
+        small_normals = None if self.normals is None else self.normals[pick]
+        rotations = hypothesis_rotations(opts.hypotheses)
+        count = len(centres) * len(rotations)
+        poses = np.tile(np.eye(4), (count, 1, 1))  # template -> scene
+        poses[:, :3, :3] = np.tile(rotations, (len(centres), 1, 1))
+        poses[:, :3, 3] = np.repeat(centres, len(rotations), axis=0)
+        for iteration in range(opts.max_iterations):
+            moved, matched, d2 = _nearest(poses, small, thin, thin_tree)
+            facing = _facing(poses, moved, small_normals, sensor)
+            if iteration and iteration % PRUNE_EVERY == 0:
+                # Placements that fit worst are dropped as they go: the right one fits early.
+                keep = np.argsort(_scores(d2, facing, opts.trim), kind="stable")
+                keep = keep[: max(len(keep) // 4, opts.candidates)]
+                poses, moved, matched, d2 = poses[keep], moved[keep], matched[keep], d2[keep]
+                facing = None if facing is None else facing[keep]
+            # Trimmed ICP: only the best ``trim`` of each placement's pairs move it, so the
+            # template's parts that the scan does not see do not pull it.
+            weights = _trim_weights(d2, facing, opts.trim)
+            poses = rigid_transforms_numpy(moved, matched, weights) @ poses
+        # Trimmed fit of every placement: the best few go on.
+        moved, _, d2 = _nearest(poses, small, thin, thin_tree)
+        scores = _scores(d2, _facing(poses, moved, small_normals, sensor), opts.trim)
+        return poses[np.argsort(scores, kind="stable")[: opts.candidates]], count
+
+    def best_refined(self, poses: np.ndarray, thin: np.ndarray) -> np.ndarray:
+        """(4, 4): the best of ``poses`` (K, 4, 4) after ICP at finer resolution against the
+        thinned scene (T, 3) around each, by their trimmed fit."""
+        opts, sensor = self.opts, self.sensor
+        pick = farthest_point_sample(self.tpl, opts.refine_points).indices
+        fine = self.tpl[pick]
+        fine_normals = None if self.normals is None else self.normals[pick]
+        refined = []
+        for pose in poses:
+            around = thin[np.linalg.norm(thin - pose[:3, 3], axis=1) <= opts.crop + 1.0]
+            for _ in range(1 if sensor is None else 2):  # the side facing the sensor moves
+                seen = _seen(pose, fine, fine_normals, sensor)
+                run = icp(
+                    around,
+                    fine[seen],
+                    pose,
+                    max_iterations=2 * opts.max_iterations,
+                    max_correspondence_distance=opts.refine_distance,
+                )
+                pose = run.transform[0]
+            seen = _seen(pose, fine, fine_normals, sensor)
+            fit = trimmed_fit(transform_points(pose, fine[seen])[None], around[None], opts.trim)[0]
+            refined.append((fit if seen.mean() >= MIN_FACING else np.inf, pose))
+        return min(refined, key=lambda item: item[0])[1]
 
 
 def polish(

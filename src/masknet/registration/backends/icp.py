@@ -8,11 +8,10 @@ import numpy as np
 import torch
 
 from masknet.errors import MaskNetError
-from masknet.registration.backends.base import BackendRun
+from masknet.registration.backends.base import BackendRun, points_in_use, usable
 from masknet.registration.icp import icp
 from masknet.registration.open3d_icp import open3d_icp
 from masknet.registration.options import ICPCriteria, Open3DICPOptions, as_dict
-from masknet.registration.rounds import points_in_use, usable
 
 __all__ = ["run_icp", "run_open3d_icp"]
 

@@ -7,9 +7,13 @@ import torch
 
 from masknet.geometry.clouds import unit_radius
 from masknet.geometry.sampling import farthest_point_sample
-from masknet.registration.backends.base import BackendRun
+from masknet.registration.backends.base import (
+    BackendRun,
+    check_template_points,
+    keep_source_points,
+    usable,
+)
 from masknet.registration.options import NetworkOptions, PointNetLKOptions
-from masknet.registration.rounds import check_template_points, keep_source_points, usable
 
 __all__ = ["run_network"]
 

@@ -5,9 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from masknet.geometry.clouds import unit_radius
-from masknet.registration.backends.base import BackendRun
+from masknet.registration.backends.base import BackendRun, points_in_use
 from masknet.registration.options import FGROptions, RANSACOptions, as_dict
-from masknet.registration.rounds import points_in_use
 
 __all__ = ["run_fgr", "run_ransac"]
 
