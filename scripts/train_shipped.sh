@@ -118,3 +118,9 @@ $M train --model refine --scans ../shared/data/scans_train --out runs/refinemask
 #     --eval-scans ../shared/data/scans --pairs 300 --pairs-per-scan 15 --version 1.2 --note "..."
 # then scripts/mask_precision_ceiling.py with and without --validation (its held-out scans come
 # from the shipped card), and git checkout the shipped refinement files back.
+# Not shipped (docs/RESULTS.md, "Where Mask-PointNetLK's error comes from"): PointNetLK fine-tuned
+# on what it sees inside Mask-PointNetLK, the template points the shipped MaskNet keeps against the
+# partial source (stopped by hand after epoch 3 of 10; its best epoch is 2).
+$M train --model pointnetlk --init modelnet40 --template-mask modelnet40 --keep-ratio 0.7 --num-points 512 \
+    --out runs/pointnetlk_masked --epochs 10 --lr 1e-4 --lr-schedule cosine --val-pairs 256 --threads 2 \
+    $(resume runs/pointnetlk_masked)

@@ -156,3 +156,23 @@ def test_backends_import_nothing_that_dispatches_into_them():
     for path in (SRC / "registration" / "backends").glob("*.py"):
         imported = re.findall(r"from (masknet\.[\w.]+) import", path.read_text())
         assert not set(imported) & dispatchers, f"{path.name} imports {set(imported) & dispatchers}"
+
+
+@pytest.mark.parametrize(
+    ("old", "name", "new"),
+    [
+        ("masknet.registration.prepared", "pose_fit", "masknet.registration.fit"),
+        ("masknet.registration.prepared", "PoseFit", "masknet.registration.fit"),
+        ("masknet.registration.rounds", "RoundFits", "masknet.registration.fit"),
+        ("masknet.registration.rounds", "keep_source_points", "masknet.registration.backends.base"),
+        ("masknet.registration.refinement", "FIT_SLACK", "masknet.registration.fit"),
+        ("masknet.registration.api", "REFINE_POINTS", "masknet.registration.pipeline"),
+    ],
+)
+def test_a_moved_name_still_imports_with_a_warning_naming_its_new_place(old, name, new):
+    module = importlib.import_module(old)
+    with pytest.warns(DeprecationWarning, match=f"{new}.{name}"):
+        value = getattr(module, name)
+    assert value is getattr(importlib.import_module(new), name)
+    with pytest.raises(AttributeError):
+        module.no_such_name  # noqa: B018

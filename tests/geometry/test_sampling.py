@@ -87,3 +87,16 @@ def test_a_grid_subset_of_a_cloud_larger_than_the_presample_stays_even():
     kept = grid_subset(square, 4_000)
     assert 3_600 <= len(kept) <= 4_000 and kept.max() < len(square)
     assert (np.linalg.norm(square[kept, :2], axis=1) < 1.0).mean() < 0.1
+
+
+def test_spread_labels_gives_each_point_its_nearest_labelled_points_label():
+    from masknet.geometry.sampling import nearest_of, spread_labels
+
+    labelled = np.array([[0.0, 0, 0], [10.0, 0, 0]])
+    points = np.array([[1.0, 0, 0], [9.0, 0, 0], [4.9, 0, 0], [5.1, 0, 0]])
+    np.testing.assert_array_equal(nearest_of(points, labelled), [0, 1, 0, 1])
+    np.testing.assert_array_equal(
+        spread_labels(points, labelled, np.array([True, False])), [True, False, True, False]
+    )
+    rows = spread_labels(points, labelled, np.array([[1, 2], [3, 4]]))  # labels of any shape
+    np.testing.assert_array_equal(rows, [[1, 2], [3, 4], [1, 2], [3, 4]])

@@ -226,3 +226,22 @@ def test_rotation_angle_is_accurate_for_tiny_angles():
     omega = torch.tensor([[1e-6, 0.0, 0.0], [0.0, 3e-7, 4e-7]])
     angle = rotation_angle(so3_exp(omega))  # float32
     torch.testing.assert_close(angle, omega.norm(dim=-1), rtol=1e-3, atol=0)
+
+
+def test_rotation_angle_takes_numpy_and_torch_alike():
+    omega = torch.tensor([[0.0, 0.0, 0.0], [1e-8, 0.0, 0.0], [0.0, 0.3, 0.4], [0.0, 0.0, 3.14159]])
+    rotations = so3_exp(omega.double())
+    from_torch = rotation_angle(rotations)
+    from_numpy = rotation_angle(rotations.numpy())
+    assert isinstance(from_numpy, np.ndarray)
+    np.testing.assert_allclose(from_numpy, from_torch.numpy(), atol=1e-12)
+    np.testing.assert_allclose(from_numpy, omega.norm(dim=-1).numpy(), atol=1e-9)
+    assert from_numpy[1] == pytest.approx(1e-8, rel=1e-6)  # atan2 keeps tiny angles
+
+
+def test_rotation_angle_deg_in_degrees():
+    from masknet.geometry.se3 import rotation_angle_deg
+
+    turn = so3_exp(torch.tensor([0.0, 0.0, np.pi / 2], dtype=torch.float64)).numpy()
+    assert rotation_angle_deg(turn) == pytest.approx(90.0)
+    assert float(rotation_angle_deg(torch.from_numpy(turn))) == pytest.approx(90.0)

@@ -630,6 +630,6 @@ def test_a_mask_of_under_three_points_is_refused_on_every_path(pairs):
 
 
 def test_pose_fit_is_a_type():
-    from masknet.registration.prepared import PoseFit
+    from masknet.registration.fit import PoseFit
 
     assert isinstance(PoseFit(1.0, 0.0, 1.0), PoseFit)

@@ -6,8 +6,8 @@ import numpy as np
 from pykdtree.kdtree import KDTree
 from scipy.spatial.transform import Rotation
 
+from masknet.registration.fit import pose_fit, pose_fits
 from masknet.registration.icp import icp, icp_from_starts
-from masknet.registration.prepared import pose_fit, pose_fits
 
 
 def test_fit_counts_points_within_the_distance_and_batched_agrees():

@@ -6,10 +6,10 @@ import numpy as np
 
 from masknet.geometry.clouds import median_spacing
 from masknet.geometry.knn import cloud_tree
+from masknet.registration.fit import pose_fit
 from masknet.registration.prepared import (
     check_points,
     isolated_free,
-    pose_fit,
     prepare_pair,
     surface_points,
 )

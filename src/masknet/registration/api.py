@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from masknet._moved import moved_names
 from masknet.errors import checks_done, warns_once
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
@@ -235,3 +236,7 @@ def register(
         result = leave_frame(pair, found, plan, times)
     times["total"] = time.perf_counter() - start
     return result
+
+
+# Moved to the stages of a call.
+__getattr__ = moved_names(__name__, {"REFINE_POINTS": "masknet.registration.pipeline"})

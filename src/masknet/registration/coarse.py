@@ -64,13 +64,11 @@ from masknet.registration.correspondences import (
     ransac_poses,
     voxel_for,
 )
+from masknet.registration.fit import FIT_SPACINGS, pose_fit, pose_fits
 from masknet.registration.icp import icp, icp_from_starts
 from masknet.registration.options import RobustOptions
 from masknet.registration.prepared import (
-    FIT_SPACINGS,
     PreparedPair,
-    pose_fit,
-    pose_fits,
     prepare_pair,
     random_subset,
 )

@@ -4,7 +4,8 @@ As small_gicp prepares a cloud (down-sample, KD-tree) and then aligns against it
 :func:`prepare_pair` brings a pair to what every later stage uses: an even subset of each
 cloud (:func:`~masknet.geometry.sampling.grid_subset`, at most ``fine_points`` source
 points and eight times that of the template), the template's KD-tree and point spacing,
-and which source points lie on a surface. :func:`pose_fit` scores a pose against it.
+and which source points lie on a surface. :func:`masknet.registration.fit.pose_fit` scores a
+pose against it.
 
 Why even subsets: a laser scanner's points crowd the floor and ceiling at its feet (a
 fifth of a room scan lies within 30 cm of the scanner's axis). A random subset keeps that
@@ -25,23 +26,21 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from masknet._moved import moved_names
 from masknet.geometry.clouds import MIN_POINTS, SPACING_SAMPLE, median_spacing
 from masknet.geometry.knn import cloud_tree
 from masknet.geometry.normals import plane_offsets
 from masknet.geometry.sampling import grid_subset
-from masknet.registration.fit import FIT_SPACINGS, PoseFit, pose_fit, pose_fits
+from masknet.registration.fit import FIT_SPACINGS
 
 __all__ = [
     "CHECK_MAX_DROP",
     "CHECK_NEIGHBOURS",
     "FIT_SPACINGS",
     "SURFACE_SPACINGS",
-    "PoseFit",
     "PreparedPair",
     "check_points",
     "isolated_free",
-    "pose_fit",
-    "pose_fits",
     "prepare_pair",
     "random_subset",
     "surface_points",
@@ -176,3 +175,9 @@ def prepare_pair(template: np.ndarray, source: np.ndarray, fine_points: int) -> 
     spacing = median_spacing(template, tree, sample=SPACING_SAMPLE) or 1.0
     surface, strict, attached = surface_points(source, SURFACE_SPACINGS * spacing, spacing)
     return PreparedPair(template, tree, spacing, source, surface, strict, attached)
+
+
+# Moved to the one fit module (masknet.registration.fit).
+__getattr__ = moved_names(
+    __name__, {name: "masknet.registration.fit" for name in ("PoseFit", "pose_fit", "pose_fits")}
+)

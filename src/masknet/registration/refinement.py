@@ -30,6 +30,7 @@ from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
+from masknet._moved import moved_names
 from masknet.errors import MaskNetError
 from masknet.geometry.clouds import median_spacing
 from masknet.geometry.se3 import transform_points
@@ -275,3 +276,7 @@ def _masks(refiner: Refiner, template: np.ndarray, source: np.ndarray) -> tuple:
         return mask, source_mask, icp_mask
     mask, source_mask = refiner.predict_masks(template, source)
     return mask, source_mask, mask
+
+
+# Moved to the one fit module.
+__getattr__ = moved_names(__name__, {"FIT_SLACK": "masknet.registration.fit"})

@@ -12,9 +12,10 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from masknet._moved import moved_names
 from masknet.geometry.se3 import transform_points
+from masknet.registration import fit
 from masknet.registration.backends.base import BackendRun, check_template_points, usable
-from masknet.registration.fit import RoundFits
 from masknet.registration.methods import adapter
 from masknet.registration.refinement import Refiner
 
@@ -70,7 +71,7 @@ def mask_and_register(
     rounds: list[np.ndarray] = []
     mask = source_mask = None
     run = None
-    fits = RoundFits(template, source) if refiner is not None and iterations > 1 else None
+    fits = fit.RoundFits(template, source) if refiner is not None and iterations > 1 else None
     for round_index in range(iterations):
         moved = transform_points(total, source)
         refining = refiner is not None and round_index > 0
@@ -128,3 +129,14 @@ def _centroid(points: np.ndarray, mask: np.ndarray | None) -> np.ndarray:
         return points.mean(1)
     weights = mask[..., None].astype(np.float64)
     return (points * weights).sum(1) / np.maximum(weights.sum(1), 1)
+
+
+# Moved: the guard to the one fit module, the back-ends' helpers beside the back-ends.
+__getattr__ = moved_names(
+    __name__,
+    {"RoundFits": "masknet.registration.fit"}
+    | {
+        name: "masknet.registration.backends.base"
+        for name in ("keep_source_points", "points_in_use", "check_template_points")
+    },
+)
