@@ -60,3 +60,22 @@ def test_iteration_rows_follow_the_rounds(pairs):
     assert [r["round"] for r in rows] == [1, 2, 3]
     # Plain ICP continued: each round is two more iterations, so errors do not grow.
     assert rows[2]["rot_mean"] <= rows[0]["rot_mean"] + 1e-9
+
+
+def test_pose_errors_of_single_transforms_and_of_batches():
+    from scipy.spatial.transform import Rotation
+
+    from masknet.errors import MaskNetError
+    from masknet.evaluation.registration import pose_errors
+
+    turned = np.eye(4)
+    turned[:3, :3] = Rotation.from_rotvec([0.0, 0.0, np.radians(30)]).as_matrix()
+    turned[:3, 3] = [0.3, 0.4, 0.0]
+    rotation, translation = pose_errors(turned, np.eye(4))
+    assert np.ndim(rotation) == 0 and rotation == pytest.approx(30.0)
+    assert translation == pytest.approx(0.5)
+    rotations, translations = pose_errors(np.stack([turned, np.eye(4)]), np.stack([np.eye(4)] * 2))
+    np.testing.assert_allclose(rotations, [30.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(translations, [0.5, 0.0])
+    with pytest.raises(MaskNetError, match="one shape"):
+        pose_errors(turned, np.stack([turned] * 2))

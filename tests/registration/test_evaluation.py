@@ -78,7 +78,7 @@ def test_batches_and_an_explicit_distance(shape):
     "transform, distance, words",
     [
         (np.eye(3), None, "transform must be"),
-        (np.full((4, 4), np.nan), None, "transform must be"),
+        (np.full((4, 4), np.nan), None, "transform holds NaN or inf"),
         (2 * np.eye(4), None, "must be rigid"),
         (np.diag([1.0, 1.0, -1.0, 1.0]), None, "must be rigid"),
         (np.eye(4), -1.0, "max_correspondence_distance"),

@@ -142,7 +142,7 @@ def test_as_rigid_transforms_refusals():
         as_rigid_transforms(np.stack([_rigid(1), reflected]), 2)
     nan = _rigid(0)
     nan[1, 3] = np.nan
-    with pytest.raises(MaskNetError, match=r"must be finite \(4, 4\) or \(1, 4, 4\)"):
+    with pytest.raises(MaskNetError, match=r"transform holds NaN or inf"):
         as_rigid_transforms(nan, 1)
     with pytest.raises(MaskNetError, match=r"\(4, 4\) or \(2, 4, 4\), got \(3, 4, 4\)"):
         as_rigid_transforms(np.stack([_rigid(0)] * 3), 2)
@@ -179,3 +179,10 @@ def test_spread_rows_puts_the_mask_back_on_every_row():
     np.testing.assert_array_equal(spread, [[True, False, False, False, False, True]])
     assert spread.shape == (1, 6) and spread.dtype == bool
     assert spread_rows(None, rows) is None
+
+
+def test_a_path_given_as_a_cloud_says_to_read_it_first():
+    from masknet import register
+
+    with pytest.raises(MaskNetError, match=r"source is a path \('scan.ply'\).*read_points"):
+        register(np.random.default_rng(0).normal(size=(50, 3)), "scan.ply")

@@ -15,11 +15,11 @@ import time
 from collections.abc import Iterable, Mapping
 
 import numpy as np
-import torch
 
 from masknet._extras import progress_bar
 from masknet.data.pairs import Pairs
-from masknet.geometry.se3 import rotation_error_deg
+from masknet.errors import MaskNetError
+from masknet.geometry.se3 import rotation_angle_deg
 from masknet.models.masknet import PAIRS_PER_CALL
 from masknet.registration.api import register
 from masknet.registration.methods import METHOD_TITLES
@@ -75,11 +75,16 @@ def pair_arrays(pairs: Pairs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def pose_errors(estimate: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rotation errors (degrees) and translation errors for (P, 4, 4) transforms."""
-    # np.array copies read-only inputs (e.g. a broadcast identity), which torch warns about
-    est, tru = (torch.as_tensor(np.array(a, dtype=np.float64)) for a in (estimate, truth))
-    rotation = rotation_error_deg(est[:, :3, :3], tru[:, :3, :3]).numpy()
-    translation = np.linalg.norm(estimate[:, :3, 3] - truth[:, :3, 3], axis=-1)
+    """Rotation errors (degrees) and translation errors of (P, 4, 4) transforms, (P,) each;
+    single (4, 4) transforms give () each."""
+    estimate, truth = np.asarray(estimate, np.float64), np.asarray(truth, np.float64)
+    if estimate.shape != truth.shape or estimate.shape[-2:] != (4, 4) or estimate.ndim > 3:
+        raise MaskNetError(
+            f"pose_errors takes two (4, 4) or (P, 4, 4) transforms of one shape, got "
+            f"{estimate.shape} and {truth.shape}"
+        )
+    rotation = rotation_angle_deg(np.swapaxes(estimate[..., :3, :3], -1, -2) @ truth[..., :3, :3])
+    translation = np.linalg.norm(estimate[..., :3, 3] - truth[..., :3, 3], axis=-1)
     return rotation, translation
 
 

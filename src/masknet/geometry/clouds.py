@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -57,6 +58,12 @@ def check_pair(
     from masknet.errors import clouds_checked
     from masknet.io_checks import ARRAY_NONFINITE_HINT, check_cloud
 
+    for name, cloud in zip(names, (template, source), strict=True):
+        if isinstance(cloud, str | os.PathLike):  # a file name where points belong
+            raise MaskNetError(
+                f"{name} is a path ({os.fspath(cloud)!r}), not points: read it first, "
+                "points = masknet.io.read_points(path)"
+            )
     t, s = np.asarray(template), np.asarray(source)
     if t.ndim != s.ndim or t.ndim not in (2, 3):
         raise MaskNetError(

@@ -64,8 +64,10 @@ def as_rigid_transforms(transform: np.ndarray, b: int) -> np.ndarray:
     tf = np.array(transform, dtype=np.float64)
     if tf.shape == (4, 4):
         tf = np.broadcast_to(tf, (b, 4, 4)).copy()  # writable, for torch
-    if tf.shape != (b, 4, 4) or not np.isfinite(tf).all():
-        raise MaskNetError(f"transform must be finite (4, 4) or ({b}, 4, 4), got {tf.shape}")
+    if tf.shape != (b, 4, 4):
+        raise MaskNetError(f"transform must be (4, 4) or ({b}, 4, 4), got {np.shape(transform)}")
+    if not np.isfinite(tf).all():
+        raise MaskNetError("transform holds NaN or inf: no pose to judge")
     rot = tf[:, :3, :3]
     rigid = np.allclose(rot @ rot.transpose(0, 2, 1), np.eye(3), atol=1e-4)
     if not rigid or (np.linalg.det(rot) < 0).any() or not np.allclose(tf[:, 3], [0, 0, 0, 1]):
