@@ -2,12 +2,13 @@
 
 ``register`` reads as this list (see ``docs/ARCHITECTURE.md``, "What a register call does")::
 
-    plan  = plan_call(...)                       # the method, its options, the networks
-    pair  = enter_frame(template, source, plan)  # scene search, the frame, the sampled clouds
-    found = run_method(pair, plan, times)        # the method (and its rounds)
+    plan = plan_call(method, options, model, ...)   # the method and its checked options
+    clouds = check_clouds(template, source, plan)   # every check of the clouds, once
+    pair, plan = enter_frame(clouds, plan, times)   # scene search, networks, frame, sampling
+    found = run_method(pair, plan, times)           # the method (and its rounds)
     found = refine_plain(pair, found, plan, times)  # refine_iterations of plain ICP
-    found = measure_fit(pair, found, plan)       # Open3D's fitness of the pose, once
-    return leave_frame(pair, found, plan, times) # input units, the scene, masks spread once
+    found = measure_fit(pair, found, plan)          # Open3D's fitness of the pose, once
+    return leave_frame(pair, found, plan, times)    # input units, the scene, masks spread
 
 Arrays are numpy float64 batches (B, ...) from :func:`enter_frame` on; a single pair is a
 batch of one until :func:`leave_frame` takes the batch axis off again.
