@@ -230,7 +230,7 @@ def test_a_weights_path_as_model_says_how_to_load_it(pairs):
 
 
 def test_default_model_is_loaded_once(monkeypatch, pairs, small_masknet):
-    from masknet.registration import pipeline
+    from masknet.registration import plan
 
     calls = []
 
@@ -238,13 +238,13 @@ def test_default_model_is_loaded_once(monkeypatch, pairs, small_masknet):
         calls.append(1)
         return small_masknet
 
-    pipeline.default_model.cache_clear()
+    plan.default_model.cache_clear()
     monkeypatch.setattr(MaskNet, "pretrained", staticmethod(fake_pretrained))
     try:
         register(pairs.template[0].numpy(), pairs.source[0].numpy(), max_iterations=1)
         register(pairs.template[1].numpy(), pairs.source[1].numpy(), max_iterations=1)
     finally:
-        pipeline.default_model.cache_clear()
+        plan.default_model.cache_clear()
     assert calls == [1]
 
 

@@ -53,10 +53,10 @@ def test_an_early_flip_gives_way_to_the_pose_the_clouds_are_near():
     refine to a better fit; an early answer that is right gets nothing added."""
     from masknet.registration.coarse import (
         REFINE_TOLERANCE,
-        Scored,
         _as_given,
         _short_icp_from_identity,
     )
+    from masknet.registration.hypotheses import Scored
     from masknet.registration.options import RobustOptions
     from masknet.registration.prepared import FIT_SPACINGS, prepare_pair
 
@@ -92,7 +92,7 @@ def test_an_early_flip_gives_way_to_the_pose_the_clouds_are_near():
 
 
 def test_candidates_a_few_spacings_apart_are_one_basin():
-    from masknet.registration.coarse import Scored, _distinct
+    from masknet.registration.hypotheses import Scored, distinct
 
     turned = np.eye(4)
     turned[:3, :3] = Rotation.from_euler("z", 30, degrees=True).as_matrix()
@@ -100,5 +100,5 @@ def test_candidates_a_few_spacings_apart_are_one_basin():
     shifted[0, 3] = 0.05
     entries = [(np.eye(4), "a"), (shifted, "b"), (turned, "c")]
     wrap = [Scored(1.0, 0.0, 1.0, pose, kind) for pose, kind in entries]
-    assert [e.kind for e in _distinct(wrap, 3, 0.1, 10.0)] == ["a", "c"]
-    assert [e.kind for e in _distinct(wrap, 3, 0.01, 10.0)] == ["a", "b", "c"]
+    assert [e.kind for e in distinct(wrap, 3, 0.1, 10.0)] == ["a", "c"]
+    assert [e.kind for e in distinct(wrap, 3, 0.01, 10.0)] == ["a", "b", "c"]

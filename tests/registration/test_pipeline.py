@@ -7,15 +7,14 @@ from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_
 from masknet.errors import MaskNetError
 from masknet.registration.methods import method_options
 from masknet.registration.pipeline import (
-    CallPlan,
     Estimate,
     check_clouds,
     enter_frame,
     leave_frame,
     measure_fit,
-    plan_call,
     refine_plain,
 )
+from masknet.registration.plan import CallPlan, plan_call
 
 ARGUMENTS = dict(
     use_mask=False,

@@ -329,7 +329,7 @@ def run(args: argparse.Namespace) -> None:
         print(f"source kept: {int(result.source_mask.sum()):,} of {len(source):,} points")
     if len(result.rounds) > 1:  # how far each round moved the source: has the loop settled?
         from masknet.geometry.se3 import transform_points
-        from masknet.registration.coarse import rotation_between_deg
+        from masknet.registration.hypotheses import rotation_between_deg
 
         steps = []
         for r, (before, after) in enumerate(zip(result.rounds, result.rounds[1:], strict=False), 2):
@@ -414,7 +414,7 @@ def report_path(info: dict, rotation: np.ndarray) -> None:
         why = "method robust"
     print(f"path: {path} ({why}); best hypothesis from {info['source']}")
     if bool(info.get("ambiguous", False)):
-        from masknet.registration.coarse import rotation_between_deg
+        from masknet.registration.hypotheses import rotation_between_deg
 
         result_pose = np.eye(4)
         result_pose[:3, :3] = rotation

@@ -49,10 +49,10 @@ from masknet.registration.pipeline import (
     enter_frame,
     leave_frame,
     measure_fit,
-    plan_call,
     refine_plain,
     run_method,
 )
+from masknet.registration.plan import plan_call
 from masknet.registration.refinement import DEFAULT_REFINER, Refiner
 from masknet.registration.result import RegistrationResult
 from masknet.registration.scene import SceneSearch

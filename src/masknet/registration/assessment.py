@@ -44,9 +44,9 @@ import numpy as np
 from masknet.geometry.clouds import median_spacing
 from masknet.geometry.sampling import grid_subset
 from masknet.geometry.se3 import transform_points
-from masknet.registration.coarse import rotation_between_deg
 from masknet.registration.evaluation import DEFAULT_SPACINGS, given_cut
 from masknet.registration.fit import overlap_fit as implied_overlap_fit
+from masknet.registration.hypotheses import rotation_between_deg
 from masknet.registration.validation import as_numpy_batch, as_rigid_transforms
 
 __all__ = ["Assessment", "RULE_VERDICTS", "assess_registration", "verdict_rule"]

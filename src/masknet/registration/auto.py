@@ -35,8 +35,9 @@ from masknet.geometry.se3 import transform_points
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
 from masknet.registration.backends.base import MaskModels, PipelineRun
-from masknet.registration.coarse import REFINE_TOLERANCE, coarse_to_fine, rotation_between_deg
+from masknet.registration.coarse import REFINE_TOLERANCE, coarse_to_fine
 from masknet.registration.fit import FIT_SPACINGS, PoseFit, pose_fit
+from masknet.registration.hypotheses import rotation_between_deg
 from masknet.registration.icp import icp
 from masknet.registration.options import ICPCriteria, RobustOptions
 from masknet.registration.prepared import (

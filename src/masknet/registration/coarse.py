@@ -55,7 +55,7 @@ import numpy as np
 from masknet.geometry.clouds import MIN_POINTS
 from masknet.geometry.knn import cloud_tree
 from masknet.geometry.sampling import spread_labels
-from masknet.geometry.se3 import hypothesis_rotations, rotation_angle_deg, transform_points
+from masknet.geometry.se3 import hypothesis_rotations, transform_points
 from masknet.registration.correspondences import (
     FeatureCloud,
     compatible_poses,
@@ -65,6 +65,7 @@ from masknet.registration.correspondences import (
     voxel_for,
 )
 from masknet.registration.fit import FIT_SPACINGS, pose_fit, pose_fits
+from masknet.registration.hypotheses import Scored, distinct, rank, rotation_between_deg
 from masknet.registration.icp import icp, icp_from_starts
 from masknet.registration.options import RobustOptions
 from masknet.registration.prepared import (
@@ -73,7 +74,7 @@ from masknet.registration.prepared import (
     random_subset,
 )
 
-__all__ = ["REFINE_TOLERANCE", "CoarseRun", "coarse_to_fine", "rotation_between_deg"]
+__all__ = ["REFINE_TOLERANCE", "CoarseRun", "coarse_to_fine"]
 
 # The refinement's ICP stops once its mean squared error changes by less than this
 # fraction: finer steps move a pose by far less than its error.
@@ -117,11 +118,6 @@ class CoarseRun(NamedTuple):
     mask: np.ndarray | None
     source_mask: np.ndarray | None
     info: dict
-
-
-def rotation_between_deg(a: np.ndarray, b: np.ndarray) -> float:
-    """The angle in degrees between the rotations of transforms ``a`` and ``b`` (4, 4)."""
-    return float(rotation_angle_deg(a[:3, :3].T @ b[:3, :3]))
 
 
 MaskFunction = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
@@ -294,7 +290,7 @@ class _Search:
         symmetric shape's flip can lead RANSAC's ranking, and a close second makes the
         answer ambiguous. A second that fits AS_GIVEN_GAP below the best is neither (it
         seldom climbs that far), and its refinement is skipped."""
-        tops = _distinct(sorted(found, key=_rank, reverse=True), 2, self.limit)
+        tops = distinct(sorted(found, key=rank, reverse=True), 2, self.limit)
         tops = [s for s in tops if s.score >= tops[0].score - AS_GIVEN_GAP]
         refined = [self.refine(s.pose, self.kept_source, "fpfh") for s in tops]
         poses = np.stack([f.pose for f in refined])
@@ -320,8 +316,8 @@ class _Search:
             source_mask = np.ones(len(self.source), bool)
         self.clock("mask")
         for grid in self.grids:
-            keep_s = _voxel_labels(grid[0].points, self.source, source_mask)
-            keep_t = _voxel_labels(grid[1].points, self.template, mask)
+            keep_s = spread_labels(grid[0].points, self.source, source_mask)
+            keep_t = spread_labels(grid[1].points, self.template, mask)
             masked = grid[2][keep_s[grid[2][:, 0]] & keep_t[grid[2][:, 1]]]
             if len(masked) >= MIN_POINTS:
                 self.correspondence_poses(grid, masked, "fpfh-masked")
@@ -365,8 +361,8 @@ class _Search:
         self.clock("hypotheses")
         # The best few, refined with the pair cut-off, rescored on all kept points;
         # candidates from different basins (CANDIDATE_BASIN): close poses refine into one.
-        self.scored.sort(key=_rank, reverse=True)
-        best_few = _distinct(
+        self.scored.sort(key=rank, reverse=True)
+        best_few = distinct(
             self.scored, options.candidates, CANDIDATE_BASIN * self.radius, options.distinct_deg
         )
         finals = [self.refine(s.pose, self.kept_source, s.kind) for s in best_few]
@@ -383,7 +379,7 @@ class _Search:
             finals = [Scored(*fit, np.eye(4), "identity")]
         # Refined answers that met in one basin are one answer: only different poses that
         # fit alike make the choice below (and its re-refinement) necessary.
-        finals = _distinct(sorted(finals, key=_rank, reverse=True), len(finals), self.limit)
+        finals = distinct(sorted(finals, key=rank, reverse=True), len(finals), self.limit)
         # Among answers that fit alike (within the margin), the least rotation from the
         # pose as given wins: the data cannot choose, and the input is the only other
         # evidence. The result says so (ambiguous, with the runner-up).
@@ -418,21 +414,6 @@ class _Search:
         return winner, rival, ambiguous
 
 
-class Scored(NamedTuple):
-    """A hypothesis: its fit (:class:`PoseFit`), pose (4, 4), and where it came from."""
-
-    fitness: float
-    rmse: float
-    score: float
-    pose: np.ndarray
-    kind: str
-
-
-def _rank(entry: Scored) -> tuple[float, float, float]:
-    """Higher score first, then fitness, then lower RMSE."""
-    return entry.score, entry.fitness, -entry.rmse
-
-
 def _has_open3d() -> bool:
     """Whether Open3D imports (it may be installed and still fail, e.g. without libusb)."""
     from masknet.errors import MaskNetError
@@ -443,11 +424,6 @@ def _has_open3d() -> bool:
     except MaskNetError:
         return False
     return True
-
-
-def _voxel_labels(voxels: np.ndarray, points: np.ndarray, keep: np.ndarray) -> np.ndarray:
-    """(V,) bool: whether the input point nearest each voxel centre (V, 3) is kept."""
-    return spread_labels(voxels, points, keep)
 
 
 def _short_icp_from_identity(
@@ -486,19 +462,3 @@ def _as_given(
         return []
     found = refine(start, kept_source, "as given")
     return [found] if found.score > best else []
-
-
-def _distinct(scored: list, count: int, limit: float, degrees: float = 2.0) -> list:
-    """The first ``count`` entries of ``scored`` (best first) whose poses differ from every
-    earlier one kept by ``degrees`` or ``limit`` of translation: the same basin once."""
-    out: list = []
-    for entry in scored:
-        if len(out) == count:
-            break
-        if all(
-            rotation_between_deg(entry.pose, other.pose) >= degrees
-            or np.linalg.norm(entry.pose[:3, 3] - other.pose[:3, 3]) >= limit
-            for other in out
-        ):
-            out.append(entry)
-    return out
