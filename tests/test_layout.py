@@ -77,6 +77,25 @@ def counts_inliers(node: ast.AST) -> bool:
     return False
 
 
+def defines_radius(node: ast.AST) -> bool:
+    """A cloud's radius: the largest or the RMS distance of its points from a centre
+    (``norm(p - c).max()``, ``sqrt(((p - c) ** 2).sum(-1).mean())``)."""
+    for n in ast.walk(node):
+        if not (isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute | ast.Name)):
+            continue
+        name = n.func.attr if isinstance(n.func, ast.Attribute) else n.func.id
+        for inner in [*n.args, *([n.func.value] if isinstance(n.func, ast.Attribute) else [])]:
+            called = called_names(inner)
+            centred = any(
+                isinstance(b, ast.BinOp) and isinstance(b.op, ast.Sub) for b in ast.walk(inner)
+            )
+            if name in {"max", "amax"} and "norm" in called and centred:
+                return True
+            if name == "sqrt" and "mean" in called and centred:
+                return True
+    return False
+
+
 NEAREST = {"query", "knn_points", "_nearest", "match"}
 RIGID_SOLVES = {"rigid_align", "rigid_transforms_numpy", "_point_to_plane_step"}
 
@@ -101,6 +120,18 @@ DETECTORS = {
             and bool(called_names(fn) & NEAREST)
             and bool(called_names(fn) & RIGID_SOLVES)
         ),
+    ),
+    "radius": (
+        {
+            "radius of a cloud (the networks' scale)",
+            "RMS radius (the frame's scale, the verdict's shifts)",
+            "largest distance from the centroid (the robust search's scale, the peers' voxels)",
+        },
+        defines_radius,
+    ),
+    "Open3D cloud": (
+        {"an Open3D point cloud from arrays (the one builder)"},
+        lambda fn: "PointCloud" in called_names(fn),
     ),
     "fitness": (
         {
@@ -167,6 +198,14 @@ def test_backends_import_nothing_that_dispatches_into_them():
         ("masknet.registration.rounds", "keep_source_points", "masknet.registration.backends.base"),
         ("masknet.registration.refinement", "FIT_SLACK", "masknet.registration.fit"),
         ("masknet.registration.api", "REFINE_POINTS", "masknet.registration.pipeline"),
+        (
+            "masknet.registration.coarse",
+            "coarse_to_fine",
+            "masknet.registration.robust.coarse_to_fine",
+        ),
+        ("masknet.registration.coarse", "check_points", "masknet.registration.prepared"),
+        ("masknet.registration.evaluation", "evaluate_registration", "masknet.registration.fit"),
+        ("masknet.registration.sampling", "fit_to_network", "masknet.geometry.sampling"),
     ],
 )
 def test_a_moved_name_still_imports_with_a_warning_naming_its_new_place(old, name, new):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import re
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +17,8 @@ README = Path(__file__).resolve().parents[1] / "README.md"
 
 
 def _python_blocks() -> list[str]:
-    return re.findall(r"```python\n(.*?)```", README.read_text(), flags=re.S)
+    blocks = re.findall(r"```python\n(.*?)```", README.read_text(), flags=re.S)
+    return [textwrap.dedent(block) for block in blocks]  # a block in a list is indented
 
 
 def test_the_readme_has_python_examples():
@@ -96,6 +98,11 @@ def test_readme_python_example_runs(index, small_masknet, one_thread, tmp_path, 
         assert str(namespace["result"].info["path"]) in ("fast", "robust/correspondences")
         assert not namespace["result"].info["ambiguous"]
         checked.append("poses")
+    if "theirs" in namespace:  # Open3D's ICP and masknet's, the same call side by side
+        ours, theirs = namespace["ours"], namespace["theirs"]
+        np.testing.assert_allclose(ours.transformation, theirs.transformation, atol=1e-7)
+        assert abs(float(ours.fitness) - theirs.fitness) < 1e-9  # measured 8e-10 apart
+        checked.append("open3d")
     if "object_points" in namespace:  # the object found where it was put
         expected = namespace["carton"].mean(0) + [0, 3, 0]
         np.testing.assert_allclose(namespace["object_points"].mean(0), expected, atol=0.02)

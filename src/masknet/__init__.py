@@ -31,6 +31,12 @@ from masknet.errors import MaskNetError, MaskNetWarning
 os.environ.setdefault("GOMP_SPINCOUNT", "10000")
 
 __version__ = "0.1.0"
+from masknet.registration import options as _options  # noqa: E402 (after the environment)
+
+# Every options class (SceneSearch included), as masknet.registration.options lists them:
+# that module is plain dataclasses, no torch.
+_OPTIONS = tuple(name for name in _options.__all__ if name[0].isupper())
+
 __all__ = [
     "DenoiseResult",
     "MaskNet",
@@ -40,7 +46,7 @@ __all__ = [
     "denoise",
     "evaluate_registration",
     "RegistrationResult",
-    "SceneSearch",
+    *_OPTIONS,
     "register",
     "select_mask",
     "__version__",
@@ -57,7 +63,7 @@ _LAZY = {
     "assess_registration": "masknet.registration",
     "evaluate_registration": "masknet.registration",
     "register": "masknet.registration",
-    "SceneSearch": "masknet.registration.scene",
+    **dict.fromkeys(_OPTIONS, "masknet.registration.options"),
 }
 
 if TYPE_CHECKING:
@@ -69,7 +75,6 @@ if TYPE_CHECKING:
         evaluate_registration,
         register,
     )
-    from masknet.registration.scene import SceneSearch
 
 
 def __getattr__(name: str):

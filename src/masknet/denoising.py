@@ -21,8 +21,9 @@ import numpy as np
 from torch import Tensor
 
 from masknet.errors import MaskNetError, checks_done, warn, warns_once
-from masknet.geometry.clouds import as_cloud_batch, median_spacing, unit_radius
+from masknet.geometry.clouds import as_cloud_batch, median_spacing, points_of, unit_radius
 from masknet.geometry.knn import cloud_tree, knn_points
+from masknet.geometry.open3d_clouds import to_open3d
 from masknet.geometry.sampling import farthest_point_sample, spread_mask
 from masknet.models.masknet import MaskNet
 from masknet.models.refine import RefineMaskNet
@@ -122,6 +123,7 @@ def denoise(
         raise MaskNetError(f"unknown denoising method {method!r}; choose {', '.join(METHODS)}")
     if not 0 <= threshold <= 1:
         raise MaskNetError(f"threshold must be in [0, 1], got {threshold}")
+    template, noisy = points_of(template), points_of(noisy)  # Open3D clouds: their points
     x, y = _checked_pair(template, noisy)
     near = 3 * median_spacing(template)  # the default rule's distance
     if method in ALIGNED:  # each noisy point's distance to the template: the rule's, and the
@@ -194,15 +196,6 @@ def _checked_pair(template: np.ndarray, noisy: np.ndarray) -> tuple[Tensor, Tens
     return x, y
 
 
-def _open3d_cloud(points: np.ndarray):
-    from masknet.io import require_open3d
-
-    o3d = require_open3d("Open3D outlier removal")
-    cloud = o3d.geometry.PointCloud()
-    cloud.points = o3d.utility.Vector3dVector(np.asarray(points, dtype=np.float64))
-    return cloud
-
-
 def _kept_mask(count: int, kept_index: list[int]) -> np.ndarray:
     mask = np.zeros(count, dtype=bool)
     mask[np.asarray(kept_index, dtype=np.int64)] = True
@@ -213,7 +206,9 @@ def open3d_statistical_outlier_removal(
     points: np.ndarray, nb_neighbors: int = 20, std_ratio: float = 2.0
 ) -> np.ndarray:
     """Open3D's ``remove_statistical_outlier``: (P, 3) -> kept mask (P,) bool."""
-    _, kept = _open3d_cloud(points).remove_statistical_outlier(nb_neighbors, std_ratio)
+    _, kept = to_open3d(points, feature="Open3D outlier removal").remove_statistical_outlier(
+        nb_neighbors, std_ratio
+    )
     return _kept_mask(len(points), kept)
 
 
@@ -224,5 +219,7 @@ def open3d_radius_outlier_removal(
 
     ``radius`` is in the cloud's units (0.1 suits unit-radius ModelNet40 shapes).
     """
-    _, kept = _open3d_cloud(points).remove_radius_outlier(nb_points, radius)
+    _, kept = to_open3d(points, feature="Open3D outlier removal").remove_radius_outlier(
+        nb_points, radius
+    )
     return _kept_mask(len(points), kept)

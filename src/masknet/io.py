@@ -474,10 +474,9 @@ def write_points(
         o3d = require_open3d(f"{name}: writing {ext} files")
     with atomic_target(name, suffix=ext) as tmp:
         if o3d is not None:
-            cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
-            for name_, values in (("colors", colors), ("normals", normals)):
-                if values is not None and len(values) == len(points):
-                    setattr(cloud, name_, o3d.utility.Vector3dVector(np.asarray(values, float)))
+            from masknet.geometry.open3d_clouds import to_open3d
+
+            cloud = to_open3d(points, normals=normals, colors=colors)
             verbosity = o3d.utility.VerbosityLevel.Warning
             with _captured_output() as out, o3d.utility.VerbosityContextManager(verbosity):
                 ok = o3d.io.write_point_cloud(tmp, cloud)

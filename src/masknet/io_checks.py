@@ -17,6 +17,7 @@ import numpy as np
 
 from masknet.errors import MaskNetError, warn
 from masknet.geometry.clouds import MIN_POINTS
+from masknet.geometry.open3d_clouds import from_open3d
 
 __all__ = [
     "FEW_POINTS",
@@ -73,7 +74,8 @@ def check_cloud(
     Warns:
         MaskNetWarning: 3-10 points, or one point far out (see :func:`check_geometry`).
     """
-    array = np.asarray(points)
+    from_cloud = from_open3d(points)  # an Open3D point cloud: its points
+    array = np.asarray(points if from_cloud is None else from_cloud)
     if array.dtype.kind not in "iuf":
         raise MaskNetError(f"{name}: expected numbers, got an array of dtype {array.dtype}")
     if array.ndim == 2 and array.shape[0] == 3 and array.shape[1] > 3:

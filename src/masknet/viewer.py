@@ -137,8 +137,10 @@ def scene_layers(
     """Viewer layers for an object found in a scene: the scene (P, 3, already in the
     template frame) within ``reach`` template radii of the template (N, 3), the template,
     and the scene points on the object (``on_object``, (P,) bool), drawn in that order."""
+    from masknet.geometry.clouds import centroid_radius  # here: the viewer needs no torch
+
     centre = template.mean(0)
-    limit = reach * np.linalg.norm(template - centre, axis=1).max()
+    limit = reach * centroid_radius(template)
     rest = moved_scene[~on_object]
     return {
         f"scene within {reach:g} template radii": (

@@ -251,12 +251,15 @@ def test_register_warns_when_the_source_does_not_lie_on_the_template(tmp_path, p
     noise = np.random.default_rng(0).uniform(-1, 1, (500, 3))  # no surface at all
     np.save(tmp_path / "noise.npy", noise)
     out = tmp_path / "moved.xyz"
-    assert main(["register", str(template), str(tmp_path / "noise.npy"), "-o", str(out)]) == 0
+    args = ["register", str(template), str(tmp_path / "noise.npy"), "-o", str(out)]
+    assert main(args) == 3  # the outputs are written, and a script can tell
     printed = capsys.readouterr()
     fit = float(printed.out.split("fit: ")[1].split("%")[0])
     assert fit < 50
     assert "did it work: likely wrong: " in printed.out
     assert "warning: the result is likely wrong: " in printed.err
+    assert out.exists()
+    assert main([*args, "--exit-zero"]) == 0
 
 
 def test_register_says_when_the_viewpoint_went_unused(tmp_path, pair_files, capsys):

@@ -111,3 +111,32 @@ def test_the_hypotheses_short_icp_takes_a_share_of_large_sources():
     assert options.hypothesis_size(512) == options.hypothesis_size(2048) == 128
     assert options.hypothesis_size(4096) == 256
     assert RobustOptions(hypothesis_points=300).hypothesis_size(4096) == 300
+
+
+def test_the_scene_search_options_are_checked_when_made_and_frozen():
+    import dataclasses
+
+    from masknet.registration.options import SceneSearch
+
+    for bad, field in (
+        ({"trim": 0}, "trim"),
+        ({"voxel": -1.0}, "voxel"),
+        ({"candidates": 0}, "candidates"),
+    ):
+        with pytest.raises(MaskNetError, match=field):
+            SceneSearch(**bad)
+    with pytest.raises(MaskNetError, match="max_placements"):
+        SceneSearch(max_placements=10)  # fewer than one centre's 24 rotations
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        SceneSearch().voxel = 0.1  # type: ignore[misc]
+
+
+def test_every_options_class_is_exported_at_the_top_level():
+    import masknet
+    from masknet.registration import options
+
+    classes = [n for n in options.__all__ if n[0].isupper() and n != "DEFAULT_SPACINGS"]
+    assert "SceneSearch" in classes and "ICPCriteria" in classes
+    for name in classes:
+        assert getattr(masknet, name) is getattr(options, name)
+        assert name in masknet.__all__

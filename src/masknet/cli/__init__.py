@@ -49,7 +49,12 @@ COMMANDS = {
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse's parser, with a refusal on one line (no usage block above it)."""
+    """argparse's parser, with a refusal on one line (no usage block above it) and no
+    abbreviated long options (``--max-iteration`` is not taken for ``--max-iterations``)."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        kwargs.setdefault("allow_abbrev", False)
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str):  # argparse calls it, and it exits with code 2
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
@@ -108,7 +113,7 @@ def _run(args: argparse.Namespace) -> int:
 def _guarded(call: Callable[[], object], prog: str) -> int:
     """Run ``call``; the exit code, with one line on stderr for a refusal or Ctrl-C."""
     try:
-        call()
+        code = call()
     except MaskNetError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
@@ -118,4 +123,4 @@ def _guarded(call: Callable[[], object], prog: str) -> int:
     except BrokenPipeError:  # e.g. `masknet ... | head`: stop quietly, as Unix tools do
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
-    return 0
+    return code if isinstance(code, int) else 0

@@ -17,6 +17,8 @@ from masknet._extras import PICTURES, require
 from masknet.errors import MaskNetError
 
 if TYPE_CHECKING:
+    import numpy as np
+
     from masknet.data import PairConfig
     from masknet.models import MaskNet
 
@@ -53,6 +55,52 @@ def finite_float(text: str) -> float:
     if not math.isfinite(value):
         raise argparse.ArgumentTypeError(f"must be a finite number, got {text}")
     return value
+
+
+# What ``masknet`` exits with: one table, printed by ``masknet register --help`` and the
+# README (a test compares them).
+EXIT_OK, EXIT_REFUSED, EXIT_LIKELY_WRONG, EXIT_INTERRUPTED = 0, 2, 3, 130
+EXIT_CODES = {
+    EXIT_OK: "done; register: the verdict is likely correct or uncertain (uncertain is "
+    "printed as a warning)",
+    1: "an unexpected error, with a traceback: a bug, please report it",
+    EXIT_REFUSED: "refused: a bad file, option or value, said in one line; nothing written",
+    EXIT_LIKELY_WRONG: "register: the outputs are written, but the verdict is likely wrong "
+    "(--exit-zero gives 0 instead)",
+    EXIT_INTERRUPTED: "interrupted (Ctrl-C); no output half-written",
+}
+
+
+def exit_codes_text() -> str:
+    """The exit-status table as ``--help`` prints it."""
+    return "exit status:\n" + "\n".join(f"  {code:>3}  {text}" for code, text in EXIT_CODES.items())
+
+
+def init_option(text: str) -> str | np.ndarray:
+    """``--init``: ``centroid``, ``identity``, or a file holding a 4x4 source -> template
+    matrix to start from (Open3D's ``init``): text (``#`` comments, as the
+    ``<stem>_transform.txt`` that ``masknet register`` writes) or ``.npy``."""
+    if text in ("centroid", "identity"):
+        return text
+    import numpy as np
+
+    path = Path(text)
+    if not path.is_file():
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is neither centroid, identity nor a file holding a 4x4 matrix"
+        )
+    try:
+        if path.suffix.lower() == ".npy":
+            matrix = np.load(path, allow_pickle=False)
+        else:
+            matrix = np.loadtxt(path, comments="#", ndmin=2)
+    except (OSError, ValueError) as exc:
+        raise argparse.ArgumentTypeError(f"{text}: not a 4x4 matrix ({exc})") from None
+    if matrix.shape != (4, 4) or not np.isfinite(matrix).all():
+        raise argparse.ArgumentTypeError(
+            f"{text}: expected a finite 4x4 matrix, got shape {matrix.shape}"
+        )
+    return matrix.astype(np.float64)
 
 
 def json_object(text: str) -> dict:
@@ -196,6 +244,7 @@ def load_model(args: argparse.Namespace, two_sided: bool = False) -> MaskNet:
     ``--weights`` file may hold either kind (its metadata says which). ``--pretrained``
     unset: the kind's own shipped default.
     """
+
     from masknet.models import MaskNet
     from masknet.models.two_sided import TwoSidedMaskNet
     from masknet.models.weights import read_metadata
@@ -237,9 +286,10 @@ def progress(label: str, after: float | None = None) -> Iterator[None]:
         yield
     finally:
         timer.cancel()
-        if shown.is_set():
-            elapsed = time.perf_counter() - start
-            print(f"masknet: {label}: done in {elapsed:.1f} s", file=sys.stderr, flush=True)
+    # Only a step that ended is "done": an interrupt or an error says so itself.
+    if shown.is_set():
+        elapsed = time.perf_counter() - start
+        print(f"masknet: {label}: done in {elapsed:.1f} s", file=sys.stderr, flush=True)
 
 
 def check_outputs(
@@ -294,13 +344,16 @@ def _same_file(a: Path, b: Path) -> bool:
 def _can_create_in(folder: Path) -> bool:
     """Whether a file can be created in ``folder``: tried, since permission bits do not
     tell (root, read-only mounts, /proc)."""
-    try:
+    probe = None
+    try:  # the probe goes even when Ctrl-C lands between its creation and removal
         fd, probe = tempfile.mkstemp(prefix=".masknet-probe", dir=folder)
+        os.close(fd)
     except OSError:
         return False
-    os.close(fd)
-    with contextlib.suppress(OSError):
-        os.unlink(probe)
+    finally:
+        if probe is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(probe)
     return True
 
 

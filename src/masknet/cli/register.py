@@ -10,12 +10,16 @@ from typing import TYPE_CHECKING
 
 from masknet._atomic import write_all
 from masknet.cli._common import (
+    EXIT_LIKELY_WRONG,
     add_cloud_arguments,
     add_file_options,
     add_model_options,
     at_least_three,
     check_html,
     check_outputs,
+    exit_codes_text,
+    finite_float,
+    init_option,
     load_model,
     positive_int,
     progress,
@@ -39,6 +43,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "register",
         help="align SOURCE to TEMPLATE (Mask-X, or plain X with --no-mask); write the "
         "moved source, the 4x4 transform and the inlier template",
+        epilog=exit_codes_text(),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_cloud_arguments(p, source_help="partial cloud of the same object, any pose")
     p.add_argument(
@@ -107,10 +113,26 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--init",
-        choices=["centroid", "identity"],
+        type=init_option,
         default="centroid",
+        metavar="{centroid,identity,FILE}",
         help="start of each round: centroid (default; the source centroid onto the centroid "
-        "of the template points in use) or identity (no motion)",
+        "of the template points in use), identity (no motion), or FILE, a 4x4 source -> "
+        "template matrix to start from (Open3D's init; text as <stem>_transform.txt, or .npy), "
+        "for every method",
+    )
+    p.add_argument(
+        "--max-correspondence-distance",
+        type=finite_float,
+        metavar="D",
+        help="the pair cut-off of ICP and the pipelines, in the clouds' units (Open3D's "
+        "max_correspondence_distance; default: 1.5 template spacings for the fit, the "
+        "method's own rule for ICP)",
+    )
+    p.add_argument(
+        "--exit-zero",
+        action="store_true",
+        help="exit 0 even when the verdict is likely wrong (default: exit 3)",
     )
     p.add_argument(
         "--max-points",
@@ -162,8 +184,9 @@ def scene_option(
     return search if choice or is_scene(template, source, search) else None
 
 
-def run(args: argparse.Namespace) -> None:
-    """Register; write the outputs all-or-nothing and print what the method reported."""
+def run(args: argparse.Namespace) -> int:
+    """Register; write the outputs all-or-nothing and print what the method reported.
+    Returns the exit status (:data:`masknet.cli._common.EXIT_CODES`)."""
     import numpy as np
 
     from masknet.io import (
@@ -174,8 +197,8 @@ def run(args: argparse.Namespace) -> None:
     )
     from masknet.io_checks import over_rows
     from masknet.registration import assess_registration, register
-    from masknet.registration.evaluation import DEFAULT_SPACINGS
     from masknet.registration.methods import GLOBAL_METHODS
+    from masknet.registration.options import DEFAULT_SPACINGS
     from masknet.viewer import scene_layers, view_writers
 
     if args.refine < 0:
@@ -211,7 +234,7 @@ def run(args: argparse.Namespace) -> None:
 
     rounds_asked = {
         "refine": args.refine != 0,
-        "init": args.init != "centroid",
+        "init": isinstance(args.init, str) and args.init != "centroid",
         "max_iterations": args.max_iterations is not None,
     }
     args.method = default_method(args.method, None, rounds_asked)
@@ -229,6 +252,8 @@ def run(args: argparse.Namespace) -> None:
     options = {}
     if args.max_iterations is not None and args.method not in GLOBAL_METHODS:
         options["max_iterations"] = args.max_iterations
+    if args.max_correspondence_distance is not None:
+        options["max_correspondence_distance"] = cut_for(args)
     if args.network_weights:
         from masknet.models import REGISTRATION_NETWORKS
 
@@ -376,6 +401,23 @@ def run(args: argparse.Namespace) -> None:
     print(f"wrote {', '.join(str(p) for p, _ in writers)}")
     if removed:
         print(f"removed {', '.join(map(str, removed))} (an earlier run's; this run wrote none)")
+    return EXIT_LIKELY_WRONG if check.verdict == "likely wrong" and not args.exit_zero else 0
+
+
+def cut_for(args: argparse.Namespace) -> float:
+    """``--max-correspondence-distance``, checked against the method's options."""
+    import dataclasses
+
+    from masknet.registration.methods import METHOD_TABLE
+
+    fields = {f.name for f in dataclasses.fields(METHOD_TABLE[args.method].options)}
+    if "max_correspondence_distance" not in fields:
+        raise MaskNetError(
+            f"--max-correspondence-distance does not apply to --method {args.method}"
+        )
+    if not args.max_correspondence_distance > 0:
+        raise MaskNetError("--max-correspondence-distance must be positive")
+    return args.max_correspondence_distance
 
 
 def _shown(value: object) -> str:

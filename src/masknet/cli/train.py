@@ -78,8 +78,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         type=json_object,
         default=None,
         metavar="JSON",
-        help="registration networks: keyword arguments of the network class, e.g. "
-        '\'{"embedding": 128, "k": 16}\' for dcp (default: the paper\'s sizes)',
+        help="keyword arguments of the network class, e.g. "
+        '\'{"embedding": 128, "k": 16}\' for dcp, \'{"context": 16}\' for masknet (a '
+        "residual context head over 16 template neighbours and the source's points; "
+        "default: the paper's sizes)",
     )
     p.add_argument(
         "--precision",
@@ -167,7 +169,7 @@ def build_task(args: argparse.Namespace) -> TrainSetup:
             pairs=pair_config(args),
             num_points=args.num_points,
             loss=args.loss,
-            model_config=encoder,
+            model_config=encoder | (args.model_config or {}),
         )
         if args.scans:
             task = _scans.scan_task(args, task)

@@ -72,8 +72,8 @@ def score_pairs(
     batch_size: int = PAIRS_PER_CALL,
     progress: bool = False,
 ) -> torch.Tensor:
-    """MaskNet's fused-path scores (P, N) float32 on CPU for every pair, in batches."""
-    fused = model.fused(precision)
+    """MaskNet's inference-path scores (P, N) float32 on CPU for every pair, in batches."""
+    fused = model.scorer(precision)
     device = next(model.parameters()).device
     total = pairs.template.shape[0]
     scores = []

@@ -34,6 +34,7 @@ import numpy as np
 from masknet.evaluation.registration import pose_errors
 from masknet.experiments.context import BenchmarkContext, ExperimentResult
 from masknet.experiments.scans import THREEDMATCH_FILES, load_pair, scans_folder
+from masknet.geometry.open3d_clouds import to_open3d
 from masknet.registration.api import register
 
 __all__ = [
@@ -47,10 +48,6 @@ __all__ = [
 VOXELS_M = (0.025, 0.05, 0.1)  # the peer's voxel sweep, in metres
 CARTON_VOXELS_M = (0.005, 0.01, 0.02)  # for the carton, 15 cm in radius
 CARTON_TRUTH = Path("docs/results/carton/ground_truth.txt")
-
-
-def _cloud(o3d, points: np.ndarray):
-    return o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(points)))
 
 
 def _point_to_plane(o3d, template, source, start: np.ndarray, unit: float) -> tuple:
@@ -87,7 +84,7 @@ def open3d_tutorial(
 
     o3d = require_open3d("the Open3D tutorial pipeline")
     coarse, _, _ = open3d_fpfh_ransac(template, source, voxel, repeatable=False, downsample=True)
-    full_t, full_s = _cloud(o3d, template), _cloud(o3d, source)
+    full_t, full_s = to_open3d(template), to_open3d(source)
     return _point_to_plane(o3d, full_t, full_s, coarse, unit)[0]
 
 
@@ -116,7 +113,7 @@ def _even_clouds(template: np.ndarray, source: np.ndarray) -> tuple:
     o3d = require_open3d("the consensus pose")
 
     def even(points: np.ndarray):
-        cloud = _cloud(o3d, points).voxel_down_sample(CONSENSUS_GRID_M)
+        cloud = to_open3d(points).voxel_down_sample(CONSENSUS_GRID_M)
         search = o3d.geometry.KDTreeSearchParamHybrid(radius=4 * CONSENSUS_GRID_M, max_nn=30)
         cloud.estimate_normals(search)
         return cloud

@@ -29,6 +29,7 @@ from masknet._extras import pyplot
 from masknet.data.pairs import PairConfig, Pairs
 from masknet.evaluation.registration import pair_arrays, pose_errors, summarize_errors
 from masknet.experiments.context import BenchmarkContext, ExperimentResult
+from masknet.geometry.clouds import centroid_radius
 from masknet.registration.api import register
 
 VOXELS = (0.02, 0.035, 0.05, 0.075, 0.1)
@@ -109,7 +110,7 @@ def timed_small_gicp(pairs: Pairs, voxel: float) -> dict[str, float]:
     estimates, seconds = np.empty_like(truth), []
     for i in range(len(truth)):
         tpl, src = template[i].astype(np.float64), source[i].astype(np.float64)
-        step = voxel * float(np.linalg.norm(tpl - tpl.mean(0), axis=1).max())
+        step = voxel * float(centroid_radius(tpl))
         tic = time.perf_counter()
         result = small_gicp.align(
             tpl,

@@ -23,6 +23,7 @@ from masknet.data.pairs import PairConfig
 from masknet.evaluation.registration import pose_errors
 from masknet.experiments.context import BenchmarkContext, ExperimentResult
 from masknet.experiments.scans import THREEDMATCH_FILES, load_pair, scans_folder
+from masknet.geometry.clouds import centroid_radius
 from masknet.registration.api import register
 from masknet.registration.assessment import VERDICTS, assess_registration
 
@@ -107,7 +108,7 @@ def run(ctx: BenchmarkContext) -> ExperimentResult:
             if not name.startswith(("3DMatch", "two room")):
                 result = register(template, source)
                 rot, trans = pose_errors(result.transform[None], truth[None])
-                radius = np.linalg.norm(template - template.mean(0), axis=1).max()
+                radius = centroid_radius(template)
                 good = bool(rot[0] <= 5 and trans[0] <= 0.1 * radius)
                 bad = bool(rot[0] > 15)
                 verdict = assess_registration(template, source, result.transform).verdict

@@ -10,6 +10,7 @@ import torch
 from torch import Tensor
 
 from masknet.errors import MaskNetError
+from masknet.geometry.open3d_clouds import from_open3d
 
 __all__ = [
     "MIN_POINTS",
@@ -17,7 +18,10 @@ __all__ = [
     "Frame",
     "as_cloud_batch",
     "check_pair",
+    "centroid_radius",
     "median_spacing",
+    "points_of",
+    "rms_radius",
     "unit_radius",
 ]
 
@@ -40,10 +44,34 @@ def unit_radius(points: Any) -> Any:
     return np.maximum(np.linalg.norm(points - mid, axis=-1).max(-1), 1e-12)
 
 
+def centroid_radius(points: np.ndarray) -> np.ndarray:
+    """The largest distance of points from their centroid: (..., N, 3) -> (...), float64.
+    The robust search's scale (its feature grids and basins), the peers' voxel sweep and
+    the success criteria are in it; :func:`unit_radius` (about the bounding-box centre) is
+    the networks' scale."""
+    points = np.asarray(points, dtype=np.float64)
+    return np.linalg.norm(points - points.mean(-2, keepdims=True), axis=-1).max(-1)
+
+
+def rms_radius(points: np.ndarray) -> np.ndarray:
+    """The root mean square distance of points from their centroid: (..., N, 3) -> (...),
+    float64. The call's frame is scaled by it, and the verdict measures shifts in it."""
+    points = np.asarray(points, dtype=np.float64)
+    centre = points.mean(-2, keepdims=True)
+    return np.sqrt(((points - centre) ** 2).sum(-1).mean(-1))
+
+
+def points_of(cloud: Any) -> Any:
+    """An Open3D point cloud's (P, 3) points; anything else as it is."""
+    points = from_open3d(cloud)
+    return cloud if points is None else points
+
+
 def check_pair(
     template: Any, source: Any, names: tuple[str, str] = ("template", "source")
 ) -> tuple[np.ndarray, np.ndarray, bool]:
-    """Validate numpy clouds, template (N, 3) or (B, N, 3) and source (M, 3) or (B, M, 3);
+    """Validate clouds, template (N, 3) or (B, N, 3) and source (M, 3) or (B, M, 3) (arrays,
+    or Open3D point clouds, legacy or tensor);
     return them as batches (B, N, 3), (B, M, 3) (numpy, as given) and whether the input
     was one pair. Messages name the clouds by ``names``.
 
@@ -64,6 +92,8 @@ def check_pair(
                 f"{name} is a path ({os.fspath(cloud)!r}), not points: read it first, "
                 "points = masknet.io.read_points(path)"
             )
+    # Open3D point clouds (legacy and tensor) are taken as their points.
+    template, source = (points_of(cloud) for cloud in (template, source))
     t, s = np.asarray(template), np.asarray(source)
     if t.ndim != s.ndim or t.ndim not in (2, 3):
         raise MaskNetError(
@@ -148,7 +178,7 @@ class Frame(NamedTuple):
     def of(cls, template: np.ndarray, *others: np.ndarray) -> Frame:
         """The frame of templates (B, N, 3), for them and ``others`` (B, P, 3)."""
         centre = template.mean(1)
-        radii = np.sqrt(((template - centre[:, None]) ** 2).sum(-1).mean(-1))
+        radii = rms_radius(template)
         scale = float(radii.mean()) if radii.mean() > 0 else 1.0
         reach = max(float(np.abs(c - centre[:, None]).max()) for c in (template, *others))
         return cls(centre, scale, reach <= SNAP_RADII * scale)

@@ -20,11 +20,13 @@ from typing import NamedTuple
 import fpsample
 import numpy as np
 
+from masknet.errors import MaskNetError
 from masknet.geometry.knn import cloud_tree
 
 __all__ = [
     "FPSResult",
     "farthest_point_sample",
+    "fit_to_network",
     "grid_subset",
     "nearest_sample",
     "spread_mask",
@@ -151,3 +153,24 @@ def nearest_sample(points: np.ndarray, sampled: np.ndarray) -> np.ndarray:
     (K,)) of its nearest sampled point: ``labels[nearest_sample(...)]`` spreads labels (K,)
     of the samples to every point, for many labellings of one sample."""
     return nearest_of(points, points[sampled])
+
+
+def fit_to_network(
+    template: np.ndarray, source: np.ndarray, single: bool, max_points: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Subsample a single large pair, template (1, N, 3) and source (1, M, 3), to at most
+    ``max_points`` each; returns (template, source, template indices, source indices),
+    the indices None where nothing was sampled."""
+    n, m = template.shape[1], source.shape[1]
+    if n <= max_points and m <= max_points:
+        return template, source, None, None
+    if not single:
+        raise MaskNetError(
+            f"batched clouds must have at most max_points={max_points} points "
+            f"(got template {n}, source {m}); pass large clouds one pair at a time"
+        )
+    kept = farthest_point_sample(template[0], max_points)
+    # The source at the template's spacing, so its size still reflects the overlap
+    # (top-k selection uses it).
+    src_idx = farthest_point_sample(source[0], max_points, min_spacing=kept.radius).indices
+    return template[:, kept.indices], source[:, src_idx], kept.indices, src_idx

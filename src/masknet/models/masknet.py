@@ -41,6 +41,7 @@ from torch import Tensor, nn
 
 from masknet.geometry.clouds import MIN_POINTS, as_cloud_batch, unit_radius
 from masknet.models.layers import linear_stack
+from masknet.models.mask_context import MaskContext
 from masknet.models.pointnet import PointNetEncoder, fold_batchnorm
 from masknet.models.weights import SafetensorsWeights
 from masknet.runtime import default_precision
@@ -187,6 +188,7 @@ class MaskNet(SafetensorsWeights, nn.Module):
         encoder_channels: Sequence[int] = (64, 64, 64, 128, 1024),
         head_channels: Sequence[int] = (1024, 512, 256, 128),
         centring: Literal["each", "source"] = "each",
+        context: int = 0,
     ):
         super().__init__()
         if centring not in ("each", "source"):
@@ -197,9 +199,14 @@ class MaskNet(SafetensorsWeights, nn.Module):
         }
         if centring != "each":  # only then: the configs of earlier files stay as they were
             self.config["centring"] = centring
+        if context:  # only then, as centring: earlier files' configs stay as they were
+            self.config["context"] = int(context)
         self.centring = centring
         self.encoder = PointNetEncoder(encoder_channels)
         feat = self.encoder.out_channels
+        # Beyond the paper: a residual correction from each template point's neighbourhood
+        # and the source's points (masknet.models.mask_context); off (None) by default.
+        self.context = MaskContext(feat, k=int(context)) if context else None
         # The first head layer on [template feature; global source feature], split in two.
         self.head_template = nn.Linear(feat, head_channels[0])
         self.head_global = nn.Linear(feat, head_channels[0], bias=False)
@@ -220,12 +227,19 @@ class MaskNet(SafetensorsWeights, nn.Module):
         where a saturated sigmoid still gets a gradient.
         """
         template, source = centre_pair(template, source, self.centring)
-        g = self.head_global(self.encoder(source).amax(dim=1))
-        x = self._head_tail(self.head_template(self.encoder(template)) + g[:, None, :])
+        source_features = self.encoder(source)
+        template_features = self.encoder(template)
+        g = self.head_global(source_features.amax(dim=1))
+        x = self._head_tail(self.head_template(template_features) + g[:, None, :])
+        if self.context is not None:
+            x = self.context(template, template_features, source_features, x)
         return x if logits else torch.sigmoid(x)
 
     def forward_reference(self, template: Tensor, source: Tensor) -> Tensor:
-        """The paper's concatenation formulation; the same function as :meth:`forward`."""
+        """The paper's concatenation formulation; the same function as :meth:`forward`
+        (without the context head, which is not the paper's)."""
+        if self.context is not None:
+            raise ValueError("forward_reference is the paper's network; this one has context")
         template, source = centre_pair(template, source, self.centring)
         g = self.encoder(source).amax(dim=1)
         t = self.encoder(template)
@@ -236,8 +250,30 @@ class MaskNet(SafetensorsWeights, nn.Module):
         )
 
     # ------------------------------------------------------------------ fast inference
+    def scorer(self, precision: Precision = "fp32"):
+        """The inference path: ``scorer(precision)(template (B, N, 3), source (B, M, 3),
+        chunk_size) -> scores (B, N)``. The fused path for the paper's network; with
+        context, :meth:`forward` in eval mode (chunking does not apply)."""
+        if self.context is None:
+            return self.fused(precision)
+
+        def scores(template: Tensor, source: Tensor, chunk_size: int | None = None) -> Tensor:
+            was_training = self.training
+            self.eval()
+            try:
+                with torch.autocast(
+                    template.device.type, dtype=torch.bfloat16, enabled=precision == "bf16"
+                ):
+                    return torch.sigmoid(self(template, source, logits=True).float())
+            finally:
+                self.train(was_training)
+
+        return scores
+
     def fused(self, precision: Precision = "fp32") -> FusedMaskNet:
         """The inference path for the current weights (cached until a weight changes)."""
+        if self.context is not None:
+            raise ValueError("the fused path is the paper's network; this one has context")
         tensors = [*self.parameters(), *self.buffers()]
         key = (precision, *((id(t), t._version, t.device) for t in tensors))
         if self._fused_cache.get("key") != key:
@@ -292,7 +328,7 @@ class MaskNet(SafetensorsWeights, nn.Module):
         the clouds enter torch in one conversion, and callers take out only what they need."""
         device = next(self.parameters()).device
         t, s, single, precision = prepare_inputs(template, source, normalize, precision, device)
-        fused = self.fused(precision)
+        fused = self.scorer(precision)
         step = max(1, pairs_per_call)
         scores = torch.cat(
             [

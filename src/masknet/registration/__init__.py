@@ -1,16 +1,18 @@
 """Registration: ``register`` (Mask-X for every method) and the algorithms behind it.
 
 * :mod:`.api`: the facade, :func:`register`; :mod:`.result`: :class:`RegistrationResult`;
-* :mod:`.evaluation`: :func:`evaluate_registration`, inlier fraction and RMSE of any result;
+* :mod:`.fit`: :func:`evaluate_registration`, inlier fraction and RMSE of any result, and
+  every other fit;
 * :mod:`.assessment`: :func:`assess_registration`, did it work: a verdict and its reason;
 * :mod:`.methods`: the method table (names, titles, adapters, options, defaults);
   :mod:`.options`: one typed options class per method (``ICPCriteria``,
   ``RobustOptions``, ...);
-* :mod:`.validation` and :mod:`.sampling`: argument checks, large clouds to network size;
+* :mod:`.validation`: argument checks;
 * :mod:`.rounds`: the rounds of Mask-X; :mod:`.backends`: one adapter per method;
 * :mod:`.icp`, :mod:`.open3d_icp`, :mod:`.open3d_global`: the algorithms (ICP, Open3D's
   ICP, Open3D's RANSAC / FGR on FPFH); :mod:`.scene`: finding an object in a scan;
-  :mod:`.auto`, :mod:`.robust`, :mod:`.coarse`: the default and the coarse-to-fine search.
+  :mod:`.auto`, :mod:`.robust` (with :mod:`.robust.coarse_to_fine`): the default and the
+  coarse-to-fine search.
 
 Names load on first use, so that the method table (and ``masknet --help``) needs no torch.
 """
@@ -27,8 +29,8 @@ _LAZY = {
     "RegistrationResult": "result",
     "Assessment": "assessment",
     "assess_registration": "assessment",
-    "RegistrationQuality": "evaluation",
-    "evaluate_registration": "evaluation",
+    "RegistrationQuality": "fit",
+    "evaluate_registration": "fit",
     "ICPSolution": "icp",
     "SceneMatch": "scene",
     "SceneSearch": "scene",
@@ -38,7 +40,7 @@ __all__ = sorted(["METHODS", "METHOD_TABLE", "METHOD_TITLES", *_options.__all__,
 if TYPE_CHECKING:  # noqa: F401 below: names of __all__, loaded on first use
     from masknet.registration.api import register  # noqa: F401
     from masknet.registration.assessment import Assessment, assess_registration  # noqa: F401
-    from masknet.registration.evaluation import RegistrationQuality, evaluate_registration  # noqa: F401
+    from masknet.registration.fit import RegistrationQuality, evaluate_registration  # noqa: F401
     from masknet.registration.icp import ICPSolution  # noqa: F401
     from masknet.registration.result import RegistrationResult  # noqa: F401
     from masknet.registration.scene import SceneMatch, SceneSearch  # noqa: F401

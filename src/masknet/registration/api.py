@@ -30,6 +30,7 @@ import numpy as np
 
 from masknet._moved import moved_names
 from masknet.errors import checks_done, warns_once
+from masknet.geometry.se3 import transform_points
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
 from masknet.registration.methods import (
@@ -39,6 +40,7 @@ from masknet.registration.methods import (
     METHODS,
     NETWORK_METHODS,
     default_method,
+    open3d_spelling,
 )
 from masknet.registration.methods import (
     method_options as options_for,
@@ -56,7 +58,7 @@ from masknet.registration.plan import plan_call
 from masknet.registration.refinement import DEFAULT_REFINER, Refiner
 from masknet.registration.result import RegistrationResult
 from masknet.registration.scene import SceneSearch
-from masknet.registration.validation import check_arguments
+from masknet.registration.validation import as_rigid_transforms, check_arguments, split_init
 from masknet.runtime import small_blas
 
 __all__ = [
@@ -89,7 +91,7 @@ def register(
     k: int | None = None,
     threshold: float | None = None,
     precision: str = "auto",
-    init: str = "centroid",
+    init: str | np.ndarray = "centroid",
     max_points: int = 1024,
     scene: bool | SceneSearch | None = None,
     refine_masks: str | Refiner | None = DEFAULT_REFINER,
@@ -112,7 +114,7 @@ def register(
             (:mod:`masknet.registration.auto`; ``info["path"]`` says which ran).
             ``"robust"``: the coarse-to-fine search, FPFH correspondence hypotheses, then
             the two-sided mask and rotation hypotheses, one score, refinement
-            (:mod:`masknet.registration.coarse`; any rotation, outliers in the source;
+            (:mod:`masknet.registration.robust.coarse_to_fine`; any rotation, outliers in the source;
             ``info["ambiguous"]`` and ``info["runner_up"]`` when another pose fits as
             well). ``"icp"`` (the paper's Mask-ICP: a KD-tree loop for one pair, batched
             torch ICP for a batch), ``"open3d-icp"`` (Open3D's point-to-point ICP, pair by
@@ -151,6 +153,11 @@ def register(
         init: ``"centroid"`` (default: translate the centroid of the source points in use
             onto the centroid of the template points in use, i.e. the masked ones for
             Mask-X) or ``"identity"``. PointNetLK centres both clouds itself either way.
+            Or Open3D's ``init``: a (4, 4) or (B, 4, 4) source -> template transform to
+            start from, for every method. The source is moved by it, the method runs as
+            with ``"identity"`` (the pipelines, which search globally, include it as the
+            pose as given), and every returned pose is composed with it, so
+            ``result.transform`` maps the source as given.
         max_points: single pairs larger than this are subsampled for the method
             (farthest point sampling); batches must already fit.
         scene: find the template, a small object, in a large source scan first
@@ -181,7 +188,8 @@ def register(
             only) instead of refusing them, as ``masknet register --drop-nonfinite``;
             ``mask`` and ``source_mask`` still cover every input row, False where dropped.
         **method_options: the fields of the method's options class, spelled inline
-            (``register(a, b, method="icp", max_iterations=30)``). Distances
+            (``register(a, b, method="icp", max_iterations=30)``); Open3D's
+            ``max_iteration`` is taken as ``max_iterations``. Distances
             (``max_correspondence_distance``) are in the clouds' units.
 
     Returns:
@@ -195,6 +203,7 @@ def register(
             values, or (for the Open3D methods) no Open3D.
     """
     start = time.perf_counter()
+    method_options = open3d_spelling(method_options)  # max_iteration: Open3D's name
     method = default_method(
         method,
         options,
@@ -202,11 +211,12 @@ def register(
             "k": k is not None,
             "threshold": threshold is not None,
             "refine_iterations": refine_iterations != 0,
-            "init": init != "centroid",
+            "init": isinstance(init, str) and init != "centroid",
             "icp options": any(f in method_options for f in _ICP_FIELDS),
         },
     )
     check_arguments(method, iterations, k, threshold, use_mask, init, refine_iterations, max_points)
+    init, start_pose = split_init(init)
     plan = plan_call(
         method,
         options_for(method, options, method_options),
@@ -226,6 +236,9 @@ def register(
     )
     times = {"sample": 0.0, "mask": 0.0, "register": 0.0, "refine": 0.0}
     clouds = check_clouds(template, source, plan)
+    if start_pose is not None:  # Open3D's init: the method starts from the source moved by it
+        start_pose = as_rigid_transforms(start_pose, clouds.source.shape[0])
+        clouds = clouds._replace(source=transform_points(start_pose, clouds.source))
     # Checked once, here: the stages (the networks check clouds given to them) do not
     # check or warn again.
     with checks_done():
@@ -234,6 +247,8 @@ def register(
         found = refine_plain(pair, found, plan, times)
         found = measure_fit(pair, found, plan)
         result = leave_frame(pair, found, plan, times)
+    if start_pose is not None:
+        result = result.started_from(start_pose)
     times["total"] = time.perf_counter() - start
     return result
 

@@ -41,12 +41,13 @@ from typing import NamedTuple
 
 import numpy as np
 
-from masknet.geometry.clouds import median_spacing
+from masknet.geometry.clouds import median_spacing, rms_radius
 from masknet.geometry.sampling import grid_subset
 from masknet.geometry.se3 import transform_points
-from masknet.registration.evaluation import DEFAULT_SPACINGS, given_cut
+from masknet.registration.fit import given_cut
 from masknet.registration.fit import overlap_fit as implied_overlap_fit
 from masknet.registration.hypotheses import rotation_between_deg
+from masknet.registration.options import DEFAULT_SPACINGS
 from masknet.registration.validation import as_numpy_batch, as_rigid_transforms
 
 __all__ = ["Assessment", "RULE_VERDICTS", "assess_registration", "verdict_rule"]
@@ -176,7 +177,7 @@ def assess_registration(
     template_fit, _, _ = implied_overlap_fit(cloud_tree(nearest), template_pts, limit, NEAR)
     overlap_fit = min(source_fit, template_fit)
     nearby_deg = rotation_between_deg(refined, tf)
-    radius = np.sqrt(((moved - moved.mean(0)) ** 2).sum(1).mean())
+    radius = rms_radius(moved)
     nearby_shift = float(np.linalg.norm(nearest.mean(0) - moved.mean(0)) / max(radius, 1e-300))
     away = f"{nearby_deg:.1f} degrees and {nearby_shift:.0%} of the radius away"
     # The worse direction is usually template to source: a partial view's edge leaves

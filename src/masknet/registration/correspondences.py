@@ -1,6 +1,6 @@
 """Pose hypotheses from FPFH correspondences: features, mutual matches, a batched RANSAC.
 
-The classical half of the coarse-to-fine pipeline (:mod:`masknet.registration.coarse`).
+The classical half of the coarse-to-fine pipeline (:mod:`masknet.registration.robust.coarse_to_fine`).
 Open3D computes the FPFH features on a voxel grid; everything after that is numpy on a
 few hundred points:
 
@@ -29,6 +29,7 @@ from scipy.spatial.distance import cdist
 
 from masknet.geometry.align import rigid_transforms_numpy
 from masknet.geometry.clouds import MIN_POINTS
+from masknet.geometry.open3d_clouds import to_open3d
 from masknet.geometry.se3 import transform_points
 from masknet.io import require_open3d
 
@@ -56,17 +57,10 @@ class FeatureCloud(NamedTuple):
     voxel: float
 
 
-def _o3d_cloud(o3d, points: np.ndarray):
-    return o3d.geometry.PointCloud(
-        o3d.utility.Vector3dVector(np.ascontiguousarray(points, dtype=np.float64))
-    )
-
-
 def voxel_for(points: np.ndarray, target: int, radius: float) -> float:
     """A voxel edge that leaves about ``target`` of ``points`` (P, 3): a first try at
     ``radius / 20``, corrected twice for the area the cloud covers (count ~ 1 / voxel^2)."""
-    o3d = require_open3d("FPFH features")
-    cloud = _o3d_cloud(o3d, points)
+    cloud = to_open3d(points, feature="FPFH features")
     voxel = radius / 20
     for _ in range(2):
         count = len(cloud.voxel_down_sample(voxel).points)
@@ -80,7 +74,7 @@ def feature_cloud(points: np.ndarray, voxel: float) -> FeatureCloud:
     """FPFH of ``points`` (P, 3) down-sampled on a grid of edge ``voxel``, normals oriented
     towards the grid's centroid."""
     o3d = require_open3d("FPFH features")
-    down = _o3d_cloud(o3d, points).voxel_down_sample(voxel)
+    down = to_open3d(points, feature="FPFH features").voxel_down_sample(voxel)
     fpfh = fpfh_features(o3d, down, voxel, FPFH_NEIGHBOURS, orient=True)
     return FeatureCloud(np.asarray(down.points), np.asarray(fpfh.data).T.copy(), voxel)
 

@@ -107,6 +107,26 @@ def adapter(name: str) -> Callable[..., Any]:
     return getattr(importlib.import_module(module), function)
 
 
+# Open3D's names for the same options (ICPConvergenceCriteria's ``max_iteration``), taken
+# as the masknet name: ``max_iterations`` stays masknet's, as in PyTorch3D's
+# ``iterative_closest_point(max_iterations=...)``.
+OPEN3D_NAMES = {"max_iteration": "max_iterations"}
+
+
+def open3d_spelling(keywords: dict[str, Any]) -> dict[str, Any]:
+    """``keywords`` with Open3D's names (:data:`OPEN3D_NAMES`) as masknet's; MaskNetError
+    when both spellings of one option are given."""
+    from masknet.errors import MaskNetError
+
+    out = dict(keywords)
+    for theirs, ours in OPEN3D_NAMES.items():
+        if theirs in out:
+            if ours in out:
+                raise MaskNetError(f"give {ours} or {theirs} (Open3D's name), not both")
+            out[ours] = out.pop(theirs)
+    return out
+
+
 def method_options(name: str, given: Any | None, keywords: dict[str, Any]) -> Any:
     """Method ``name``'s typed options: ``given`` (an instance of its options class, or
     None) with ``keywords`` (its fields, spelled inline) set, checked on construction.
@@ -115,6 +135,7 @@ def method_options(name: str, given: Any | None, keywords: dict[str, Any]) -> An
     from masknet.registration.options import as_dict
 
     kind = METHOD_TABLE[name].options
+    keywords = open3d_spelling(keywords)
     if given is not None and type(given) is not kind:
         raise MaskNetError(
             f"method {name!r} takes options={kind.__name__}(...), got {type(given).__name__}"

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from masknet.geometry.open3d_clouds import to_open3d
 from masknet.io import require_open3d
 from masknet.registration.correspondences import fpfh_features
 
@@ -20,9 +21,7 @@ __all__ = ["open3d_fpfh_ransac", "open3d_fgr"]
 def _cloud_and_features(
     o3d, points: np.ndarray, voxel_size: float, downsample: bool = False, orient: bool = False
 ):
-    cloud = o3d.geometry.PointCloud(
-        o3d.utility.Vector3dVector(np.ascontiguousarray(points, dtype=np.float64))
-    )
+    cloud = to_open3d(points)
     if downsample:  # the tutorial's first step, for clouds denser than the voxel
         cloud = cloud.voxel_down_sample(voxel_size)
     return cloud, fpfh_features(o3d, cloud, voxel_size, 100, orient)

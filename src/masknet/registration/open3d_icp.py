@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from masknet.geometry.open3d_clouds import to_open3d
 from masknet.io import require_open3d
 from masknet.registration.icp import ICPSolution
 
@@ -57,8 +58,8 @@ def open3d_icp(
         transform, fitness, rmse = init, 0.0, 0.0
     else:
         result = reg.registration_icp(
-            o3d.geometry.PointCloud(o3d.utility.Vector3dVector(src)),
-            o3d.geometry.PointCloud(o3d.utility.Vector3dVector(tpl)),
+            to_open3d(src),
+            to_open3d(tpl),
             threshold,
             init,
             reg.TransformationEstimationPointToPoint(),

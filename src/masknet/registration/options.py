@@ -31,6 +31,7 @@ __all__ = [
     "PointNetLKOptions",
     "RANSACOptions",
     "RobustOptions",
+    "SceneSearch",
     "as_dict",
 ]
 
@@ -179,7 +180,7 @@ HYPOTHESIS_SHARE = 16  # a source's points per point of the hypotheses' short IC
 @dataclass(frozen=True)
 class RobustOptions:
     """The options of ``method="auto"`` and ``"robust"``, the coarse-to-fine pipeline of
-    :mod:`masknet.registration.coarse`.
+    :mod:`masknet.registration.robust.coarse_to_fine`.
 
     feature_points: template points left by each FPFH voxel grid, in the order tried (the
         counts set the voxels, so the unit does not matter; a template of N > 1,024 points
@@ -270,3 +271,73 @@ class RobustOptions:
         if self.max_correspondence_distance is not None:
             return float(self.max_correspondence_distance)
         return DEFAULT_SPACINGS * spacing
+
+
+@dataclass(frozen=True)
+class SceneSearch:
+    """Options of the scene search (:func:`masknet.registration.scene.locate`); lengths are in template radii (the largest distance of a
+    template point from the template's centroid).
+
+    voxel: grid of the thinned scene. spacing: grid of the candidate centres. crop: radius
+    of a candidate's region. min_region_points: smaller regions are skipped.
+    hypotheses: rotations per centre (the cube's 24, nearest the identity first).
+    hypothesis_points: template points in the batched hypothesis stage.
+    max_iterations: ICP iterations per stage (Open3D's name; rounds are register's
+    ``iterations``). trim: fraction of template points that score.
+    candidates: best placements refined. refine_points: template points then.
+    refine_distance: correspondence cut-off of the refinement.
+    inlier_distance: scene points this close to the moved template are the object's (at
+        least 1.5 times the template's median nearest-neighbour spacing).
+    viewpoint: the sensor's position in the scene's coordinates (input units), e.g.
+        (0, 0, 0) for a depth frame in camera coordinates. With it, only the template
+        points that face the sensor (outward PCA normals towards it) need to lie on the
+        scene, so a full 360-degree model can be found in a one-sided scan.
+    max_placements: the most placements (centres x hypotheses) of the batched stage; a
+        larger scene gets a coarser centre grid (reported as ``SceneMatch.spacing``).
+    scene_ratio: :func:`is_scene` calls a source a scene when it is at least this many times
+        as spread out as the template (median distance of the points from their median
+        point: outliers, even a third of the points, barely move it).
+    """
+
+    voxel: float = 0.05
+    spacing: float = 0.5
+    crop: float = 1.5
+    min_region_points: int = 32
+    hypotheses: int = 24
+    hypothesis_points: int = 64
+    max_iterations: int = 15
+    trim: float = 0.9
+    candidates: int = 16
+    refine_points: int = 1024
+    refine_distance: float = 0.1
+    inlier_distance: float = 0.02
+    scene_ratio: float = 3.0
+    max_placements: int = 50_000
+    viewpoint: tuple[float, float, float] | None = None
+
+    def __post_init__(self) -> None:
+        from masknet.geometry.clouds import MIN_POINTS  # here: the method table needs no torch
+
+        for name in ("voxel", "spacing", "crop", "refine_distance", "inlier_distance"):
+            _positive(f"scene search: {name}", getattr(self, name), allow_none=False)
+        _positive("scene search: scene_ratio", self.scene_ratio, allow_none=False)
+        if not _number(self.trim) or not 0 < self.trim <= 1:
+            raise MaskNetError(f"scene search: trim must be in (0, 1], got {self.trim!r}")
+        for name, low in (
+            ("hypotheses", 1),
+            ("hypothesis_points", MIN_POINTS),
+            ("max_iterations", 1),
+            ("min_region_points", 1),
+            ("candidates", 1),
+            ("refine_points", MIN_POINTS),
+            ("max_placements", self.hypotheses),
+        ):
+            _integer(f"scene search: {name}", getattr(self, name), low)
+        if self.viewpoint is not None and (
+            np.shape(self.viewpoint) != (3,) or not np.isfinite(self.viewpoint).all()
+        ):
+            raise MaskNetError("scene search: viewpoint must be 3 finite numbers (x, y, z)")
+
+    def check(self) -> None:
+        """Kept for callers of the former NamedTuple: the values are checked when made."""
+        self.__post_init__()

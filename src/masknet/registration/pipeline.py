@@ -24,7 +24,7 @@ import numpy as np
 
 from masknet.errors import MaskNetError
 from masknet.geometry.clouds import MIN_POINTS, SPACING_SAMPLE, Frame, median_spacing
-from masknet.geometry.sampling import spread_mask
+from masknet.geometry.sampling import fit_to_network, spread_mask
 from masknet.geometry.se3 import transform_points
 from masknet.registration.backends.base import MaskModels
 from masknet.registration.fit import inlier_fit
@@ -34,7 +34,6 @@ from masknet.registration.plan import CallPlan, with_networks
 from masknet.registration.refinement import refine_pose
 from masknet.registration.result import RegistrationResult
 from masknet.registration.rounds import mask_and_register
-from masknet.registration.sampling import fit_to_network
 from masknet.registration.scene import SceneMatch, SceneSearch, is_scene, locate, polish
 from masknet.registration.validation import as_numpy_batch, finite_rows, spread_rows
 

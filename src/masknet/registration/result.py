@@ -3,7 +3,7 @@ names (``transformation``, ``fitness``, ``inlier_rmse``) beside masknet's own.""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -78,6 +78,28 @@ class RegistrationResult:
     scene: SceneMatch | None = None
 
     # Open3D's names (``RegistrationResult`` of ``open3d.pipelines.registration``).
+    def started_from(self, start: np.ndarray) -> RegistrationResult:
+        """This result, found for a source moved by ``start`` (B, 4, 4), as a result for
+        the source as given: every pose composed with ``start`` (``init`` as a matrix)."""
+        single = self.transform.ndim == 2
+        start_b = start if not single else start[0]
+        transform = self.transform @ start_b
+        info = dict(self.info)
+        if "runner_up" in info:
+            info["runner_up"] = info["runner_up"] @ start
+        scene = self.scene
+        if scene is not None:
+            scene = scene._replace(transform=scene.transform @ start[0])
+        return replace(
+            self,
+            R=transform[..., :3, :3],
+            t=transform[..., :3, 3],
+            transform=transform,
+            rounds=[r @ start_b for r in self.rounds],
+            info=info,
+            scene=scene,
+        )
+
     @property
     def transformation(self) -> np.ndarray:
         """Open3D's name for :attr:`transform`: (4, 4) or (B, 4, 4)."""

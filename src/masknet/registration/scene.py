@@ -61,79 +61,12 @@ from masknet.geometry.sampling import farthest_point_sample
 from masknet.geometry.se3 import hypothesis_rotations, transform_points
 from masknet.geometry.trimmed import trimmed_fit, trimmed_mean, trimmed_order
 from masknet.registration.icp import icp
-from masknet.registration.options import DEFAULT_SPACINGS
+from masknet.registration.options import DEFAULT_SPACINGS, SceneSearch
 
 __all__ = ["SceneSearch", "SceneMatch", "is_scene", "locate", "polish"]
 
 PRUNE_EVERY = 5  # hypothesis-stage iterations between drops of the worst three quarters
 MIN_FACING = 0.2  # with a viewpoint: a placement showing the sensor fewer points is out
-
-
-class SceneSearch(NamedTuple):
-    """Options of :func:`locate`; lengths are in template radii (the largest distance of a
-    template point from the template's centroid).
-
-    voxel: grid of the thinned scene. spacing: grid of the candidate centres. crop: radius
-    of a candidate's region. min_region_points: smaller regions are skipped.
-    hypotheses: rotations per centre (the cube's 24, nearest the identity first).
-    hypothesis_points: template points in the batched hypothesis stage.
-    max_iterations: ICP iterations per stage (Open3D's name; rounds are register's
-    ``iterations``). trim: fraction of template points that score.
-    candidates: best placements refined. refine_points: template points then.
-    refine_distance: correspondence cut-off of the refinement.
-    inlier_distance: scene points this close to the moved template are the object's (at
-        least 1.5 times the template's median nearest-neighbour spacing).
-    viewpoint: the sensor's position in the scene's coordinates (input units), e.g.
-        (0, 0, 0) for a depth frame in camera coordinates. With it, only the template
-        points that face the sensor (outward PCA normals towards it) need to lie on the
-        scene, so a full 360-degree model can be found in a one-sided scan.
-    max_placements: the most placements (centres x hypotheses) of the batched stage; a
-        larger scene gets a coarser centre grid (reported as ``SceneMatch.spacing``).
-    scene_ratio: :func:`is_scene` calls a source a scene when it is at least this many times
-        as spread out as the template (median distance of the points from their median
-        point: outliers, even a third of the points, barely move it).
-    """
-
-    voxel: float = 0.05
-    spacing: float = 0.5
-    crop: float = 1.5
-    min_region_points: int = 32
-    hypotheses: int = 24
-    hypothesis_points: int = 64
-    max_iterations: int = 15
-    trim: float = 0.9
-    candidates: int = 16
-    refine_points: int = 1024
-    refine_distance: float = 0.1
-    inlier_distance: float = 0.02
-    scene_ratio: float = 3.0
-    max_placements: int = 50_000
-    viewpoint: tuple[float, float, float] | None = None
-
-    def check(self) -> None:
-        """MaskNetError naming the first option out of range."""
-        for name in ("voxel", "spacing", "crop", "refine_distance", "inlier_distance"):
-            if not getattr(self, name) > 0:
-                raise MaskNetError(f"scene search: {name} must be positive")
-        if not 0 < self.trim <= 1:
-            raise MaskNetError("scene search: trim must be in (0, 1]")
-        if not self.scene_ratio > 0:
-            raise MaskNetError("scene search: scene_ratio must be positive")
-        for name, low in (
-            ("hypotheses", 1),
-            ("hypothesis_points", MIN_POINTS),
-            ("max_iterations", 1),
-        ):
-            if getattr(self, name) < low:
-                raise MaskNetError(f"scene search: {name} must be >= {low}")
-        if self.viewpoint is not None and (
-            np.shape(self.viewpoint) != (3,) or not np.isfinite(self.viewpoint).all()
-        ):
-            raise MaskNetError("scene search: viewpoint must be 3 finite numbers (x, y, z)")
-        if self.max_placements < self.hypotheses:
-            raise MaskNetError("scene search: max_placements must be >= hypotheses")
-        if self.candidates < 1 or self.refine_points < 3:
-            raise MaskNetError("scene search: candidates >= 1 and refine_points >= 3")
 
 
 class SceneMatch(NamedTuple):
@@ -156,11 +89,6 @@ class SceneMatch(NamedTuple):
     hypotheses: int
     seconds: float
     spacing: float
-
-
-def _radius(points: np.ndarray) -> float:
-    """The project's unit radius of one cloud (P, 3) (:func:`unit_radius`), a float."""
-    return float(unit_radius(points))
 
 
 def _spread(points: np.ndarray) -> float:
@@ -266,7 +194,7 @@ def locate(
     template = np.asarray(template, dtype=np.float64)
     scene = np.asarray(scene, dtype=np.float64)
     centre = template.mean(0)
-    radius = max(_radius(template), 1e-12)
+    radius = float(unit_radius(template))
     tpl = (template - centre) / radius  # template frame, unit radius
     scn = (scene - centre) / radius
     # 1-2. Thinned scene and candidate centres (those with enough scene around them).
@@ -424,7 +352,7 @@ def polish(
     opts = options or SceneSearch()
     template = np.asarray(template, np.float64)
     points = np.asarray(points, np.float64)
-    radius = max(_radius(template), 1e-12)
+    radius = float(unit_radius(template))
     cut = radius * _inlier_distance((template - template.mean(0)) / radius, opts)
     best, best_fit = starts[0], np.inf
     for start in starts:

@@ -42,14 +42,29 @@ def check_arguments(
     ):
         if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < low:
             raise MaskNetError(f"{name} must be an integer >= {low}, got {value!r}")
-    if init not in INITS:
-        raise MaskNetError(f"unknown init {init!r}; choose from {INITS}")
+    split_init(init)
     if k is not None and threshold is not None:
         raise MaskNetError("give either k or threshold, not both")
     if k is not None and (isinstance(k, bool) or not isinstance(k, int | np.integer) or k < 1):
         raise MaskNetError(f"k must be an integer >= 1, got {k!r}")
     if not use_mask and (k is not None or threshold is not None):
         raise MaskNetError("k and threshold select MaskNet's inliers; they need use_mask=True")
+
+
+def split_init(init: Any) -> tuple[str, np.ndarray | None]:
+    """``init`` as a named start and a starting pose: a name of :data:`INITS` gives
+    (name, None); a (4, 4) or (B, 4, 4) array, Open3D's ``init``, gives ("identity", the
+    array as float64), the source then moved by it before the method runs."""
+    if isinstance(init, str):
+        if init not in INITS:
+            raise MaskNetError(f"unknown init {init!r}; choose from {INITS} or a (4, 4) matrix")
+        return init, None
+    shape = np.shape(init)
+    if shape[-2:] != (4, 4) or len(shape) not in (2, 3):
+        raise MaskNetError(
+            f"init must be one of {INITS} or a (4, 4) or (B, 4, 4) transform, got shape {shape}"
+        )
+    return "identity", np.array(init, dtype=np.float64)
 
 
 def as_numpy_batch(template: Any, source: Any) -> tuple[np.ndarray, np.ndarray, bool]:

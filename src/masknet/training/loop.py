@@ -252,10 +252,7 @@ def _fit(
     torch.manual_seed(config.seed)
     model = task.build_model().to(device)
     if init_weights is not None:
-        try:
-            model.load_state_dict(init_weights.state_dict())
-        except RuntimeError as exc:
-            raise MaskNetError(f"--init weights do not fit this model ({exc})") from None
+        _load_init(model, init_weights)
     train_model: nn.Module = model
     if world > 1:
         if device.type == "cuda":
@@ -391,6 +388,21 @@ def _fit(
         if stop:
             break
     return history
+
+
+def _load_init(model: nn.Module, init_weights: nn.Module) -> None:
+    """Start ``model`` from ``init_weights``: every tensor must fit, and only an added
+    residual head (``context.*``, which starts at zero) may be missing from them."""
+    try:
+        missing, unexpected = model.load_state_dict(init_weights.state_dict(), strict=False)
+    except RuntimeError as exc:
+        raise MaskNetError(f"--init weights do not fit this model ({exc})") from None
+    missing = [k for k in missing if not k.startswith("context.")]
+    if missing or unexpected:
+        raise MaskNetError(
+            f"--init weights do not fit this model (missing {missing[:3]}, "
+            f"unexpected {unexpected[:3]})"
+        )
 
 
 def _init_distributed(device: torch.device) -> tuple[int, int, bool]:

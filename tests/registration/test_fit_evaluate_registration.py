@@ -1,4 +1,4 @@
-"""Tests for masknet.registration.evaluation: inlier fraction and RMSE of any transform."""
+"""Tests for masknet.registration.fit.evaluate_registration: inlier fraction and RMSE of any transform."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 from masknet import MaskNetError, evaluate_registration
 from masknet.data import bundled_sample_path, load_modelnet40
 from masknet.geometry.clouds import median_spacing
-from masknet.registration.evaluation import DEFAULT_SPACINGS
+from masknet.registration.options import DEFAULT_SPACINGS
 
 
 @pytest.fixture(scope="module")

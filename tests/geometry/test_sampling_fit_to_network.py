@@ -1,4 +1,4 @@
-"""masknet.registration.sampling: large single pairs brought to the network's size, the
+"""masknet.geometry.sampling.fit_to_network: large single pairs brought to the network's size, the
 source at the template's spacing so that its size still reflects the overlap."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from masknet.errors import MaskNetError
-from masknet.registration.sampling import fit_to_network
+from masknet.geometry.sampling import fit_to_network
 
 
 def _ellipsoid(n: int, seed: int) -> np.ndarray:

@@ -51,14 +51,14 @@ def _box_with_a_bump(rng: np.random.Generator) -> np.ndarray:
 def test_an_early_flip_gives_way_to_the_pose_the_clouds_are_near():
     """A flip that passed the early exit gives way to the clouds as given when they
     refine to a better fit; an early answer that is right gets nothing added."""
-    from masknet.registration.coarse import (
+    from masknet.registration.hypotheses import Scored
+    from masknet.registration.options import RobustOptions
+    from masknet.registration.prepared import FIT_SPACINGS, prepare_pair
+    from masknet.registration.robust.coarse_to_fine import (
         REFINE_TOLERANCE,
         _as_given,
         _short_icp_from_identity,
     )
-    from masknet.registration.hypotheses import Scored
-    from masknet.registration.options import RobustOptions
-    from masknet.registration.prepared import FIT_SPACINGS, prepare_pair
 
     rng = np.random.default_rng(0)
     template = _box_with_a_bump(rng)
