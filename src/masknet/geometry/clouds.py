@@ -20,6 +20,7 @@ __all__ = [
     "check_pair",
     "centroid_radius",
     "median_spacing",
+    "median_spread",
     "points_of",
     "rms_radius",
     "unit_radius",
@@ -51,6 +52,13 @@ def centroid_radius(points: np.ndarray) -> np.ndarray:
     the networks' scale."""
     points = np.asarray(points, dtype=np.float64)
     return np.linalg.norm(points - points.mean(-2, keepdims=True), axis=-1).max(-1)
+
+
+def median_spread(points: np.ndarray) -> float:
+    """The median distance of points (P, 3) from their coordinate-wise median: a cloud's
+    extent that stray points and outliers, even a third of them, barely move."""
+    points = np.asarray(points, dtype=np.float64)
+    return float(np.median(np.linalg.norm(points - np.median(points, axis=0), axis=1)))
 
 
 def rms_radius(points: np.ndarray) -> np.ndarray:

@@ -48,6 +48,7 @@ from masknet.registration.fit import given_cut
 from masknet.registration.fit import overlap_fit as implied_overlap_fit
 from masknet.registration.hypotheses import rotation_between_deg
 from masknet.registration.options import DEFAULT_SPACINGS
+from masknet.registration.units import warn_mixed_units
 from masknet.registration.validation import as_numpy_batch, as_rigid_transforms
 
 __all__ = ["Assessment", "RULE_VERDICTS", "assess_registration", "verdict_rule"]
@@ -142,6 +143,7 @@ def assess_registration(
     if not single:
         raise MaskNetError("assess_registration judges one pair: (N, 3) and (M, 3) clouds")
     tf = as_rigid_transforms(transform, 1)[0]
+    warn_mixed_units(template_b[0], source_b[0])
     even_template, even_source = (
         _subset(template_b[0], CLOUD_POINTS, 0),
         _subset(source_b[0], CLOUD_POINTS, 1),

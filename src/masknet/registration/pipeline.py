@@ -35,6 +35,7 @@ from masknet.registration.refinement import refine_pose
 from masknet.registration.result import RegistrationResult
 from masknet.registration.rounds import mask_and_register
 from masknet.registration.scene import SceneMatch, SceneSearch, is_scene, locate, polish
+from masknet.registration.units import warn_mixed_units
 from masknet.registration.validation import as_numpy_batch, finite_rows, spread_rows
 
 __all__ = [
@@ -140,11 +141,17 @@ class CheckedClouds(NamedTuple):
 
 def check_clouds(template: Any, source: Any, plan: CallPlan) -> CheckedClouds:
     """Every check of the clouds, once (:func:`masknet.io_checks.check_cloud`), after
-    dropping non-finite rows where the plan asks; the later stages check nothing again."""
+    dropping non-finite rows where the plan asks, and a warning where the two clouds look
+    like different units (:mod:`masknet.registration.units`); the later stages check
+    nothing again."""
     template_rows = source_rows = None
     if plan.drop_nonfinite:
         template, source, template_rows, source_rows = finite_rows(template, source)
-    return CheckedClouds(*as_numpy_batch(template, source), template_rows, source_rows)
+    clouds = CheckedClouds(*as_numpy_batch(template, source), template_rows, source_rows)
+    for pair_template, pair_source in zip(clouds.template, clouds.source, strict=True):
+        if warn_mixed_units(pair_template, pair_source).mixed:
+            break  # one line for a batch
+    return clouds
 
 
 def enter_frame(

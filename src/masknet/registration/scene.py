@@ -54,7 +54,7 @@ import torch
 
 from masknet.errors import MaskNetError
 from masknet.geometry.align import rigid_transforms_numpy
-from masknet.geometry.clouds import MIN_POINTS, median_spacing, unit_radius
+from masknet.geometry.clouds import MIN_POINTS, median_spacing, median_spread, unit_radius
 from masknet.geometry.knn import cloud_tree
 from masknet.geometry.normals import estimate_normals
 from masknet.geometry.sampling import farthest_point_sample
@@ -91,18 +91,13 @@ class SceneMatch(NamedTuple):
     spacing: float
 
 
-def _spread(points: np.ndarray) -> float:
-    """Median distance of points (P, 3) from their coordinate-wise median."""
-    return float(np.median(np.linalg.norm(points - np.median(points, axis=0), axis=1)))
-
-
 def is_scene(template: np.ndarray, source: np.ndarray, options: SceneSearch | None = None) -> bool:
     """Whether ``source`` (M, 3) is at least ``scene_ratio`` times as spread out as
     ``template`` (N, 3) (:class:`SceneSearch`): an object to find in a scene, not a view
     of the object, with or without outliers."""
     ratio = (options or SceneSearch()).scene_ratio
-    spread = _spread(template)
-    return spread > 0 and _spread(source) >= ratio * spread
+    spread = median_spread(template)
+    return spread > 0 and median_spread(source) >= ratio * spread
 
 
 def _voxel_thin(points: np.ndarray, size: float) -> np.ndarray:
