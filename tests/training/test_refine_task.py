@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -16,6 +18,7 @@ from masknet.geometry.se3 import transform_points
 from masknet.models.refine import RefineMaskNet
 from masknet.training import TrainConfig, fit
 from masknet.training.refine_task import RefineMaskTask
+from masknet.training.scan_mix import ScanMix
 
 SMALL = {"k": 6, "local_channels": [8, 16], "point_channels": [16, 32], "head_channels": [16]}
 
@@ -25,6 +28,9 @@ def _scan(name: str, seed: int) -> Scan:
     xy = rng.uniform(-2, 2, (2000, 2))
     points = np.column_stack([xy, 0.3 * np.sin(2 * xy[:, 0])]).astype(np.float32)
     return Scan(name, points)
+
+
+MIX_FIELDS = {f.name for f in dataclasses.fields(ScanMix)}
 
 
 def _task(**changes) -> RefineMaskTask:
@@ -38,9 +44,12 @@ def _task(**changes) -> RefineMaskTask:
         crop=ScanCropConfig(crop_points=(256, 512)),
         scan_batches=2,
         modelnet_fraction=1.0,
+        modelnet_view_fraction=0.5,
         modelnet_view_points=48,
     )
-    return RefineMaskTask(**(settings | changes))
+    settings |= changes
+    mix = ScanMix(**{k: v for k, v in settings.items() if k in MIX_FIELDS})
+    return RefineMaskTask(mix=mix, **{k: v for k, v in settings.items() if k not in MIX_FIELDS})
 
 
 @pytest.fixture(scope="module")

@@ -11,7 +11,7 @@ from masknet.errors import MaskNetError
 if TYPE_CHECKING:
     from masknet.data.scans import Scan
     from masknet.data.views import ViewConfig
-    from masknet.training.masknet_task import MaskNetTask
+    from masknet.training.scan_mix import ScanMix
 
 
 def names(text: str) -> list[str]:
@@ -123,15 +123,11 @@ def read_scans(folder: str, only: list[str] | None = None) -> list[Scan]:
     return scans
 
 
-def scan_task(
-    args: argparse.Namespace, base: MaskNetTask, task_class: type | None = None, **extra
-) -> MaskNetTask:
-    """``base`` (the MaskNet task of the other options) extended with the scans, as a
-    ``task_class`` (default :class:`ScanMaskNetTask`) with ``extra`` settings."""
+def scan_mix(args: argparse.Namespace, **settings) -> ScanMix:
+    """The scans of ``--scans`` as a task's :class:`~masknet.training.scan_mix.ScanMix`
+    (whole scans held out for validation), with ``settings`` of the task's own."""
     from masknet.data.scans import split_scans
-    from masknet.training.scan_task import ScanMaskNetTask
-
-    task_class = task_class or ScanMaskNetTask
+    from masknet.training.scan_mix import ScanMix
 
     if not 0 <= args.modelnet_fraction <= 1:
         raise MaskNetError(f"--modelnet-fraction must be in [0, 1], got {args.modelnet_fraction}")
@@ -142,17 +138,11 @@ def scan_task(
         f"scans: {len(train)} for training, {len(val)} held out "
         f"({', '.join(s.name for s in val) or 'none'})"
     )
-    # The MaskNet task's loss option; the two-sided and refinement tasks fix their own.
-    loss = {"loss": base.loss} if task_class is ScanMaskNetTask else {}
-    return task_class(
-        pairs=base.pairs,
-        num_points=base.num_points,
-        model_config=base.model_config,
+    return ScanMix(
         scans=train,
         val_scans=val,
         view=view_config(args, args.scan_noise, random_noise=True),
         scan_batches=args.scan_batches,
         modelnet_fraction=args.modelnet_fraction,
-        **loss,
-        **extra,
+        **settings,
     )

@@ -20,8 +20,6 @@ from masknet.registration.methods import NETWORK_METHODS
 if TYPE_CHECKING:
     from masknet.training import Task
 
-MODELS = ("masknet", "masknet2", "refine", "denoise", *NETWORK_METHODS)
-
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Add ``train`` to the ``masknet`` subparsers."""
@@ -139,100 +137,129 @@ class TrainSetup(NamedTuple):
 
 def build_task(args: argparse.Namespace) -> TrainSetup:
     """The training task of ``--model`` (and the pair options), its model class and the
-    precision to train in.
+    precision to train in: the builder of :data:`TASK_BUILDERS` for that model.
 
     Raises:
-        MaskNetError: ``--model-config`` does not fit the network, or bf16 for a
-            registration network.
+        MaskNetError: ``--model-config`` does not fit the network, bf16 for a
+            registration network, or an option the model does not take.
     """
-    from masknet.models import MaskNet
-    from masknet.training import TRAINING_DEFAULTS, MaskNetTask, RegistrationTask
-
-    encoder = {}
-    if args.feature_size:
-        encoder = {"encoder_channels": [64, 64, 64, 128, args.feature_size]}
-    precision = args.precision
     if args.template_mask and args.model not in NETWORK_METHODS:
         raise MaskNetError(
             f"--template-mask trains a registration network, not --model {args.model}"
         )
-    if args.model == "denoise":
-        task = MaskNetTask.denoising(
-            pair_config(args, default_outliers=0.1),
-            num_points=args.num_points,
-            loss=args.loss,
-            model_config=encoder,
-        )
-        return TrainSetup(task, MaskNet, precision)
-    if args.model == "masknet":
-        task = MaskNetTask(
-            pairs=pair_config(args),
-            num_points=args.num_points,
-            loss=args.loss,
-            model_config=encoder | (args.model_config or {}),
-        )
-        if args.scans:
-            task = _scans.scan_task(args, task)
-        return TrainSetup(task, MaskNet, precision)
-    if args.model == "masknet2":
-        from masknet.models.two_sided import TwoSidedMaskNet
-        from masknet.training.two_sided_task import TwoSidedTask
-
-        init = {"init": args.init} if args.init else {}
-        base = MaskNetTask(pairs=pair_config(args), num_points=args.num_points)
-        if args.scans:
-            task = _scans.scan_task(args, base, TwoSidedTask, **init)
-        else:
-            task = TwoSidedTask(pairs=base.pairs, num_points=args.num_points, **init)
-        args.init = None  # the task starts from those MaskNet weights itself
-        return TrainSetup(task, TwoSidedMaskNet, precision)
-    if args.model == "refine":
-        from masknet.models.refine import RefineMaskNet
-        from masknet.training.refine_task import RefineMaskTask
-
-        init = {"init": args.init} if args.init else {}
-        config = args.model_config if args.model_config is not None else {}
-        base = MaskNetTask(pairs=pair_config(args), num_points=args.num_points, model_config=config)
-        if args.scans:
-            task = _scans.scan_task(args, base, RefineMaskTask, **init)
-        else:
-            task = RefineMaskTask(
-                pairs=base.pairs, num_points=args.num_points, model_config=config, **init
-            )
-        try:
-            task.build_model()
-        except (TypeError, MaskNetError) as exc:
-            raise MaskNetError(f"refine: {exc}") from None
-        args.init = None  # the task loads those weights itself
-        return TrainSetup(task, RefineMaskNet, precision)
-    if args.scans:
+    if args.scans and args.model in NETWORK_METHODS:
         raise MaskNetError(f"--scans trains MaskNet (--model masknet), not {args.model}")
+    return TASK_BUILDERS[args.model](args)
+
+
+def _encoder(args: argparse.Namespace) -> dict:
+    """``--feature-size`` as the encoder's widths (the paper's but the last)."""
+    return {"encoder_channels": [64, 64, 64, 128, args.feature_size]} if args.feature_size else {}
+
+
+def _masknet(args: argparse.Namespace) -> TrainSetup:
+    from masknet.models import MaskNet
+    from masknet.training import MaskNetTask
+
+    settings = {
+        "pairs": pair_config(args),
+        "num_points": args.num_points,
+        "loss": args.loss,
+        "model_config": _encoder(args) | (args.model_config or {}),
+    }
+    if args.scans:
+        return TrainSetup(
+            MaskNetTask.on_scans(_scans.scan_mix(args), **settings), MaskNet, args.precision
+        )
+    return TrainSetup(MaskNetTask(**settings), MaskNet, args.precision)
+
+
+def _denoise(args: argparse.Namespace) -> TrainSetup:
+    from masknet.models import MaskNet
+    from masknet.training import MaskNetTask
+
+    task = MaskNetTask.denoising(
+        pair_config(args, default_outliers=0.1),
+        num_points=args.num_points,
+        loss=args.loss,
+        model_config=_encoder(args),
+    )
+    return TrainSetup(task, MaskNet, args.precision)
+
+
+def _two_sided(args: argparse.Namespace) -> TrainSetup:
+    from masknet.models.two_sided import TwoSidedMaskNet
+    from masknet.training.two_sided_task import TwoSidedTask
+
+    settings = {"pairs": pair_config(args), "num_points": args.num_points}
+    if args.init:
+        settings["init"] = args.init
+        args.init = None  # the task starts from those MaskNet weights itself
+    if args.scans:
+        settings["mix"] = _scans.scan_mix(args)
+    return TrainSetup(TwoSidedTask(**settings), TwoSidedMaskNet, args.precision)
+
+
+def _refine(args: argparse.Namespace) -> TrainSetup:
+    from masknet.models.refine import RefineMaskNet
+    from masknet.training.refine_task import RefineMaskTask
+
+    settings = {
+        "pairs": pair_config(args),
+        "num_points": args.num_points,
+        "model_config": args.model_config if args.model_config is not None else {},
+    }
+    if args.init:
+        settings["init"] = args.init
+        args.init = None  # the task loads those weights itself
+    if args.scans:
+        settings["mix"] = _scans.scan_mix(args, modelnet_view_fraction=0.5)
+    task = RefineMaskTask(**settings)
+    try:
+        task.build_model()
+    except (TypeError, MaskNetError) as exc:
+        raise MaskNetError(f"refine: {exc}") from None
+    return TrainSetup(task, RefineMaskNet, args.precision)
+
+
+def _registration_network(args: argparse.Namespace) -> TrainSetup:
+    from masknet.models import REGISTRATION_NETWORKS
+    from masknet.training import TRAINING_DEFAULTS, RegistrationTask
+
     if args.template_mask:
         from masknet.training.registration_task import load_mask_network
 
         load_mask_network(args.template_mask)  # a wrong name fails before the data loads
     defaults = TRAINING_DEFAULTS[args.model]
-    model_config = args.model_config if args.model_config is not None else encoder
     task = RegistrationTask(
         pairs=pair_config(args, default_keep_ratio=defaults["keep_ratio"]),
         num_points=args.num_points,
         name=args.model,
         iterations=args.iterations or defaults["iterations"],
-        model_config=model_config,
+        model_config=args.model_config if args.model_config is not None else _encoder(args),
         template_mask=args.template_mask,
     )
     try:
         task.build_model()
     except TypeError as exc:
         raise MaskNetError(f"--model-config does not fit {args.model}: {exc}") from None
-    if precision == "bf16":
+    if args.precision == "bf16":
         raise MaskNetError(
             f"--precision bf16 does not suit {args.model}: registration networks train "
             "in fp32 (PointNetLK's finite-difference Jacobian and the SVDs need it)"
         )
-    from masknet.models import REGISTRATION_NETWORKS
-
     return TrainSetup(task, REGISTRATION_NETWORKS[args.model], "fp32")
+
+
+# --model -> the builder of its task, as the method table maps a method to its adapter.
+TASK_BUILDERS = {
+    "masknet": _masknet,
+    "masknet2": _two_sided,
+    "refine": _refine,
+    "denoise": _denoise,
+    **dict.fromkeys(NETWORK_METHODS, _registration_network),
+}
+MODELS = tuple(TASK_BUILDERS)
 
 
 def run(args: argparse.Namespace) -> None:

@@ -173,7 +173,7 @@ def fit(
 
     ``train_points`` is split by :func:`split_train_val` into training and
     validation shapes; it may hold no shapes (S = 0) for a task that brings its own
-    data, such as :class:`~masknet.training.scan_task.ScanMaskNetTask` on scans alone. ``init_weights`` optionally starts from another model's
+    data, such as a MaskNet task on scans alone (:meth:`~masknet.training.masknet_task.MaskNetTask.on_scans`). ``init_weights`` optionally starts from another model's
     weights (fine-tuning); it is ignored when resuming. Under torchrun only rank 0
     returns the log rows (the others return an empty list).
     """

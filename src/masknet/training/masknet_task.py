@@ -12,6 +12,7 @@ from masknet.data.pairs import PairConfig, Pairs
 from masknet.metrics import mask_metrics
 from masknet.models.masknet import MaskNet, select_mask
 from masknet.training.pair_task import PairTask
+from masknet.training.scan_mix import ScanMix, by_kind
 
 __all__ = ["MaskNetTask"]
 
@@ -27,6 +28,8 @@ class MaskNetTask(PairTask):
         source, top-k precision) or ``"denoise"`` (score the points of a source
         with outliers, given the clean template; threshold 0.5, F1 of the kept points).
         Use :meth:`denoising` for the denoising task's defaults.
+    mix: real scans mixed in (:class:`~masknet.training.scan_mix.ScanMix`); metrics are
+        then logged per kind of batch too. :meth:`on_scans` names such a run.
     """
 
     loss: Literal["mse", "bce"] = "mse"
@@ -54,6 +57,12 @@ class MaskNetTask(PairTask):
             model_config=config,
             **kwargs,
         )
+
+    @classmethod
+    def on_scans(cls, mix: ScanMix, **kwargs) -> MaskNetTask:
+        """MaskNet trained on ModelNet40 and real scans: the batches of ``mix``."""
+        kwargs.setdefault("name", "masknet-scans")
+        return cls(mix=mix, **kwargs)
 
     def build_model(self) -> nn.Module:
         return MaskNet(**self.model_config)
@@ -84,7 +93,8 @@ class MaskNetTask(PairTask):
                 predicted = select_mask(scores, k=batch.source.shape[1])
             metrics = mask_metrics(predicted, target.bool()).mean()
         keys = ("precision", "recall", "f1") if self.role == "denoise" else ("precision", "recall")
-        return loss, {key: metrics[key] for key in keys}
+        metrics = {key: metrics[key] for key in keys}
+        return loss, metrics if self.mix is None else by_kind(batch, metrics)
 
     def describe_extra(self) -> dict:
         return {"loss": self.loss} | ({"role": self.role} if self.role != "template" else {})

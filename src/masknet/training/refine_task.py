@@ -1,9 +1,10 @@
 """Training the refinement mask: the two-sided task's pairs, as a registration round leaves them.
 
-:class:`RefineMaskTask` takes every batch of :class:`TwoSidedTask` (ModelNet40 pairs,
-sensor-like ModelNet40 views and pairs cut from real scans, with noise, outliers and
-clutter in the source; template and source sampled independently wherever the view
-generator cuts them), moves each source onto its template by the true pose and off it
+:class:`RefineMaskTask` takes the two-sided task's batches (its
+:class:`~masknet.training.scan_mix.ScanMix`: ModelNet40 pairs, sensor-like ModelNet40 views
+and pairs cut from real scans, with noise, outliers and clutter put in the source; template
+and source sampled independently wherever the view generator cuts them), moves each source
+onto its template by the true pose and off it
 again by a residual drawn from :class:`~masknet.data.residuals.ResidualConfig`
 (:func:`~masknet.data.residuals.residual_pairs`). The loss is BCE on both masks.
 
@@ -17,31 +18,53 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
+from typing import Literal
 
-import numpy as np
 import torch
 from torch import Tensor, nn
 
+from masknet.data.corruption import CorruptionConfig
 from masknet.data.pairs import Pairs
 from masknet.data.residuals import ResidualConfig, residual_pairs
 from masknet.errors import MaskNetError
 from masknet.metrics import mask_metrics
 from masknet.models.refine import RefineMaskNet
-from masknet.training.scan_task import MappedEpoch, by_kind
-from masknet.training.two_sided_task import TwoSidedTask, outliers_removed
+from masknet.training.pair_task import PairTask
+from masknet.training.scan_mix import BatchChange, ScanMix, by_kind
+from masknet.training.two_sided_task import corrupting, outliers_removed
 
 __all__ = ["RefineMaskTask"]
 
 
 @dataclass
-class RefineMaskTask(TwoSidedTask):
-    """See the module docstring. ``init`` is a refinement-mask file to fine-tune, or ""."""
+class RefineMaskTask(PairTask):
+    """See the module docstring.
 
+    mix: the batches' sources (default: ModelNet40 pairs, half of them sampled
+        independently as views; no scans).
+    corruption: what goes into the sources (as the two-sided task's).
+    residual: the residual poses the sources are moved by.
+    init: a refinement-mask file to fine-tune, or "".
+    model_config: keyword arguments of :class:`RefineMaskNet`.
+    """
+
+    mix: ScanMix | None = field(
+        default_factory=lambda: ScanMix(scan_batches=0, modelnet_view_fraction=0.5)
+    )
+    corruption: CorruptionConfig = field(default_factory=CorruptionConfig)
     residual: ResidualConfig = field(default_factory=ResidualConfig)
     init: str = ""
-    modelnet_view_fraction: float = 0.5  # half the ModelNet40 pairs sampled independently
+    model_config: dict = field(default_factory=dict)
     name: str = "refinemask"
     metric: str = "score"
+    maximize: bool = True
+    loss: Literal["bce"] = "bce"
+
+    def batch_changes(self) -> tuple[BatchChange, ...]:
+        def move(batch: Pairs, generator: torch.Generator) -> Pairs:
+            return residual_pairs(batch, self.residual, generator)
+
+        return (corrupting(self.corruption), BatchChange(move, 0x2E5, 104729))
 
     def build_model(self) -> nn.Module:
         if self.init:
@@ -67,20 +90,6 @@ class RefineMaskTask(TwoSidedTask):
             return model
         return RefineMaskNet(**self.model_config)
 
-    def train_batches(self, points: np.ndarray, batch_size: int, seed: int, epoch: int):
-        return MappedEpoch(
-            super().train_batches(points, batch_size, seed, epoch), self._move, seed, epoch, 0x2E5
-        )
-
-    def val_batches(
-        self, points: np.ndarray, num_pairs: int, batch_size: int, seed: int
-    ) -> list[Pairs]:
-        batches = super().val_batches(points, num_pairs, batch_size, seed)
-        return list(MappedEpoch(batches, self._move, seed + 104729, 0xBA1, 0x2E5))
-
-    def _move(self, batch: Pairs, generator: torch.Generator) -> Pairs:
-        return residual_pairs(batch, self.residual, generator)
-
     def step(
         self, model: nn.Module, batch: Pairs, device: torch.device
     ) -> tuple[Tensor, dict[str, float]]:
@@ -102,4 +111,9 @@ class RefineMaskTask(TwoSidedTask):
         return loss, by_kind(batch, metrics)
 
     def describe_extra(self) -> dict:
-        return super().describe_extra() | {"residual": self.residual.to_dict()}
+        return {
+            "loss": self.loss,
+            "corruption": self.corruption.to_dict(),
+            "init": self.init,
+            "residual": self.residual.to_dict(),
+        }

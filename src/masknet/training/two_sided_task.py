@@ -1,7 +1,8 @@
-"""Training the two-sided MaskNet: the real-scan task's pairs, corrupted in the source.
+"""Training the two-sided MaskNet: the real-scan mix's pairs, corrupted in the source.
 
-:class:`TwoSidedTask` takes every batch of :class:`ScanMaskNetTask` (ModelNet40 pairs,
-sensor-like ModelNet40 views and pairs cut from real scans) and puts noise, uniform
+:class:`TwoSidedTask` takes every batch of its :class:`~masknet.training.scan_mix.ScanMix`
+(ModelNet40 pairs, sensor-like ModelNet40 views and pairs cut from real scans; without
+scans, the first two) and puts noise, uniform
 outliers and clutter into its source (:mod:`masknet.data.corruption`), each pair
 drawing its own amounts. The loss is BCE on the source scores against ``source_mask``.
 The encoder and the template branch start from a shipped MaskNet and stay frozen
@@ -15,8 +16,8 @@ top-k precision with k = M, as at inference (``template_precision``).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Literal
 
-import numpy as np
 import torch
 from torch import Tensor, nn
 
@@ -26,9 +27,10 @@ from masknet.metrics import mask_metrics
 from masknet.models.masknet import MaskNet, select_mask
 from masknet.models.two_sided import TwoSidedMaskNet
 from masknet.models.weights import read_metadata
-from masknet.training.scan_task import MappedEpoch, ScanMaskNetTask, by_kind
+from masknet.training.pair_task import PairTask
+from masknet.training.scan_mix import BatchChange, ScanMix, by_kind
 
-__all__ = ["TwoSidedTask", "outliers_removed"]
+__all__ = ["TwoSidedTask", "corrupting", "outliers_removed"]
 
 
 def outliers_removed(kept: Tensor, truth: Tensor) -> float:
@@ -37,27 +39,38 @@ def outliers_removed(kept: Tensor, truth: Tensor) -> float:
     return float((~kept & ~truth).sum() / (~truth).sum().clamp_min(1))
 
 
+def corrupting(corruption: CorruptionConfig) -> BatchChange:
+    """The step that puts ``corruption`` into every batch's source (tag 0xC0)."""
+
+    def corrupt(batch: Pairs, generator: torch.Generator) -> Pairs:
+        return corrupt_source(batch, corruption, generator)
+
+    return BatchChange(corrupt, 0xC0, 7919)
+
+
 @dataclass
-class TwoSidedTask(ScanMaskNetTask):
+class TwoSidedTask(PairTask):
     """See the module docstring.
 
+    mix: the batches' sources (default: ModelNet40 pairs and views, no scans).
     corruption: what goes into the sources.
     init: the shipped MaskNet weights the encoder and template branch start from
         (a name for :meth:`MaskNet.pretrained`, or a MaskNet file), a two-sided network's
         file to fine-tune, or "" for random weights.
+    model_config: keyword arguments of :class:`TwoSidedMaskNet`.
     """
 
+    mix: ScanMix | None = field(default_factory=lambda: ScanMix(scan_batches=0))
     corruption: CorruptionConfig = field(default_factory=CorruptionConfig)
     init: str = "modelnet40"
+    model_config: dict = field(default_factory=dict)
     name: str = "masknet2"
     metric: str = "f1"
-    loss: str = "bce"
+    maximize: bool = True
+    loss: Literal["bce"] = "bce"
 
-    def __post_init__(self) -> None:
-        if not self.scans:  # ModelNet40 alone
-            self.scan_batches = 0
-            return
-        super().__post_init__()
+    def batch_changes(self) -> tuple[BatchChange, ...]:
+        return (corrupting(self.corruption),)
 
     def build_model(self) -> nn.Module:
         if not self.init:
@@ -70,20 +83,6 @@ class TwoSidedTask(ScanMaskNetTask):
         else:
             masknet = MaskNet.pretrained(self.init)
         return TwoSidedMaskNet.from_masknet(masknet, **self.model_config)
-
-    def train_batches(self, points: np.ndarray, batch_size: int, seed: int, epoch: int):
-        return MappedEpoch(
-            super().train_batches(points, batch_size, seed, epoch), self._corrupt, seed, epoch, 0xC0
-        )
-
-    def val_batches(
-        self, points: np.ndarray, num_pairs: int, batch_size: int, seed: int
-    ) -> list[Pairs]:
-        batches = super().val_batches(points, num_pairs, batch_size, seed)
-        return list(MappedEpoch(batches, self._corrupt, seed + 7919, 0xBA1, 0xC0))
-
-    def _corrupt(self, batch: Pairs, generator: torch.Generator) -> Pairs:
-        return corrupt_source(batch, self.corruption, generator)
 
     def step(
         self, model: nn.Module, batch: Pairs, device: torch.device
@@ -111,7 +110,4 @@ class TwoSidedTask(ScanMaskNetTask):
         return loss, by_kind(batch, metrics)
 
     def describe_extra(self) -> dict:
-        return super().describe_extra() | {
-            "corruption": self.corruption.to_dict(),
-            "init": self.init,
-        }
+        return {"loss": self.loss, "corruption": self.corruption.to_dict(), "init": self.init}

@@ -1,4 +1,5 @@
-"""MaskNet trained on ModelNet40 mixed with real-scan crops: kinds logged apart, resumable."""
+"""masknet.training.scan_mix: MaskNet trained on ModelNet40 mixed with real-scan crops (a
+MaskNetTask holding a ScanMix): kinds logged apart, resumable."""
 
 from __future__ import annotations
 
@@ -15,8 +16,8 @@ from masknet.data.scans import Scan, ScanCropConfig, make_scan_test_pairs
 from masknet.data.views import ViewConfig
 from masknet.errors import MaskNetError
 from masknet.models import MaskNet
-from masknet.training import TrainConfig, fit
-from masknet.training.scan_task import ScanMaskNetTask, ScanPairs, ViewPairs
+from masknet.training import MaskNetTask, TrainConfig, fit
+from masknet.training.scan_mix import ScanMix, ScanPairs, ViewPairs
 
 TINY = {"encoder_channels": (16, 16, 32), "head_channels": (32, 16)}
 
@@ -28,7 +29,10 @@ def _scan(name: str, seed: int) -> Scan:
     return Scan(name, points)
 
 
-def _task(**changes) -> ScanMaskNetTask:
+MIX_FIELDS = {f.name for f in dataclasses.fields(ScanMix)}
+
+
+def _task(**changes) -> MaskNetTask:
     settings = dict(
         pairs=PairConfig(),
         num_points=128,
@@ -43,7 +47,9 @@ def _task(**changes) -> ScanMaskNetTask:
         modelnet_view_fraction=0.5,
         modelnet_view_points=48,
     )
-    return ScanMaskNetTask(**(settings | changes))
+    settings |= changes
+    mix = ScanMix(**{k: v for k, v in settings.items() if k in MIX_FIELDS})
+    return MaskNetTask.on_scans(mix, **{k: v for k, v in settings.items() if k not in MIX_FIELDS})
 
 
 @pytest.fixture(scope="module")
@@ -99,9 +105,9 @@ def test_scans_alone_train_and_validate_without_modelnet(tmp_path):
     assert "train_modelnet_precision" not in history[0]
     # The logged figure, computed here: the saved weights' top-k precision on 16 seeded
     # pairs from the held-out scan (the validation's view: fixed noise of 0.2%).
-    view = dataclasses.replace(task.view, noise_sigma=0.002, random_noise=False)
+    view = dataclasses.replace(task.mix.view, noise_sigma=0.002, random_noise=False)
     seed = config.seed + 7919  # the task offsets the validation seed by 7919
-    pairs, _ = make_scan_test_pairs(task.val_scans, 16, view, task.crop, seed)
+    pairs, _ = make_scan_test_pairs(task.mix.val_scans, 16, view, task.mix.crop, seed)
     model = MaskNet.from_file(tmp_path / "last.safetensors").eval()
     with torch.no_grad():
         scores = model(pairs.template, pairs.source)

@@ -1,6 +1,7 @@
-"""MaskNet on real scans as well: ModelNet40 pairs mixed with sensor-like pairs cut from scans.
+"""Where a mask task's batches come from when real scans join ModelNet40 (:class:`ScanMix`),
+and the batch plumbing every composed task shares.
 
-Each epoch of :class:`ScanMaskNetTask` mixes three kinds of batch, shuffled together:
+Each epoch of a :class:`ScanMix` mixes three kinds of batch, shuffled together:
 
 * the paper's ModelNet40 pairs (:mod:`masknet.data.pairs`), on a random
   ``modelnet_fraction`` of the training shapes, so the paper's figure is kept;
@@ -11,6 +12,10 @@ Each epoch of :class:`ScanMaskNetTask` mixes three kinds of batch, shuffled toge
 Validation holds out whole scans (a fixed list of names) and ModelNet40 training shapes:
 ``val_modelnet_precision`` and ``val_scans_precision`` are logged apart, and
 ``val_precision``, their mean over equally many pairs, picks the best weights.
+
+A task holds a ``ScanMix`` (composition, not a base class): :class:`~masknet.training.
+masknet_task.MaskNetTask`, the two-sided and the refinement tasks take one, and
+:class:`BatchChange` steps (corrupt the source, move it off the truth) apply after it.
 """
 
 from __future__ import annotations
@@ -18,22 +23,23 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 import torch
-from torch import Tensor, nn
 
-from masknet.data.pairs import Pairs, derive_seed, iterate_pairs
-from masknet.data.scans import (
-    Scan,
-    ScanCropConfig,
-    iterate_scan_pairs,
-    make_scan_test_pairs,
-)
+from masknet.data.pairs import PairConfig, Pairs, derive_seed, iterate_pairs
+from masknet.data.scans import Scan, ScanCropConfig, iterate_scan_pairs, make_scan_test_pairs
 from masknet.data.views import ViewConfig, make_view_pairs, normalize_cloud
-from masknet.training.masknet_task import MaskNetTask
 
-__all__ = ["MappedEpoch", "ScanMaskNetTask", "ScanPairs", "ViewPairs", "by_kind"]
+__all__ = [
+    "BatchChange",
+    "MappedEpoch",
+    "ScanMix",
+    "ScanPairs",
+    "ViewPairs",
+    "by_kind",
+]
 
 
 class ScanPairs(Pairs):
@@ -93,11 +99,36 @@ class MappedEpoch:
             yield type(batch)(*self.change(batch, gen))
 
 
-@dataclass
-class ScanMaskNetTask(MaskNetTask):
-    """MaskNet trained on ModelNet40 and real scans (see the module docstring).
+class BatchChange(NamedTuple):
+    """A step applied to every batch after it is made: ``change(batch, generator)`` with a
+    generator seeded by (seed, epoch, ``tag``, batch index); validation seeds it with
+    ``seed + val_offset``."""
 
-    scans, val_scans: training and validation scans (whole scans, held apart).
+    change: Callable[[Pairs, torch.Generator], Pairs]
+    tag: int
+    val_offset: int
+
+
+def changed_train(batches, changes: tuple[BatchChange, ...], seed: int, epoch: int):
+    """An epoch's batches through each of ``changes`` in order."""
+    for step in changes:
+        batches = MappedEpoch(batches, step.change, seed, epoch, step.tag)
+    return batches
+
+
+def changed_val(batches: list[Pairs], changes: tuple[BatchChange, ...], seed: int) -> list[Pairs]:
+    """Validation batches through each of ``changes`` in order (fixed generators)."""
+    for step in changes:
+        batches = list(MappedEpoch(batches, step.change, seed + step.val_offset, 0xBA1, step.tag))
+    return batches
+
+
+@dataclass
+class ScanMix:
+    """ModelNet40 pairs mixed with sensor-like views and pairs cut from real scans.
+
+    scans, val_scans: training and validation scans (whole scans, held apart); none, with
+        ``scan_batches`` 0, mixes ModelNet40 pairs and views only.
     view: how sensor-like pairs are cut (by default with noise up to 1% of the radius).
     crop: how crops are cut from the scans.
     scan_batches: scan batches per epoch.
@@ -116,20 +147,25 @@ class ScanMaskNetTask(MaskNetTask):
     modelnet_fraction: float = 0.5
     modelnet_view_fraction: float = 0.25
     modelnet_view_points: int = 384
-    name: str = "masknet-scans"
 
     def __post_init__(self) -> None:
-        if not self.scans:
-            raise ValueError("ScanMaskNetTask needs at least one training scan")
+        if not self.scans and self.scan_batches:
+            raise ValueError("scan batches need at least one training scan")
         if not 0 <= self.modelnet_fraction <= 1 or not 0 <= self.modelnet_view_fraction <= 1:
             raise ValueError("modelnet_fraction and modelnet_view_fraction must be in [0, 1]")
 
     def _modelnet_batches(
-        self, points: np.ndarray, batch_size: int, seed: int, epoch: int
+        self,
+        pairs: PairConfig,
+        num_points: int,
+        points: np.ndarray,
+        batch_size: int,
+        seed: int,
+        epoch: int,
     ) -> Iterator[Pairs]:
         rng = np.random.default_rng(derive_seed(seed, epoch, 0x3D))
         for batch in iterate_pairs(
-            points, self.pairs, batch_size, seed, epoch, self.num_points, drop_last=True
+            points, pairs, batch_size, seed, epoch, num_points, drop_last=True
         ):
             if rng.random() < self.modelnet_view_fraction:
                 # The same shapes, cut as sensor-like views (the paper's template is the
@@ -140,7 +176,17 @@ class ScanMaskNetTask(MaskNetTask):
             else:
                 yield batch
 
-    def train_batches(self, points: np.ndarray, batch_size: int, seed: int, epoch: int):
+    def train_batches(
+        self,
+        pairs: PairConfig,
+        num_points: int,
+        points: np.ndarray,
+        batch_size: int,
+        seed: int,
+        epoch: int,
+    ):
+        """One epoch: ModelNet40 batches of ``pairs`` (``num_points`` template points) on
+        a random share of ``points``, views among them, and scan batches, shuffled."""
         rng = np.random.default_rng(derive_seed(seed, epoch, 0xE9))
         count = round(self.modelnet_fraction * len(points))
         subset = points[np.sort(rng.permutation(len(points))[:count])]
@@ -148,7 +194,7 @@ class ScanMaskNetTask(MaskNetTask):
         kinds = ["modelnet"] * n_modelnet + ["scans"] * self.scan_batches
         rng.shuffle(kinds)
         makers = {
-            "modelnet": self._modelnet_batches(subset, batch_size, seed, epoch),
+            "modelnet": self._modelnet_batches(pairs, num_points, subset, batch_size, seed, epoch),
             "scans": (
                 ScanPairs(*batch)
                 for batch in iterate_scan_pairs(
@@ -159,27 +205,21 @@ class ScanMaskNetTask(MaskNetTask):
         return _Epoch(kinds, makers)
 
     def val_batches(
-        self, points: np.ndarray, num_pairs: int, batch_size: int, seed: int
+        self, batches: list[Pairs], num_pairs: int, batch_size: int, seed: int
     ) -> list[Pairs]:
-        batches = super().val_batches(points, num_pairs, batch_size, seed)
+        """The ModelNet40 validation ``batches`` and pairs of the held-out scans."""
         if self.val_scans:
             per_scan = -(-num_pairs // len(self.val_scans))
             view = dataclasses.replace(self.view, noise_sigma=0.002, random_noise=False)
             pairs, _ = make_scan_test_pairs(self.val_scans, per_scan, view, self.crop, seed + 7919)
-            batches += [
+            batches = batches + [
                 ScanPairs(*(x[i : i + batch_size] for x in pairs))
                 for i in range(0, len(pairs.template), batch_size)
             ]
         return batches
 
-    def step(
-        self, model: nn.Module, batch: Pairs, device: torch.device
-    ) -> tuple[Tensor, dict[str, float]]:
-        loss, metrics = super().step(model, batch, device)
-        return loss, by_kind(batch, metrics)
-
-    def describe_extra(self) -> dict:
-        return super().describe_extra() | {
+    def describe(self) -> dict:
+        return {
             "scans": [s.name for s in self.scans],
             "val_scans": [s.name for s in self.val_scans],
             "view": self.view.to_dict(),
