@@ -82,3 +82,19 @@ def test_legends_say_when_a_layer_is_subsampled(tmp_path):
     page = write_viewer(tmp_path / "v.html", {"big": big, "small": big[:10]}).read_text()
     assert f"{MAX_POINTS_PER_LAYER:,} of {len(big):,} shown" in page
     assert '"count":"10"' in page
+
+
+def test_per_point_colours_and_the_caption_reach_the_browser(tmp_path, shape, skip_unless_ci):
+    if CHROMIUM is None:
+        skip_unless_ci("chromium not installed (make test installs it)")
+    from masknet.viz import DISTANCE_COLOURS
+
+    near, far = DISTANCE_COLOURS[0], DISTANCE_COLOURS[-1]
+    colours = np.where(np.arange(len(shape))[:, None] < len(shape) // 2, near, far)
+    page = write_viewer(
+        tmp_path / "c.html", {"registered": (shape, colours)}, caption="did it work: likely correct"
+    )
+    assert "did it work: likely correct" in page.read_text()
+    image = _screenshot(page, tmp_path / "c.png")
+    assert _count(image, tuple(np.round(255 * near).astype(int))) > 300
+    assert _count(image, tuple(np.round(255 * far).astype(int))) > 300

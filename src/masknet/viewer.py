@@ -23,7 +23,7 @@ import numpy as np
 from masknet._atomic import write_all
 from masknet.errors import MaskNetError
 from masknet.io import write_text_atomic
-from masknet.viz import display_points, plot_clouds, point_count_label
+from masknet.viz import display_index, plot_clouds, point_count_label
 
 __all__ = [
     "Layer",
@@ -39,6 +39,7 @@ __all__ = [
 LAYER_COLOURS = {
     "template": "#9a9a9a",
     "source": "#1f77b4",
+    "source as given": "#1f77b4",
     "inliers": "#2ca02c",
     "registered": "#d62728",
     "kept": "#2ca02c",
@@ -48,7 +49,8 @@ LAYER_COLOURS = {
 _PALETTE = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2"]
 MAX_POINTS_PER_LAYER = 30_000  # keeps files small and drawing fast; subsampled evenly
 
-Layer = tuple[np.ndarray, str]  # (P, 3) points, "#rrggbb"
+# (P, 3) points and their colour: "#rrggbb", or (P, 3) RGB in [0, 1], one per point.
+Layer = tuple[np.ndarray, "str | np.ndarray"]
 
 
 def layer_colour(name: str, index: int) -> str:
@@ -56,8 +58,15 @@ def layer_colour(name: str, index: int) -> str:
     return LAYER_COLOURS.get(name, _PALETTE[index % len(_PALETTE)])
 
 
-def _layer_json(points: np.ndarray) -> list[float]:
-    return np.round(display_points(points, MAX_POINTS_PER_LAYER), 5).ravel().tolist()
+def _layer_json(points: np.ndarray, colours: np.ndarray | None) -> dict:
+    """The drawn rows of a layer: coordinates, and per-point RGB (0-255) where given."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    rows = display_index(points, MAX_POINTS_PER_LAYER)
+    out = {"xyz": np.round(points[rows], 5).ravel().tolist()}
+    if colours is not None:
+        rgb = np.clip(np.round(255 * np.asarray(colours, dtype=np.float64)[rows]), 0, 255)
+        out["rgb"] = rgb.astype(int).ravel().tolist()
+    return out
 
 
 def write_viewer(
@@ -65,6 +74,7 @@ def write_viewer(
     layers: Mapping[str, np.ndarray | Layer],
     title: str = "masknet",
     hidden: tuple[str, ...] = (),
+    caption: str = "",
 ) -> Path:
     """Write an interactive 3D view of named clouds to one HTML file.
 
@@ -74,7 +84,8 @@ def write_viewer(
             later layers lie on top. Layers larger than 30,000 points are
             subsampled evenly for display.
         title: page title and heading.
-        hidden: names of layers whose checkbox starts unticked.
+        hidden: names of layers whose checkbox starts unticked (one click away).
+        caption: a line under the heading, e.g. the verdict of a registration.
 
     Returns:
         The path written.
@@ -84,20 +95,24 @@ def write_viewer(
     data = []
     for i, (name, layer) in enumerate(layers.items()):
         points, colour = layer if isinstance(layer, tuple) else (layer, None)
-        colour = colour or layer_colour(name, i)
-        coords = _layer_json(points)
-        count = point_count_label(len(coords) // 3, len(np.asarray(points).reshape(-1, 3)))
+        per_point = colour is not None and not isinstance(colour, str)
+        drawn = _layer_json(points, colour if per_point else None)
+        total = len(np.asarray(points).reshape(-1, 3))
         data.append(
             {
                 "name": name,
-                "colour": colour,
-                "xyz": coords,
-                "count": count,
+                # per-point colours: the swatch shows the scale's two ends
+                "colour": "#5ec962" if per_point else (colour or layer_colour(name, i)),
+                "scale": per_point,
+                **drawn,
+                "count": point_count_label(len(drawn["xyz"]) // 3, total),
                 "visible": name not in hidden,
             }
         )
-    page = _TEMPLATE.replace("__TITLE__", html.escape(title)).replace(
-        "__DATA__", json.dumps(data, separators=(",", ":"))
+    page = (
+        _TEMPLATE.replace("__TITLE__", html.escape(title))
+        .replace("__CAPTION__", html.escape(caption))
+        .replace("__DATA__", json.dumps(data, separators=(",", ":")))
     )
     path = Path(path)
     write_text_atomic(path, page)
@@ -105,19 +120,36 @@ def write_viewer(
 
 
 def view_writers(
-    path: str | os.PathLike, layers: Mapping[str, np.ndarray | Layer], title: str
+    path: str | os.PathLike,
+    layers: Mapping[str, np.ndarray | Layer],
+    title: str,
+    hidden: tuple[str, ...] = (),
+    caption: str = "",
+    png: Callable[[Path], object] | None = None,
 ) -> list[tuple[Path, Callable[[Path], object]]]:
     """Writers, (target, write(temporary path)) for :func:`masknet._atomic.write_all`, of
     the HTML viewer at ``path`` and its static PNG twin beside it (``.png``), to write
-    them with other outputs all-or-nothing. Layers as :func:`write_viewer`'s."""
-    # The PNG takes each layer's colour as the viewer does, so the two agree.
-    coloured = {
-        name: layer if isinstance(layer, tuple) else (layer, layer_colour(name, i))
-        for i, (name, layer) in enumerate(layers.items())
-    }
+    them with other outputs all-or-nothing. Layers, ``hidden`` and ``caption`` as
+    :func:`write_viewer`'s; ``png`` writes the PNG instead of a picture of the visible
+    layers (a registration's before/after panels)."""
+    if png is None:
+        # The PNG takes each visible layer's colour as the viewer does, so the two agree.
+        coloured = {
+            name: layer if isinstance(layer, tuple) else (layer, layer_colour(name, i))
+            for i, (name, layer) in enumerate(layers.items())
+            if name not in hidden
+        }
+        full_title = f"{title}\n{caption}" if caption else title
+
+        def png(p: Path) -> object:
+            return plot_clouds(coloured, p, title=full_title)
+
     return [
-        (Path(path), lambda p: write_viewer(p, layers, title=title)),
-        (Path(path).with_suffix(".png"), lambda p: plot_clouds(coloured, p, title=title)),
+        (
+            Path(path),
+            lambda p: write_viewer(p, layers, title=title, hidden=hidden, caption=caption),
+        ),
+        (Path(path).with_suffix(".png"), png),
     ]
 
 
@@ -161,8 +193,9 @@ border-radius:6px;box-shadow:0 1px 4px rgba(0,0,0,.2)}
 #bar label{display:block;margin:2px 0}.sw{display:inline-block;width:10px;height:10px;
 border-radius:5px;margin:0 4px 0 2px}canvas{display:block}
 #help{position:absolute;bottom:6px;left:8px;color:#777;font-size:12px}
+#caption{max-width:34em;margin:2px 0 4px;color:#444}#caption:empty{display:none}
 </style></head><body>
-<div id="bar"><b>__TITLE__</b><div id="toggles"></div>
+<div id="bar"><b>__TITLE__</b><div id="caption">__CAPTION__</div><div id="toggles"></div>
 <label>point size <input id="size" type="range" min="1" max="8" value="3"></label>
 <button id="reset">reset view</button></div>
 <div id="help">drag: rotate &middot; wheel or +/-: zoom &middot; shift-drag: pan</div>
@@ -182,7 +215,7 @@ const toggles = document.getElementById("toggles");
 layers.forEach((l, k) => {
   const label = document.createElement("label");
   label.innerHTML = `<input type="checkbox" ${l.visible ? "checked" : ""} data-k="${k}">` +
-    `<span class="sw" style="background:${l.colour}"></span>${l.name} (${l.count})`;
+    `<span class="sw" style="background:${l.scale ? "linear-gradient(90deg,#440154,#21918c,#fde725)" : l.colour}"></span>${l.name} (${l.count})`;
   label.querySelector("input").onchange = e => { layers[k].visible = e.target.checked; draw(); };
   toggles.appendChild(label);
 });
@@ -194,11 +227,12 @@ function draw() {
   const pts = [];
   layers.forEach(l => { if (!l.visible) return;
     for (let i = 0; i < l.xyz.length; i += 3) {
+      const colour = l.rgb ? `rgb(${l.rgb[i]},${l.rgb[i + 1]},${l.rgb[i + 2]})` : l.colour;
       const x = l.xyz[i] - mid[0], y = l.xyz[i + 1] - mid[1], z = l.xyz[i + 2] - mid[2];
       const x1 = cy * x + sy * z, z1 = -sy * x + cy * z;       // yaw about y
       const y2 = cp * y - sp * z1, z2 = sp * y + cp * z1;       // pitch about x
       const f = 3 / (3 + z2 / radius);                          // mild perspective
-      pts.push([w / 2 + panX + x1 * scale * f, h / 2 + panY - y2 * scale * f, z2, l.colour]);
+      pts.push([w / 2 + panX + x1 * scale * f, h / 2 + panY - y2 * scale * f, z2, colour]);
     } });
   pts.sort((a, b) => b[2] - a[2]);                               // far first
   for (const p of pts) { ctx.fillStyle = p[3]; ctx.fillRect(p[0] - size / 2, p[1] - size / 2, size, size); }

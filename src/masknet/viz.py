@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -10,7 +11,27 @@ import numpy as np
 from masknet._atomic import atomic_target
 from masknet._extras import pyplot
 
-__all__ = ["display_points", "plot_clouds", "plot_mask"]
+__all__ = [
+    "DISTANCE_COLOURS",
+    "display_index",
+    "display_points",
+    "distance_colours",
+    "plot_clouds",
+    "plot_mask",
+    "plot_registration",
+]
+
+# The scale of distances to the template, from 0 to the limit and beyond: viridis's
+# anchors (dark blue, teal, green, yellow), readable in grey and by colour-blind readers.
+DISTANCE_COLOURS = np.array(
+    [
+        [0.267, 0.005, 0.329],
+        [0.229, 0.322, 0.546],
+        [0.128, 0.567, 0.551],
+        [0.369, 0.789, 0.383],
+        [0.993, 0.906, 0.144],
+    ]
+)
 
 GREY, BLUE = "#b0b0b0", "#1f77b4"
 TP, FP, FN = "#2ca02c", "#d62728", "#ff7f0e"
@@ -84,13 +105,30 @@ def point_count_label(shown: int, total: int) -> str:
     return f"{total:,}" if shown == total else f"{shown:,} of {total:,} shown"
 
 
+def display_index(points: np.ndarray, max_points: int) -> np.ndarray:
+    """The rows of (P, 3) points drawn: the finite ones, evenly subsampled to at most
+    ``max_points`` (indices into ``points``, so per-point colours follow them)."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    rows = np.flatnonzero(np.isfinite(points).all(1))
+    if len(rows) > max_points:
+        rows = rows[np.linspace(0, len(rows) - 1, max_points).astype(int)]
+    return rows
+
+
 def display_points(points: np.ndarray, max_points: int) -> np.ndarray:
     """Finite rows of (P, 3) points, evenly subsampled to at most ``max_points`` for drawing."""
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    points = points[np.isfinite(points).all(1)]
-    if len(points) > max_points:
-        points = points[np.linspace(0, len(points) - 1, max_points).astype(int)]
-    return points
+    return points[display_index(points, max_points)]
+
+
+def distance_colours(distances: np.ndarray, limit: float) -> np.ndarray:
+    """(P,) distances -> (P, 3) RGB in [0, 1] on :data:`DISTANCE_COLOURS`, from 0 to
+    ``limit`` (farther points take the last colour)."""
+    t = np.clip(np.asarray(distances, dtype=np.float64) / max(limit, 1e-300), 0, 1)
+    position = t * (len(DISTANCE_COLOURS) - 1)
+    low = np.minimum(position.astype(int), len(DISTANCE_COLOURS) - 2)
+    frac = (position - low)[:, None]
+    return DISTANCE_COLOURS[low] * (1 - frac) + DISTANCE_COLOURS[low + 1] * frac
 
 
 def plot_clouds(
@@ -130,6 +168,61 @@ def plot_clouds(
             ax.legend(loc="upper left", fontsize=8, markerscale=4)
     if title:
         fig.suptitle(title, fontsize=11)
+    return _save(fig, path)
+
+
+def plot_registration(
+    template: np.ndarray,
+    source: np.ndarray,
+    registered: np.ndarray,
+    distances: np.ndarray,
+    limit: float,
+    path: str | os.PathLike,
+    title: str,
+    verdict: str,
+    max_points: int = 20_000,
+) -> Path:
+    """Write a before/after PNG of a registration: the template (N, 3) with the source as
+    given (M, 3), then with the registered source (M, 3) coloured by ``distances`` (M,) to
+    the template, 0 to ``limit`` in the clouds' units; ``verdict`` is written under it."""
+    plt = pyplot()
+    from matplotlib.colors import LinearSegmentedColormap, Normalize
+
+    cmap = LinearSegmentedColormap.from_list("distance", DISTANCE_COLOURS)
+    tpl = display_points(template, max_points)
+    rows = display_index(registered, max_points)
+    panels = [
+        ("before: the source as given", display_points(source, max_points), BLUE),
+        (
+            "after: registered, coloured by distance",
+            registered[rows],
+            distance_colours(distances[rows], limit),
+        ),
+    ]
+    every = np.concatenate([tpl, *(p for _, p, _ in panels)])
+    mid, half = (
+        (every.max(0) + every.min(0)) / 2,
+        max((every.max(0) - every.min(0)).max() / 2, 1e-12),
+    )
+    fig = plt.figure(figsize=(11, 5.4), dpi=110)
+    for i, (name, points, colour) in enumerate(panels):
+        ax = fig.add_subplot(1, 2, i + 1, projection="3d")
+        ax.scatter(*tpl.T, s=1, c=GREY, alpha=0.5, label=f"template ({len(template):,})")
+        ax.scatter(*points.T, s=2, c=colour, label=f"source ({len(source):,})")
+        for axis, centre in zip("xyz", mid, strict=True):
+            getattr(ax, f"set_{axis}lim")(centre - half, centre + half)
+        ax.set_box_aspect((1, 1, 1))
+        ax.view_init(elev=20, azim=-60)
+        ax.set_title(name, fontsize=10)
+        ax.legend(loc="upper left", fontsize=8, markerscale=4)
+    bar = fig.colorbar(
+        plt.cm.ScalarMappable(norm=Normalize(0, limit), cmap=cmap),
+        ax=fig.axes[-1],
+        shrink=0.6,
+        pad=0.1,
+    )
+    bar.set_label("distance to the template (input units; farther: yellow)", fontsize=8)
+    fig.suptitle(f"{title}\n{textwrap.fill(verdict, 120)}", fontsize=10)
     return _save(fig, path)
 
 

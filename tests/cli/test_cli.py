@@ -339,7 +339,7 @@ def test_show_and_html_write_offline_views(tmp_path, small_masknet_weights, pair
     args = ["register", str(template), str(source), "-o", str(out), "--html", str(html)]
     assert main([*args, "--weights", str(small_masknet_weights)]) == 0
     page = html.read_text()
-    for layer in ("template", "source", "registered", "inliers"):
+    for layer in ("template", "source as given", "registered", "inliers"):
         assert f'"name":"{layer}"' in page
     assert (tmp_path / "reg.png").exists()
 

@@ -24,6 +24,7 @@ from masknet.cli._common import (
     positive_int,
     progress,
 )
+from masknet.cli._pictures import registration_views
 from masknet.errors import MaskNetError
 from masknet.registration.methods import METHOD_TITLES, METHODS, PIPELINES
 
@@ -304,17 +305,16 @@ def run(args: argparse.Namespace) -> int:
         name += ", no masks" if args.no_mask else ""
     else:
         name = ("" if args.no_mask else "Mask-") + METHOD_TITLES[args.method]
-    if args.html:  # written with the others, all or nothing
-        layers = {"template": template, "source": source, "registered": moved}
-        if result.mask is not None:
-            layers["inliers"] = template[result.mask]
-        if result.scene is not None:  # a scene: the object and its surroundings
-            layers = scene_layers(template, moved, result.source_mask)
-        elif result.source_mask is not None:
-            layers["registered"] = moved[result.source_mask]
-            layers["rejected"] = moved[~result.source_mask]
+    on_object = source if result.source_mask is None else source[result.source_mask]
+    check = assess_registration(template, on_object, result.transform)
+    if args.html:  # written with the others, all or nothing; the verdict on the picture
         title = f"{name}: {Path(args.source).name} -> {Path(args.template).name}"
-        writers += view_writers(args.html, layers, title)
+        if result.scene is not None:  # a scene: the object and its surroundings
+            caption = f"did it work: {check.verdict}: {check.reason}"
+            layers = scene_layers(template, moved, result.source_mask)
+            writers += view_writers(args.html, layers, title, caption=caption)
+        else:
+            writers += registration_views(args.html, template, source, moved, result, check, title)
     with progress("writing the outputs"):
         removed = write_all(writers, stale=derived)
 
@@ -379,8 +379,6 @@ def run(args: argparse.Namespace) -> int:
         if np.ndim(v) == 0 and _is_number(v) and not np.isnan(np.asarray(v, np.float64))
     }
     print("reported by the method: " + ", ".join(f"{k} {_shown(v)}" for k, v in numbers.items()))
-    on_object = source if result.source_mask is None else source[result.source_mask]
-    check = assess_registration(template, on_object, result.transform)
     print(f"did it work: {check.verdict}: {check.reason}")
     print(
         f"fit: {check.fitness:.1%} of the {'kept ' if result.source_mask is not None else ''}"
