@@ -98,6 +98,12 @@ def test_readme_python_example_runs(index, small_masknet, one_thread, tmp_path, 
         assert str(namespace["result"].info["path"]) in ("fast", "robust/correspondences")
         assert not namespace["result"].info["ambiguous"]
         checked.append("poses")
+    if "results" in namespace and "poses" in namespace:  # register_many: in order, each right
+        assert len(namespace["poses"]) == 2
+        for pose in namespace["poses"]:
+            rot, trans = pose_errors(pose[None], truth)
+            assert rot[0] < 1e-3 and trans[0] < 1e-4, (rot, trans)  # measured: exact
+        checked.append("many")
     if "theirs" in namespace:  # Open3D's ICP and masknet's, the same call side by side
         ours, theirs = namespace["ours"], namespace["theirs"]
         np.testing.assert_allclose(ours.transformation, theirs.transformation, atol=1e-7)

@@ -48,6 +48,7 @@ __all__ = [
     "RegistrationResult",
     *_OPTIONS,
     "register",
+    "register_many",
     "select_mask",
     "__version__",
 ]
@@ -63,6 +64,7 @@ _LAZY = {
     "assess_registration": "masknet.registration",
     "evaluate_registration": "masknet.registration",
     "register": "masknet.registration",
+    "register_many": "masknet.registration.many",
     **dict.fromkeys(_OPTIONS, "masknet.registration.options"),
 }
 

@@ -27,6 +27,7 @@ from masknet.cli import (
     make_sample,
     mask,
     register,
+    register_many,
     show,
     train,
 )
@@ -40,6 +41,7 @@ COMMANDS = {
     "evaluate": evaluate,
     "mask": mask,
     "register": register,
+    "register-many": register_many,
     "denoise": denoise,
     "show": show,
     "benchmark": benchmark,

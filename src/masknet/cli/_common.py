@@ -59,14 +59,16 @@ def finite_float(text: str) -> float:
 
 # What ``masknet`` exits with: one table, printed by ``masknet register --help`` and the
 # README (a test compares them).
-EXIT_OK, EXIT_REFUSED, EXIT_LIKELY_WRONG, EXIT_INTERRUPTED = 0, 2, 3, 130
+EXIT_OK, EXIT_REFUSED, EXIT_LIKELY_WRONG, EXIT_SOME_FAILED, EXIT_INTERRUPTED = 0, 2, 3, 4, 130
 EXIT_CODES = {
     EXIT_OK: "done; register: the verdict is likely correct or uncertain (uncertain is "
     "printed as a warning)",
     1: "an unexpected error, with a traceback: a bug, please report it",
     EXIT_REFUSED: "refused: a bad file, option or value, said in one line; nothing written",
-    EXIT_LIKELY_WRONG: "register: the outputs are written, but the verdict is likely wrong "
-    "(--exit-zero gives 0 instead)",
+    EXIT_LIKELY_WRONG: "register: the outputs are written, but the verdict is likely wrong; "
+    "register-many: some results are likely wrong (--exit-zero gives 0 instead)",
+    EXIT_SOME_FAILED: "register-many: some pairs failed (a bad file, a refusal); the others "
+    "are written and summary.csv gives each error (--exit-zero gives 0 instead)",
     EXIT_INTERRUPTED: "interrupted (Ctrl-C); no output half-written",
 }
 

@@ -198,6 +198,7 @@ def run(args: argparse.Namespace) -> int:
     )
     from masknet.io_checks import over_rows
     from masknet.registration import assess_registration, register
+    from masknet.registration.many import transform_text
     from masknet.registration.methods import GLOBAL_METHODS
     from masknet.registration.options import DEFAULT_SPACINGS
     from masknet.viewer import scene_layers, view_writers
@@ -280,14 +281,13 @@ def run(args: argparse.Namespace) -> int:
     moved = source @ result.R.T + result.t
     transform_path = out.with_name(out.stem + "_transform.txt")
     # '#' comments, so that np.loadtxt reads the 4x4 matrix as it is.
-    header = "# source -> template: template ~= R @ source + t, [[R, t], [0, 0, 0, 1]]"
-    text = header + "\n" + "\n".join(" ".join(f"{v:.10g}" for v in row) for row in result.transform)
+    text = transform_text(result.transform)
     # Colour and normals of .ply/.pcd inputs go on to the outputs (normals turned too).
     carried = read_point_attributes(args.source, out).take(source_rows).turned(result.R)
     template_carried = read_point_attributes(args.template, out).take(template_rows)
     writers = [
         (out, lambda p: write_points(p, moved, *carried)),
-        (transform_path, lambda p: write_text_atomic(p, text + "\n")),
+        (transform_path, lambda p: write_text_atomic(p, text)),
     ]
     if result.mask is not None:
         inliers_path = out.with_name(out.stem + "_inliers" + out.suffix)

@@ -1,0 +1,237 @@
+"""``masknet register-many``: many pairs in parallel, one result file per pair and a summary,
+resumable after an interrupt."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import glob
+import io
+import json
+import sys
+from pathlib import Path
+
+from masknet.cli._common import (
+    EXIT_LIKELY_WRONG,
+    EXIT_SOME_FAILED,
+    exit_codes_text,
+    finite_float,
+    init_option,
+    positive_int,
+)
+from masknet.errors import MaskNetError
+from masknet.registration.methods import METHODS
+
+SUMMARY = "summary.csv"
+COLUMNS = (
+    "name", "template", "source", "status", "verdict", "rotation_deg", "translation",
+    "fitness", "inlier_rmse", "seconds", "error",
+)  # fmt: skip
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``register-many`` to the ``masknet`` subparsers."""
+    p = subparsers.add_parser(
+        "register-many",
+        help="register many pairs in parallel (all cores, or a Dask cluster): one result "
+        "per pair and summary.csv in OUTDIR; run it again to finish an interrupted batch",
+        epilog=exit_codes_text(),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    given = p.add_mutually_exclusive_group(required=True)
+    given.add_argument(
+        "--list",
+        metavar="FILE",
+        help="a text file, one pair per line: TEMPLATE SOURCE [NAME] ('#' starts a comment; "
+        "relative paths are relative to the file); NAME defaults to the source's stem",
+    )
+    given.add_argument("--template", metavar="FILE", help="one template for every --sources")
+    p.add_argument(
+        "--sources", metavar="GLOB", help="with --template: the sources, a glob ('scans/*.pcd')"
+    )
+    p.add_argument(
+        "-o",
+        "--out",
+        required=True,
+        metavar="OUTDIR",
+        help="the folder of the results: NAME.json and NAME_transform.txt per pair, and "
+        f"{SUMMARY} (pose, fitness, verdict, time; failed pairs with their error)",
+    )
+    p.add_argument(
+        "--workers",
+        type=positive_int,
+        help="processes, one thread each (default: one per core)",
+    )
+    p.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="run on the workers of this Dask scheduler (tcp://host:8786) instead; needs "
+        "pip install 'masknet[cluster]', and every worker must read the files' paths",
+    )
+    p.add_argument("--method", choices=list(METHODS), default=None, help="as masknet register")
+    p.add_argument("--iterations", type=positive_int, default=1, help="as masknet register")
+    p.add_argument(
+        "--init",
+        type=init_option,
+        default="centroid",
+        metavar="{centroid,identity,FILE}",
+        help="as masknet register (one start for every pair)",
+    )
+    p.add_argument(
+        "--max-correspondence-distance", type=finite_float, metavar="D", help="as masknet register"
+    )
+    p.add_argument("--no-mask", action="store_true", help="plain X instead of Mask-X")
+    p.add_argument("--drop-nonfinite", action="store_true", help="drop NaN/inf rows of the files")
+    p.add_argument(
+        "--exit-zero",
+        action="store_true",
+        help="exit 0 even when some results are likely wrong or some pairs failed",
+    )
+
+
+def read_jobs(args: argparse.Namespace):
+    """The pairs the options name, as PairJobs with unique names."""
+    from masknet.registration.many import PairJob
+
+    rows: list[tuple[str, str, str | None]] = []
+    if args.list:
+        path = Path(args.list)
+        if not path.is_file():
+            raise MaskNetError(f"{path}: no such list file")
+        for number, line in enumerate(path.read_text().splitlines(), 1):
+            fields = line.split("#", 1)[0].split()
+            if not fields:
+                continue
+            if len(fields) not in (2, 3):
+                raise MaskNetError(f"{path}:{number}: expected TEMPLATE SOURCE [NAME]")
+            # Relative paths are relative to the list file, wherever the command runs.
+            template, source = (str(path.parent / f) for f in fields[:2])
+            rows.append((template, source, fields[2] if len(fields) == 3 else None))
+    else:
+        if not args.sources:
+            raise MaskNetError("--template needs --sources GLOB")
+        sources = sorted(glob.glob(args.sources))
+        if not sources:
+            raise MaskNetError(f"--sources {args.sources!r} matches no file")
+        rows = [(args.template, s, None) for s in sources]
+    if not rows:
+        raise MaskNetError("no pairs to register")
+    jobs, seen = [], set()
+    for template, source, name in rows:
+        base = name or Path(source).stem
+        unique, k = base, 2
+        while unique in seen:
+            unique, k = f"{base}_{k}", k + 1
+        seen.add(unique)
+        jobs.append(PairJob(unique, template, source))
+    return jobs
+
+
+def _finished(out: Path, job) -> bool:
+    """Whether an earlier run finished this pair (its record names the same files)."""
+    try:
+        record = json.loads((out / f"{job.name}.json").read_text())
+    except (OSError, ValueError):
+        return False
+    return record.get("template") == str(job.template) and record.get("source") == str(job.source)
+
+
+def _record(job, outcome) -> dict:
+    """The JSON record of one finished pair."""
+    import numpy as np
+
+    record = {"name": job.name, "template": str(job.template), "source": str(job.source)}
+    if outcome.error:
+        return record | {"status": "failed", "error": outcome.error, "seconds": outcome.seconds}
+    result = outcome.result
+    return record | {
+        "status": "registered",
+        "verdict": outcome.verdict,
+        "reason": outcome.reason,
+        "transform": np.asarray(result.transform).tolist(),
+        "rotation_deg": float(result.rotation_deg),
+        "translation": float(np.linalg.norm(result.t)),
+        "fitness": None if result.fitness is None else float(result.fitness),
+        "inlier_rmse": None if result.inlier_rmse is None else float(result.inlier_rmse),
+        "method": result.method,
+        "seconds": outcome.seconds,
+    }
+
+
+def _write_record(out: Path, record: dict) -> None:
+    from masknet.io import write_text_atomic
+    from masknet.registration.many import transform_text
+
+    if record["status"] == "registered":
+        import numpy as np
+
+        transform = np.array(record["transform"])
+        write_text_atomic(out / f"{record['name']}_transform.txt", transform_text(transform))
+    # The record last: it marks the pair finished.
+    write_text_atomic(out / f"{record['name']}.json", json.dumps(record, indent=1) + "\n")
+
+
+def _write_summary(out: Path, jobs) -> list[dict]:
+    """summary.csv from every finished pair's record, in the jobs' order."""
+    from masknet.io import write_text_atomic
+
+    records = []
+    for job in jobs:
+        path = out / f"{job.name}.json"
+        if path.exists():
+            records.append(json.loads(path.read_text()))
+    text = io.StringIO()
+    writer = csv.DictWriter(text, COLUMNS, extrasaction="ignore", lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(records)
+    write_text_atomic(out / SUMMARY, text.getvalue())
+    return records
+
+
+def run(args: argparse.Namespace) -> int:
+    """Register the pairs not finished yet; write each result as it comes, then the
+    summary. Returns the exit status."""
+    from masknet.registration.many import executor, run_jobs
+
+    jobs = read_jobs(args)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    todo = [job for job in jobs if not _finished(out, job)]
+    options = {"use_mask": not args.no_mask, "iterations": args.iterations, "init": args.init}
+    options |= {"drop_nonfinite": True} if args.drop_nonfinite else {}
+    if args.method is not None:
+        options["method"] = args.method
+    if args.max_correspondence_distance is not None:
+        options["max_correspondence_distance"] = args.max_correspondence_distance
+    skipped = len(jobs) - len(todo)
+    print(
+        f"{len(jobs):,} pairs; {skipped:,} finished earlier, {len(todo):,} to register"
+        + (f" on {args.scheduler}" if args.scheduler else ""),
+        file=sys.stderr,
+    )
+    by_name = {job.name: job for job in todo}
+    count = [skipped]
+
+    def done(outcome) -> None:
+        record = _record(by_name[outcome.name], outcome)
+        _write_record(out, record)
+        count[0] += 1
+        what = record.get("verdict") or f"failed: {record['error']}"
+        print(f"masknet: [{count[0]}/{len(jobs)}] {outcome.name}: {what}, {outcome.seconds:.2f} s",
+              file=sys.stderr, flush=True)  # fmt: skip
+
+    try:
+        if todo:
+            with executor(args.workers, args.scheduler) as pool:
+                run_jobs(todo, options, pool, done)
+    finally:  # the summary of what is finished, after an interrupt too
+        records = _write_summary(out, jobs)
+    failed = sum(r["status"] == "failed" for r in records)
+    wrong = sum(r.get("verdict") == "likely wrong" for r in records)
+    print(
+        f"{len(records) - failed:,} registered ({wrong:,} likely wrong), {failed:,} failed; "
+        f"wrote {out / SUMMARY}"
+    )
+    if args.exit_zero:
+        return 0
+    return EXIT_SOME_FAILED if failed else EXIT_LIKELY_WRONG if wrong else 0

@@ -1,0 +1,163 @@
+"""Many pairs at once: :func:`register_many`, in parallel on this machine's cores or on a
+Dask cluster, results in order.
+
+Each worker is a process with one thread (torch's, BLAS's and Open3D's), so ``workers``
+processes use as many cores; the shipped networks load once per process and stay for every
+pair it registers. A pair that fails (a bad file, a refusal) is recorded as its error, in
+its place, and the others go on. With ``scheduler`` (``"tcp://host:8786"``, the ``cluster``
+extra: ``pip install 'masknet[cluster]'``) the same jobs run on a Dask cluster's workers.
+
+Example::
+
+    results = register_many([(model, scan) for scan in scans])
+    poses = [r.transform for r in results if not isinstance(r, MaskNetError)]
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
+from contextlib import contextmanager
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from masknet.errors import MaskNetError
+
+__all__ = ["PairJob", "PairOutcome", "executor", "register_many", "run_jobs"]
+
+
+class PairJob(NamedTuple):
+    """One pair: template and source as (N, 3) arrays or file paths, and its name."""
+
+    name: str
+    template: Any
+    source: Any
+
+
+class PairOutcome(NamedTuple):
+    """What became of a :class:`PairJob`: its result (None where it failed), the verdict
+    of :func:`~masknet.registration.assessment.assess_registration` and its reason, the
+    error line of a failure (else ""), and the seconds it took in its worker."""
+
+    name: str
+    result: Any
+    verdict: str
+    reason: str
+    error: str
+    seconds: float
+
+
+def _one_thread() -> None:
+    """A worker's initializer: one thread for every library in this process."""
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    import torch
+
+    torch.set_num_threads(1)
+
+
+def run_job(job: PairJob, options: dict[str, Any]) -> PairOutcome:
+    """Register one pair (reading its files first where it names them) and judge the
+    result; a refusal or an unreadable file is returned as the outcome's error."""
+    from threadpoolctl import threadpool_limits
+
+    from masknet.io import read_points
+    from masknet.registration.api import register
+    from masknet.registration.assessment import assess_registration
+
+    tic = time.perf_counter()
+    drop = bool(options.get("drop_nonfinite", False))
+    try:
+        with threadpool_limits(1):
+            clouds = [
+                read_points(c, drop_nonfinite=drop) if isinstance(c, str | os.PathLike) else c
+                for c in (job.template, job.source)
+            ]
+            result = register(*clouds, **options)
+            source = clouds[1] if result.source_mask is None else clouds[1][result.source_mask]
+            check = assess_registration(clouds[0], source, result.transform)
+    except MaskNetError as exc:
+        return PairOutcome(job.name, None, "", "", str(exc), time.perf_counter() - tic)
+    return PairOutcome(job.name, result, check.verdict, check.reason, "", time.perf_counter() - tic)
+
+
+@contextmanager
+def executor(workers: int | None = None, scheduler: str | None = None) -> Iterator[Executor]:
+    """The executor of the jobs: ``workers`` processes of one thread each on this machine
+    (default: one per core), or the workers of the Dask scheduler at ``scheduler``."""
+    if scheduler is not None:
+        from masknet._extras import need
+
+        distributed = need("distributed", "cluster", "register-many --scheduler")
+        with distributed.Client(scheduler) as client:
+            yield client.get_executor()
+        return
+    import multiprocessing
+
+    workers = workers or os.cpu_count() or 1
+    # spawn: a fresh interpreter per worker; forking a process whose torch and OpenMP
+    # threads already run can hang.
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(workers, mp_context=context, initializer=_one_thread) as pool:
+        yield pool
+
+
+def run_jobs(
+    jobs: Iterable[PairJob],
+    options: dict[str, Any],
+    pool: Executor,
+    done: Callable[[PairOutcome], None] | None = None,
+) -> list[PairOutcome]:
+    """Run ``jobs`` on ``pool``; ``done`` sees each outcome as it finishes (in finishing
+    order); returns the outcomes in the jobs' order. On Ctrl-C the jobs not started are
+    cancelled and KeyboardInterrupt propagates."""
+    futures: dict[Future, int] = {}
+    jobs = list(jobs)
+    try:
+        for index, job in enumerate(jobs):
+            futures[pool.submit(run_job, job, options)] = index
+        outcomes: list[PairOutcome | None] = [None] * len(jobs)
+        for future in as_completed(futures):
+            outcome = future.result()
+            outcomes[futures[future]] = outcome
+            if done is not None:
+                done(outcome)
+    except BaseException:
+        for future in futures:
+            future.cancel()
+        raise
+    return outcomes  # type: ignore[return-value]
+
+
+def register_many(
+    pairs: Iterable[tuple[Any, Any]],
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    **options: Any,
+) -> list[Any]:
+    """Register every (template, source) pair, in parallel; the results in order.
+
+    Args:
+        pairs: (template, source) clouds, (N, 3) and (M, 3) arrays or file paths (read
+            with :func:`masknet.io.read_points` in the worker).
+        workers: processes on this machine, one thread each (default: one per core).
+        scheduler: a Dask scheduler's address to run on instead (``masknet[cluster]``).
+        **options: :func:`masknet.register`'s keywords, the same for every pair.
+
+    Returns:
+        One entry per pair, in order: its :class:`RegistrationResult`, or the
+        :class:`MaskNetError` that refused it (the other pairs go on).
+    """
+    jobs = [PairJob(str(i), t, s) for i, (t, s) in enumerate(pairs)]
+    with executor(workers, scheduler) as pool:
+        outcomes = run_jobs(jobs, options, pool)
+    return [o.result if not o.error else MaskNetError(o.error) for o in outcomes]
+
+
+def transform_text(transform: np.ndarray) -> str:
+    """A 4x4 transform as ``masknet register`` writes it (``np.loadtxt`` reads it)."""
+    header = "# source -> template: template ~= R @ source + t, [[R, t], [0, 0, 0, 1]]"
+    return header + "\n" + "\n".join(" ".join(f"{v:.10g}" for v in row) for row in transform) + "\n"
