@@ -57,9 +57,27 @@ def test_a_rerun_registers_only_the_pairs_not_finished(batch, capsys):
     capsys.readouterr()
     main([*args, "--method", "icp"])
     err = capsys.readouterr().err
-    assert "3 finished earlier, 1 to register" in err and "[4/4] s2" in err
+    # s2 again, and the pair that failed (it is tried again); s0 and s1 are kept
+    assert "2 finished earlier, 2 to register" in err and "s2:" in err
     assert (out / "s0.json").read_text() == before  # untouched
     assert len(_summary(out)) == 4
+    # Other options are another batch: every pair again, and the summary is only theirs.
+    main([*args, "--method", "icp", "--iterations", "2"])
+    assert "0 finished earlier, 4 to register" in capsys.readouterr().err
+
+
+def test_options_no_pair_could_take_are_refused_before_any_work(batch, capsys):
+    out = batch / "refused"
+    args = ["register-many", "--list", str(batch / "pairs.txt"), "-o", str(out)]
+    assert main([*args, "--method", "pointnetlk", "--max-correspondence-distance", "0.1"]) == 2
+    assert "max_correspondence_distance" in capsys.readouterr().err
+    (batch / "bad_start.txt").write_text("2 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n")
+    assert main([*args, "--method", "icp", "--init", str(batch / "bad_start.txt")]) == 2
+    assert "rigid" in capsys.readouterr().err
+    assert not out.exists() or not list(out.iterdir())
+    (batch / "names.txt").write_text("t0.npy s0.npy ../escape\n")
+    assert main(["register-many", "--list", str(batch / "names.txt"), "-o", str(out)]) == 2
+    assert "without folders" in capsys.readouterr().err
 
 
 def test_one_template_against_a_glob_of_sources(batch, capsys):

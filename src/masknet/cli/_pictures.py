@@ -60,8 +60,8 @@ def registration_views(
         return plot_registration(
             template,
             source,
-            moved,
-            distances,
+            moved[on_object],
+            distances[on_object],
             limit,
             path,
             title,

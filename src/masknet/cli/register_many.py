@@ -25,7 +25,7 @@ from masknet.registration.methods import METHODS
 SUMMARY = "summary.csv"
 COLUMNS = (
     "name", "template", "source", "status", "verdict", "rotation_deg", "translation",
-    "fitness", "inlier_rmse", "seconds", "error",
+    "fitness", "inlier_rmse", "seconds", "error", "warnings",
 )  # fmt: skip
 
 
@@ -119,28 +119,74 @@ def read_jobs(args: argparse.Namespace):
     jobs, seen = [], set()
     for template, source, name in rows:
         base = name or Path(source).stem
+        if "/" in base or "\\" in base or base in (".", "..") or not base:
+            raise MaskNetError(f"pair name {base!r}: a name is a file stem, without folders")
         unique, k = base, 2
-        while unique in seen:
+        while unique.lower() in seen:  # names that differ only by case collide on some disks
             unique, k = f"{base}_{k}", k + 1
-        seen.add(unique)
+        seen.add(unique.lower())
         jobs.append(PairJob(unique, template, source))
     return jobs
 
 
-def _finished(out: Path, job) -> bool:
-    """Whether an earlier run finished this pair (its record names the same files)."""
+def check_options(options: dict) -> None:
+    """Refuse, once and before any pair, what ``register`` would refuse for every pair."""
+    from masknet.registration.methods import default_method, method_options
+    from masknet.registration.validation import as_rigid_transforms, check_arguments, split_init
+
+    init = options["init"]
+    method = default_method(
+        options.get("method"), None, {"init": isinstance(init, str) and init != "centroid"}
+    )
+    check_arguments(method, options["iterations"], None, None, options["use_mask"], init, 0, 1024)
+    _, start = split_init(init)
+    if start is not None:
+        as_rigid_transforms(start, 1)
+    cut = options.get("max_correspondence_distance")
+    method_options(method, None, {} if cut is None else {"max_correspondence_distance": cut})
+
+
+def _options_key(options: dict) -> dict:
+    """The options as a record stores them (a start matrix as nested lists)."""
+    import numpy as np
+
+    return {k: (np.asarray(v).tolist() if not isinstance(v, str | bool | int | float) else v)
+            for k, v in sorted(options.items())}  # fmt: skip
+
+
+def _record_of(out: Path, job, options: dict) -> dict | None:
+    """The record an earlier run left for this pair with the same files and options, or
+    None."""
     try:
         record = json.loads((out / f"{job.name}.json").read_text())
     except (OSError, ValueError):
-        return False
-    return record.get("template") == str(job.template) and record.get("source") == str(job.source)
+        return None
+    same = (record.get("template"), record.get("source"), record.get("options")) == (
+        str(job.template),
+        str(job.source),
+        _options_key(options),
+    )
+    return record if same else None
 
 
-def _record(job, outcome) -> dict:
+def _finished(out: Path, job, options: dict) -> bool:
+    """Whether an earlier run registered this pair with the same files and options (a pair
+    that failed is tried again)."""
+    record = _record_of(out, job, options)
+    return record is not None and record.get("status") == "registered"
+
+
+def _record(job, outcome, options: dict) -> dict:
     """The JSON record of one finished pair."""
     import numpy as np
 
-    record = {"name": job.name, "template": str(job.template), "source": str(job.source)}
+    record = {
+        "name": job.name,
+        "template": str(job.template),
+        "source": str(job.source),
+        "options": _options_key(options),
+        "warnings": " | ".join(outcome.warnings),
+    }
     if outcome.error:
         return record | {"status": "failed", "error": outcome.error, "seconds": outcome.seconds}
     result = outcome.result
@@ -162,24 +208,23 @@ def _write_record(out: Path, record: dict) -> None:
     from masknet.io import write_text_atomic
     from masknet.registration.many import transform_text
 
+    transform_path = out / f"{record['name']}_transform.txt"
     if record["status"] == "registered":
         import numpy as np
 
-        transform = np.array(record["transform"])
-        write_text_atomic(out / f"{record['name']}_transform.txt", transform_text(transform))
+        write_text_atomic(transform_path, transform_text(np.array(record["transform"])))
+    else:  # an earlier run's pose of this pair is not this run's
+        transform_path.unlink(missing_ok=True)
     # The record last: it marks the pair finished.
     write_text_atomic(out / f"{record['name']}.json", json.dumps(record, indent=1) + "\n")
 
 
-def _write_summary(out: Path, jobs) -> list[dict]:
-    """summary.csv from every finished pair's record, in the jobs' order."""
+def _write_summary(out: Path, jobs, options: dict) -> list[dict]:
+    """summary.csv from the records of this batch's pairs (same files and options), in the
+    jobs' order."""
     from masknet.io import write_text_atomic
 
-    records = []
-    for job in jobs:
-        path = out / f"{job.name}.json"
-        if path.exists():
-            records.append(json.loads(path.read_text()))
+    records = [r for r in (_record_of(out, job, options) for job in jobs) if r is not None]
     text = io.StringIO()
     writer = csv.DictWriter(text, COLUMNS, extrasaction="ignore", lineterminator="\n")
     writer.writeheader()
@@ -194,15 +239,16 @@ def run(args: argparse.Namespace) -> int:
     from masknet.registration.many import executor, run_jobs
 
     jobs = read_jobs(args)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    todo = [job for job in jobs if not _finished(out, job)]
     options = {"use_mask": not args.no_mask, "iterations": args.iterations, "init": args.init}
     options |= {"drop_nonfinite": True} if args.drop_nonfinite else {}
     if args.method is not None:
         options["method"] = args.method
     if args.max_correspondence_distance is not None:
         options["max_correspondence_distance"] = args.max_correspondence_distance
+    check_options(options)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    todo = [job for job in jobs if not _finished(out, job, options)]
     skipped = len(jobs) - len(todo)
     print(
         f"{len(jobs):,} pairs; {skipped:,} finished earlier, {len(todo):,} to register"
@@ -213,7 +259,7 @@ def run(args: argparse.Namespace) -> int:
     count = [skipped]
 
     def done(outcome) -> None:
-        record = _record(by_name[outcome.name], outcome)
+        record = _record(by_name[outcome.name], outcome, options)
         _write_record(out, record)
         count[0] += 1
         what = record.get("verdict") or f"failed: {record['error']}"
@@ -225,7 +271,7 @@ def run(args: argparse.Namespace) -> int:
             with executor(args.workers, args.scheduler) as pool:
                 run_jobs(todo, options, pool, done)
     finally:  # the summary of what is finished, after an interrupt too
-        records = _write_summary(out, jobs)
+        records = _write_summary(out, jobs, options)
     failed = sum(r["status"] == "failed" for r in records)
     wrong = sum(r.get("verdict") == "likely wrong" for r in records)
     print(

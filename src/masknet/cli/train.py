@@ -167,6 +167,10 @@ def _masknet(args: argparse.Namespace) -> TrainSetup:
         "loss": args.loss,
         "model_config": _encoder(args) | (args.model_config or {}),
     }
+    try:
+        MaskNetTask(**settings).build_model()
+    except (TypeError, ValueError) as exc:
+        raise MaskNetError(f"--model-config does not fit masknet: {exc}") from None
     if args.scans:
         return TrainSetup(
             MaskNetTask.on_scans(_scans.scan_mix(args), **settings), MaskNet, args.precision

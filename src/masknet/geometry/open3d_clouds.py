@@ -47,5 +47,6 @@ def from_open3d(cloud: Any) -> np.ndarray | None:
     if kind.__name__ != "PointCloud" or not kind.__module__.startswith("open3d"):
         return None
     if hasattr(cloud, "point"):  # the tensor API: cloud.point.positions, an o3c.Tensor
-        return np.asarray(cloud.point.positions.numpy(), dtype=np.float64).reshape(-1, 3)
+        positions = cloud.point.positions.cpu()  # a cloud on a GPU comes to the host
+        return np.asarray(positions.numpy(), dtype=np.float64).reshape(-1, 3)
     return np.asarray(cloud.points, dtype=np.float64).reshape(-1, 3)

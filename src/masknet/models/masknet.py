@@ -199,6 +199,8 @@ class MaskNet(SafetensorsWeights, nn.Module):
         }
         if centring != "each":  # only then: the configs of earlier files stay as they were
             self.config["centring"] = centring
+        if context and (isinstance(context, bool) or int(context) != context or context < 1):
+            raise ValueError(f"context must be a number of neighbours >= 1, got {context!r}")
         if context:  # only then, as centring: earlier files' configs stay as they were
             self.config["context"] = int(context)
         self.centring = centring

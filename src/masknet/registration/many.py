@@ -40,7 +40,8 @@ class PairJob(NamedTuple):
 class PairOutcome(NamedTuple):
     """What became of a :class:`PairJob`: its result (None where it failed), the verdict
     of :func:`~masknet.registration.assessment.assess_registration` and its reason, the
-    error line of a failure (else ""), and the seconds it took in its worker."""
+    error line of a failure (else ""), the seconds it took in its worker, and the warnings
+    the pair raised (one line each)."""
 
     name: str
     result: Any
@@ -48,10 +49,15 @@ class PairOutcome(NamedTuple):
     reason: str
     error: str
     seconds: float
+    warnings: tuple[str, ...] = ()
 
 
 def _one_thread() -> None:
-    """A worker's initializer: one thread for every library in this process."""
+    """A worker's initializer: one thread for every library in this process, and Ctrl-C
+    left to the parent (which stops the batch), so a worker prints no traceback."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     import torch
 
@@ -60,27 +66,53 @@ def _one_thread() -> None:
 
 def run_job(job: PairJob, options: dict[str, Any]) -> PairOutcome:
     """Register one pair (reading its files first where it names them) and judge the
-    result; a refusal or an unreadable file is returned as the outcome's error."""
+    result (one pair: its verdict; a batch in one job is not judged). A refusal, an
+    unreadable file, or any other error is returned as the outcome's error, so that the
+    other pairs go on; the pair's warnings come with it."""
+    import warnings
+
+    from masknet.errors import MaskNetWarning
+
+    tic = time.perf_counter()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", MaskNetWarning)
+        try:
+            result, verdict, reason = _register_and_judge(job, options)
+            error = ""
+        except MaskNetError as exc:
+            result, verdict, reason, error = None, "", "", str(exc)
+        except Exception as exc:  # a bug or a resource, in one pair: recorded, not fatal
+            result, verdict, reason, error = None, "", "", f"{type(exc).__name__}: {exc}"
+    said = tuple(
+        dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, MaskNetWarning))
+    )
+    return PairOutcome(job.name, result, verdict, reason, error, time.perf_counter() - tic, said)
+
+
+def _register_and_judge(job: PairJob, options: dict[str, Any]) -> tuple[Any, str, str]:
     from threadpoolctl import threadpool_limits
 
+    from masknet.geometry.clouds import points_of
     from masknet.io import read_points
     from masknet.registration.api import register
     from masknet.registration.assessment import assess_registration
 
-    tic = time.perf_counter()
     drop = bool(options.get("drop_nonfinite", False))
-    try:
-        with threadpool_limits(1):
-            clouds = [
-                read_points(c, drop_nonfinite=drop) if isinstance(c, str | os.PathLike) else c
-                for c in (job.template, job.source)
-            ]
-            result = register(*clouds, **options)
-            source = clouds[1] if result.source_mask is None else clouds[1][result.source_mask]
-            check = assess_registration(clouds[0], source, result.transform)
-    except MaskNetError as exc:
-        return PairOutcome(job.name, None, "", "", str(exc), time.perf_counter() - tic)
-    return PairOutcome(job.name, result, check.verdict, check.reason, "", time.perf_counter() - tic)
+    with threadpool_limits(1):
+        clouds = [
+            read_points(c, drop_nonfinite=drop)
+            if isinstance(c, str | os.PathLike)
+            else np.asarray(points_of(c), dtype=np.float64)
+            for c in (job.template, job.source)
+        ]
+        result = register(*clouds, **options)
+        if result.transform.ndim != 2:
+            return result, "", ""
+        template, source = (c[np.isfinite(c).all(-1)] for c in clouds)
+        if result.source_mask is not None:  # over every input row
+            source = clouds[1][result.source_mask]
+        check = assess_registration(template, source, result.transform)
+    return result, check.verdict, check.reason
 
 
 @contextmanager
@@ -120,7 +152,11 @@ def run_jobs(
             futures[pool.submit(run_job, job, options)] = index
         outcomes: list[PairOutcome | None] = [None] * len(jobs)
         for future in as_completed(futures):
-            outcome = future.result()
+            job = jobs[futures[future]]
+            try:
+                outcome = future.result()
+            except Exception as exc:  # the worker itself died (memory, a broken pool)
+                outcome = PairOutcome(job.name, None, "", "", f"worker failed: {exc!r}", 0.0)
             outcomes[futures[future]] = outcome
             if done is not None:
                 done(outcome)

@@ -86,7 +86,8 @@ class RegistrationResult:
         transform = self.transform @ start_b
         info = dict(self.info)
         if "runner_up" in info:
-            info["runner_up"] = info["runner_up"] @ start
+            runner_up = np.asarray(info["runner_up"])
+            info["runner_up"] = runner_up @ (start if runner_up.ndim == 3 else start[0])
         scene = self.scene
         if scene is not None:
             scene = scene._replace(transform=scene.transform @ start[0])

@@ -80,8 +80,9 @@ def check_units(template: np.ndarray, source: np.ndarray) -> UnitCheck:
         message = (
             f"the clouds look like different units: the {larger}'s point spacing is "
             f"{max(spacing, 1 / spacing):,.0f} times the other's and its extent "
-            f"{max(extent, 1 / extent):,.3g} times (about {times:,.0f}x, e.g. millimetres "
-            "against metres); scale one cloud to the other's unit, or results will be wrong"
+            f"{max(extent, 1 / extent):,.3g} times (about {times:,.0f}x: millimetres against "
+            "metres?); if their units differ, scale one cloud to the other's, or the result "
+            "will be wrong"
         )
     return UnitCheck(extent, spacing, factor, mixed, message)
 

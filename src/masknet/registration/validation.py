@@ -59,12 +59,18 @@ def split_init(init: Any) -> tuple[str, np.ndarray | None]:
         if init not in INITS:
             raise MaskNetError(f"unknown init {init!r}; choose from {INITS} or a (4, 4) matrix")
         return init, None
-    shape = np.shape(init)
-    if shape[-2:] != (4, 4) or len(shape) not in (2, 3):
+    try:
+        matrix = np.array(init, dtype=np.float64)
+    except (TypeError, ValueError):
         raise MaskNetError(
-            f"init must be one of {INITS} or a (4, 4) or (B, 4, 4) transform, got shape {shape}"
+            f"init must be one of {INITS} or a (4, 4) or (B, 4, 4) transform of numbers"
+        ) from None
+    if matrix.shape[-2:] != (4, 4) or matrix.ndim not in (2, 3):
+        raise MaskNetError(
+            f"init must be one of {INITS} or a (4, 4) or (B, 4, 4) transform, got shape "
+            f"{matrix.shape}"
         )
-    return "identity", np.array(init, dtype=np.float64)
+    return "identity", matrix
 
 
 def as_numpy_batch(template: Any, source: Any) -> tuple[np.ndarray, np.ndarray, bool]:

@@ -29,7 +29,7 @@ class PairTask:
 
     pairs: PairConfig = field(default_factory=PairConfig)
     num_points: int = 1024
-    mix: ScanMix | None = None
+    mix: ScanMix | None = field(default=None, kw_only=True)
 
     def batch_changes(self) -> tuple[BatchChange, ...]:
         """Steps applied to every batch, in order (none here; the two-sided task corrupts
