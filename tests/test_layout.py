@@ -201,7 +201,7 @@ def test_backends_import_nothing_that_dispatches_into_them():
         (
             "masknet.registration.coarse",
             "coarse_to_fine",
-            "masknet.registration.robust.coarse_to_fine",
+            "masknet.registration.robust.search",
         ),
         ("masknet.registration.coarse", "check_points", "masknet.registration.prepared"),
         ("masknet.registration.evaluation", "evaluate_registration", "masknet.registration.fit"),

@@ -57,7 +57,7 @@ def test_a_refined_round_that_fits_worse_is_undone(monkeypatch):
     # modules that bind icp at import do so before the patch
     import masknet.registration.auto  # noqa: F401
     import masknet.registration.icp as icp_module
-    import masknet.registration.robust.coarse_to_fine  # noqa: F401
+    import masknet.registration.robust.search  # noqa: F401
     from masknet.registration.refinement import refine_pose
 
     g = np.random.default_rng(0)

@@ -11,7 +11,7 @@
 * :mod:`.rounds`: the rounds of Mask-X; :mod:`.backends`: one adapter per method;
 * :mod:`.icp`, :mod:`.open3d_icp`, :mod:`.open3d_global`: the algorithms (ICP, Open3D's
   ICP, Open3D's RANSAC / FGR on FPFH); :mod:`.scene`: finding an object in a scan;
-  :mod:`.auto`, :mod:`.robust` (with :mod:`.robust.coarse_to_fine`): the default and the
+  :mod:`.auto`, :mod:`.robust` (with :mod:`.robust.search`): the default and the
   coarse-to-fine search.
 
 Names load on first use, so that the method table (and ``masknet --help``) needs no torch.

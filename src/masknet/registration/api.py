@@ -114,7 +114,7 @@ def register(
             (:mod:`masknet.registration.auto`; ``info["path"]`` says which ran).
             ``"robust"``: the coarse-to-fine search, FPFH correspondence hypotheses, then
             the two-sided mask and rotation hypotheses, one score, refinement
-            (:mod:`masknet.registration.robust.coarse_to_fine`; any rotation, outliers in the source;
+            (:mod:`masknet.registration.robust.search`; any rotation, outliers in the source;
             ``info["ambiguous"]`` and ``info["runner_up"]`` when another pose fits as
             well). ``"icp"`` (the paper's Mask-ICP: a KD-tree loop for one pair, batched
             torch ICP for a batch), ``"open3d-icp"`` (Open3D's point-to-point ICP, pair by

@@ -14,7 +14,7 @@
    A correct result fits at least ``accept_fitness``; a result stopped at a wrong pose
    fits less.
 3. **Escalation.** Below that, the coarse-to-fine pipeline of ``method="robust"``
-   (:mod:`masknet.registration.robust.coarse_to_fine`) runs, and its fast path's result takes part as one
+   (:mod:`masknet.registration.robust.search`) runs, and its fast path's result takes part as one
    more hypothesis (it wins if it fits best).
 
 ``info["path"]`` says which ran (``"fast"``, or ``"robust/correspondences"`` and
@@ -44,7 +44,7 @@ from masknet.registration.prepared import (
     prepare_pair,
 )
 from masknet.registration.robust import network_masks, pipeline_run
-from masknet.registration.robust.coarse_to_fine import REFINE_TOLERANCE, coarse_to_fine
+from masknet.registration.robust.search import REFINE_TOLERANCE, coarse_to_fine
 from masknet.registration.rounds import mask_and_register
 
 __all__ = ["auto_register"]

@@ -1,4 +1,4 @@
-"""Moved: the robust pipeline's search is :mod:`masknet.registration.robust.coarse_to_fine`
+"""Moved: the robust pipeline's search is :mod:`masknet.registration.robust.search`
 (the robust algorithm and its plumbing sit together in :mod:`masknet.registration.robust`)."""
 
 from masknet._moved import moved_names
@@ -7,7 +7,7 @@ __getattr__ = moved_names(
     __name__,
     {
         **{
-            name: "masknet.registration.robust.coarse_to_fine"
+            name: "masknet.registration.robust.search"
             for name in ("REFINE_TOLERANCE", "CoarseRun", "coarse_to_fine")
         },
         "check_points": "masknet.registration.prepared",

@@ -1,6 +1,6 @@
 """Pose hypotheses from FPFH correspondences: features, mutual matches, a batched RANSAC.
 
-The classical half of the coarse-to-fine pipeline (:mod:`masknet.registration.robust.coarse_to_fine`).
+The classical half of the coarse-to-fine pipeline (:mod:`masknet.registration.robust.search`).
 Open3D computes the FPFH features on a voxel grid; everything after that is numpy on a
 few hundred points:
 

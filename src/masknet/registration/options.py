@@ -180,7 +180,7 @@ HYPOTHESIS_SHARE = 16  # a source's points per point of the hypotheses' short IC
 @dataclass(frozen=True)
 class RobustOptions:
     """The options of ``method="auto"`` and ``"robust"``, the coarse-to-fine pipeline of
-    :mod:`masknet.registration.robust.coarse_to_fine`.
+    :mod:`masknet.registration.robust.search`.
 
     feature_points: template points left by each FPFH voxel grid, in the order tried (the
         counts set the voxels, so the unit does not matter; a template of N > 1,024 points

@@ -1,6 +1,6 @@
 """``method="robust"``: the coarse-to-fine pipeline, pair by pair.
 
-:func:`robust_register` runs :func:`masknet.registration.robust.coarse_to_fine.coarse_to_fine` on each
+:func:`robust_register` runs :func:`masknet.registration.robust.search.coarse_to_fine` on each
 pair of a batch; the pipeline itself (FPFH hypotheses, early exit, the learned side, one
 score, refinement, ambiguity) is described there.
 
@@ -19,7 +19,7 @@ from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
 from masknet.registration.backends.base import MaskModels, PipelineRun
 from masknet.registration.options import RobustOptions
-from masknet.registration.robust.coarse_to_fine import CoarseRun, MaskFunction, coarse_to_fine
+from masknet.registration.robust.search import CoarseRun, MaskFunction, coarse_to_fine
 
 __all__ = ["network_masks", "pipeline_run", "robust_register"]
 
@@ -30,7 +30,7 @@ def network_masks(
     source_net: np.ndarray,
     precision: str = "auto",
 ) -> MaskFunction:
-    """A mask function for :func:`~masknet.registration.robust.coarse_to_fine.coarse_to_fine`: the
+    """A mask function for :func:`~masknet.registration.robust.search.coarse_to_fine`: the
     network runs once on the clouds sampled to its size, template_net (n, 3) and
     source_net (m, 3), and every point of the clouds it is asked about takes the label of
     its nearest sampled point. A one-sided MaskNet keeps every source point."""

@@ -54,7 +54,7 @@ def test_an_early_flip_gives_way_to_the_pose_the_clouds_are_near():
     from masknet.registration.hypotheses import Scored
     from masknet.registration.options import RobustOptions
     from masknet.registration.prepared import FIT_SPACINGS, prepare_pair
-    from masknet.registration.robust.coarse_to_fine import (
+    from masknet.registration.robust.search import (
         REFINE_TOLERANCE,
         _as_given,
         _short_icp_from_identity,
