@@ -43,7 +43,7 @@ from masknet.registration.prepared import (
     check_points,
     prepare_pair,
 )
-from masknet.registration.robust import network_masks, pipeline_run
+from masknet.registration.robust import NetworkMasks, pipeline_run
 from masknet.registration.robust.search import REFINE_TOLERANCE, coarse_to_fine
 from masknet.registration.rounds import mask_and_register
 
@@ -140,7 +140,7 @@ def _one(
         search_model = _GivenMasks(fast.mask[0], fast.source_mask)
     masks = None
     if search_model is not None:
-        masks = network_masks(search_model, nets[0][0], nets[1][0], precision)
+        masks = NetworkMasks(search_model, nets[0][0], nets[1][0], precision)
     run = pipeline_run([coarse_to_fine(template, source, masks, options, times, prepared)])
     if run.info["score"][0] < fit.score:  # the fast path's pose fits better after all
         info = _info("fast", fit, right)

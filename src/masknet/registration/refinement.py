@@ -40,6 +40,7 @@ __all__ = [
     "REFINERS",
     "NearestNeighbourMasks",
     "RefinedPose",
+    "MaskPredictor",
     "Refiner",
     "refine_pose",
     "resolve_refiner",
@@ -65,12 +66,20 @@ TEMPLATE_THRESHOLD = 0.9
 ICP_THRESHOLD = 0.5
 
 
-class Refiner(Protocol):
-    """Masks of a pair in one frame (see the module docstring)."""
+class MaskPredictor(Protocol):
+    """The one mask protocol: ``predict_masks(template, source) -> (template mask, source
+    mask)``, bool over the points it is given. The networks answer it (MaskNet's source
+    mask is None: it keeps every source point), and so do the refiners of rounds >= 2 (on a
+    pair in one frame, see the module docstring), the robust search's network masks
+    (:class:`masknet.registration.robust.NetworkMasks`) and masks given in advance."""
 
     def predict_masks(
         self, template: np.ndarray, source: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]: ...
+    ) -> tuple[np.ndarray, np.ndarray | None]: ...
+
+
+# A refiner is a mask predictor for a pair that registration has brought close.
+Refiner = MaskPredictor
 
 
 class NearestNeighbourMasks:

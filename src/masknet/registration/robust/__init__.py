@@ -19,32 +19,40 @@ from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
 from masknet.registration.backends.base import MaskModels, PipelineRun
 from masknet.registration.options import RobustOptions
-from masknet.registration.robust.search import CoarseRun, MaskFunction, coarse_to_fine
+from masknet.registration.robust.search import CoarseRun, coarse_to_fine
 
-__all__ = ["network_masks", "pipeline_run", "robust_register"]
+__all__ = ["NetworkMasks", "pipeline_run", "robust_register"]
 
 
-def network_masks(
-    model: MaskNet | TwoSidedMaskNet | None,
-    template_net: np.ndarray,
-    source_net: np.ndarray,
-    precision: str = "auto",
-) -> MaskFunction:
-    """A mask function for :func:`~masknet.registration.robust.search.coarse_to_fine`: the
-    network runs once on the clouds sampled to its size, template_net (n, 3) and
-    source_net (m, 3), and every point of the clouds it is asked about takes the label of
-    its nearest sampled point. A one-sided MaskNet keeps every source point."""
+class NetworkMasks:
+    """The masks of the robust search, answering the one mask protocol
+    (:class:`~masknet.registration.refinement.MaskPredictor`): the network runs once on the
+    clouds sampled to its size, template_net (n, 3) and source_net (m, 3), and every point
+    of the clouds it is asked about takes the label of its nearest sampled point. A
+    one-sided MaskNet keeps every source point."""
 
-    def predict(template: np.ndarray, source: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        t_mask, s_mask = model.predict_masks(template_net, source_net, precision=precision)
-        if s_mask is None:  # a one-sided network keeps every source point
-            s_mask = np.ones(len(source_net), bool)
-        return (
-            spread_labels(template, template_net, t_mask),
-            spread_labels(source, source_net, s_mask),
+    def __init__(
+        self,
+        model: MaskNet | TwoSidedMaskNet,
+        template_net: np.ndarray,
+        source_net: np.ndarray,
+        precision: str = "auto",
+    ) -> None:
+        self.model, self.precision = model, precision
+        self.template_net, self.source_net = template_net, source_net
+
+    def predict_masks(
+        self, template: np.ndarray, source: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        t_mask, s_mask = self.model.predict_masks(
+            self.template_net, self.source_net, precision=self.precision
         )
-
-    return predict
+        if s_mask is None:  # a one-sided network keeps every source point
+            s_mask = np.ones(len(self.source_net), bool)
+        return (
+            spread_labels(template, self.template_net, t_mask),
+            spread_labels(source, self.source_net, s_mask),
+        )
 
 
 def robust_register(
@@ -67,7 +75,7 @@ def robust_register(
     for b in range(template.shape[0]):
         masks = None
         if model is not None:
-            masks = network_masks(model, template_net[b], source_net[b], precision)
+            masks = NetworkMasks(model, template_net[b], source_net[b], precision)
         runs.append(coarse_to_fine(template[b], source[b], masks, options, times))
     return pipeline_run(runs)
 

@@ -48,7 +48,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
@@ -68,6 +68,9 @@ from masknet.registration.fit import FIT_SPACINGS, pose_fit, pose_fits
 from masknet.registration.hypotheses import Scored, distinct, rank, rotation_between_deg
 from masknet.registration.icp import icp, icp_from_starts
 from masknet.registration.options import RobustOptions
+
+if TYPE_CHECKING:
+    from masknet.registration.refinement import MaskPredictor
 from masknet.registration.prepared import (
     PreparedPair,
     prepare_pair,
@@ -120,13 +123,10 @@ class CoarseRun(NamedTuple):
     info: dict
 
 
-MaskFunction = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
-
-
 def coarse_to_fine(
     template: np.ndarray,
     source: np.ndarray,
-    predict_masks: MaskFunction | None,
+    masks: MaskPredictor | None,
     options: RobustOptions,
     times: dict[str, float],
     prepared: PreparedPair | None = None,
@@ -136,8 +136,8 @@ def coarse_to_fine(
     subsets of :func:`~masknet.registration.prepared.prepare_pair` (``prepared``: that of
     this pair, already made).
 
-    ``predict_masks(template, source)`` gives the network's masks over the clouds it is
-    given ((N,) and (M,) bool: the template's overlap, the source's kept points); None
+    ``masks.predict_masks(template, source)`` gives the network's masks over the clouds
+    it is given ((N,) and (M,) bool: the template's overlap, the source's kept points); None
     searches without masks."""
     search = _Search(template, source, options, times, prepared)
     early = search.correspondences()  # 1. hypotheses from FPFH matches; the early exit
@@ -145,12 +145,12 @@ def coarse_to_fine(
     if early is not None:
         finals = early + search.as_given_after_exit(early)
     else:  # 2. the learned side: both masks once, then masked matches and rotations
-        if predict_masks is not None:
-            mask, source_mask = search.masks(predict_masks)
+        if masks is not None:
+            mask, source_mask = search.masks(masks)
         finals = search.hypotheses(mask)
     winner, rival, ambiguous = search.choose(finals)
     transform = winner.pose
-    if predict_masks is not None:  # the template points the moved kept source covers
+    if masks is not None:  # the template points the moved kept source covers
         # (also after an early exit, where the network never ran)
         moved = transform_points(transform, search.kept_source)
         mask = cloud_tree(moved).query(template, k=1)[0] <= search.limit
@@ -306,10 +306,10 @@ class _Search:
             early, start, self.kept_source, self.tree, self.limit, self.options, self.refine
         )
 
-    def masks(self, predict_masks: MaskFunction) -> tuple[np.ndarray, np.ndarray]:
+    def masks(self, predictor: MaskPredictor) -> tuple[np.ndarray, np.ndarray]:
         """The network's masks, once; the kept source narrowed to them; RANSAC again on
         each grid's matches that touch no rejected point."""
-        mask, source_mask = predict_masks(self.template, self.source)
+        mask, source_mask = predictor.predict_masks(self.template, self.source)
         if (source_mask & self.surface).sum() >= MIN_POINTS:
             self.kept_source = self.source[source_mask & self.surface]
         else:
