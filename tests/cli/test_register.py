@@ -96,3 +96,28 @@ def test_an_interrupted_step_is_not_called_done(capsys):
 def test_the_writability_probe_leaves_nothing(tmp_path):
     assert _can_create_in(tmp_path)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_method_options_k_and_threshold_have_flags(files, tmp_path, capsys):
+    from masknet import register
+    from masknet.io import read_points
+
+    template, source = files
+    out = tmp_path / "m.xyz"
+    args = ["register", str(template), str(source), "-o", str(out), "--exit-zero"]
+    assert main([*args, "--method", "icp", "--option", "relative_rmse=0.01", "--k", "300"]) == 0
+    expected = register(
+        read_points(template), read_points(source), method="icp", relative_rmse=0.01, k=300
+    )
+    np.testing.assert_allclose(
+        np.loadtxt(tmp_path / "m_transform.txt"), expected.transform, atol=1e-8
+    )
+    assert "inliers: 300 of" in capsys.readouterr().out
+    assert main([*args, "--threshold", "0.5"]) == 0  # a mask rule asks for Mask-ICP itself
+    assert "Mask-ICP" in capsys.readouterr().out
+    assert main([*args, "--option", "no_such_field=1"]) == 2
+    assert "unknown option(s) for method 'auto': no_such_field" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        build_parser().parse_args([*args, "--option", "nonsense"])
+    with pytest.raises(SystemExit):
+        build_parser().parse_args([*args, "--k", "5", "--threshold", "0.5"])

@@ -25,6 +25,7 @@ from masknet.cli._common import (
     progress,
 )
 from masknet.cli._pictures import registration_views
+from masknet.cli._report import report_path, shown_numbers
 from masknet.errors import MaskNetError
 from masknet.registration.methods import METHOD_TITLES, METHODS, PIPELINES
 
@@ -104,6 +105,30 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         default=None,
         help="iterations of the method per round (default: 10 for ICP and PointNetLK, "
         "as the paper; the learned networks' own: dcp 1, prnet 3, pcrnet 8, rpmnet 5)",
+    )
+    p.add_argument(
+        "--option",
+        action="append",
+        default=[],
+        type=method_option,
+        metavar="NAME=VALUE",
+        help="any field of the method's options, as in Python (repeatable), e.g. --option "
+        "accept_fitness=0.95 --option hypotheses=12 for auto and robust, --option "
+        "relative_rmse=1e-6 for icp (masknet.registration.options lists them); the flags "
+        "above win over the same name here",
+    )
+    mask = p.add_mutually_exclusive_group()
+    mask.add_argument(
+        "--k",
+        type=positive_int,
+        help="round 1's mask: the K template points MaskNet scores highest (default: as many "
+        "as the source has points)",
+    )
+    mask.add_argument(
+        "--threshold",
+        type=finite_float,
+        metavar="EPS",
+        help="round 1's mask: the template points scoring at least EPS (the paper's rule)",
     )
     p.add_argument(
         "--refine",
@@ -235,6 +260,8 @@ def run(args: argparse.Namespace) -> int:
     from masknet.registration.methods import default_method
 
     rounds_asked = {
+        "k": args.k is not None,
+        "threshold": args.threshold is not None,
         "refine": args.refine != 0,
         "init": isinstance(args.init, str) and args.init != "centroid",
         "max_iterations": args.max_iterations is not None,
@@ -251,7 +278,7 @@ def run(args: argparse.Namespace) -> int:
             f"--two-sided needs two-sided MaskNet weights (masknet train --model masknet2); "
             f"{args.weights} holds a paper MaskNet, which masks the template only"
         )
-    options = {}
+    options = dict(args.option)
     if args.max_iterations is not None and args.method not in GLOBAL_METHODS:
         options["max_iterations"] = args.max_iterations
     if args.max_correspondence_distance is not None:
@@ -274,6 +301,8 @@ def run(args: argparse.Namespace) -> int:
             init=args.init,
             refine_iterations=args.refine,
             max_points=args.max_points,
+            k=args.k,
+            threshold=args.threshold,
             **({} if args.refine_masks is None else {"refine_masks": args.refine_masks}),
             scene=scene_option(args, template, source),
             **options,
@@ -372,13 +401,7 @@ def run(args: argparse.Namespace) -> int:
         f"(input units); {1e3 * result.times['total']:.1f} ms"
     )
     report_path(result.info, result.R)
-    # NaN marks what did not happen (no runner-up, no escalation): left out.
-    numbers = {
-        k: v
-        for k, v in result.info.items()
-        if np.ndim(v) == 0 and _is_number(v) and not np.isnan(np.asarray(v, np.float64))
-    }
-    print("reported by the method: " + ", ".join(f"{k} {_shown(v)}" for k, v in numbers.items()))
+    print("reported by the method: " + shown_numbers(result.info))
     print(f"did it work: {check.verdict}: {check.reason}")
     print(
         f"fit: {check.fitness:.1%} of the {'kept ' if result.source_mask is not None else ''}"
@@ -402,6 +425,20 @@ def run(args: argparse.Namespace) -> int:
     return EXIT_LIKELY_WRONG if check.verdict == "likely wrong" and not args.exit_zero else 0
 
 
+def method_option(text: str) -> tuple[str, object]:
+    """``--option NAME=VALUE``: the value read as JSON (numbers, true/false, lists), else
+    as text."""
+    import json
+
+    name, sep, value = text.partition("=")
+    if not sep or not name.strip().isidentifier():
+        raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}")
+    try:
+        return name.strip(), json.loads(value)
+    except ValueError:
+        return name.strip(), value
+
+
 def cut_for(args: argparse.Namespace) -> float:
     """``--max-correspondence-distance``, checked against the method's options."""
     import dataclasses
@@ -416,54 +453,3 @@ def cut_for(args: argparse.Namespace) -> float:
     if not args.max_correspondence_distance > 0:
         raise MaskNetError("--max-correspondence-distance must be positive")
     return args.max_correspondence_distance
-
-
-def _shown(value: object) -> str:
-    """A reported number as a reader expects it: True/False for flags, 4 digits else."""
-    import numpy as np
-
-    item = np.asarray(value).item()
-    return str(item) if isinstance(item, bool) else f"{item:.4g}"
-
-
-def _is_number(value: object) -> bool:
-    import numpy as np
-
-    return np.issubdtype(np.asarray(value).dtype, np.number) or np.asarray(value).dtype == bool
-
-
-def report_path(info: dict, rotation: np.ndarray) -> None:
-    """Say which path of ``auto`` / ``robust`` ran and why, and warn of an ambiguous answer
-    (``rotation``: the result's (3, 3))."""
-    import numpy as np
-
-    if "path" not in info:
-        return
-    path = str(info["path"])
-    escalated = float(info.get("escalated_fitness", np.nan))
-    if path == "scene search":
-        print("path: scene search (the template found in SOURCE, then Mask-ICP from there)")
-        return
-    if path == "fast" and np.isnan(escalated):
-        why = "the fast path's fit passed"
-    elif path == "fast":
-        why = f"escalated (fit {escalated:.3f}), but the fast path's pose fitted best"
-    elif np.isfinite(escalated):
-        why = f"escalated: the fast path's fit was {escalated:.3f}"
-    else:
-        why = "method robust"
-    print(f"path: {path} ({why}); best hypothesis from {info['source']}")
-    if bool(info.get("ambiguous", False)):
-        from masknet.registration.hypotheses import rotation_between_deg
-
-        result_pose = np.eye(4)
-        result_pose[:3, :3] = rotation
-        apart = rotation_between_deg(np.asarray(info["runner_up"]), result_pose)
-        print(
-            "masknet: warning: the answer is ambiguous: another pose fits as well (score "
-            f"{float(info['runner_up_score']):.3f} against {float(info['score']):.3f}; its "
-            f"rotation is {apart:.1f} deg from this one); the "
-            "shape "
-            "may be symmetric",
-            file=sys.stderr,
-        )
