@@ -14,7 +14,9 @@ extent ratio; a mixed-unit pair moves both by its factor (docs/RESULTS.md, "Mixe
 The rule: the extents differ by at least :data:`UNIT_RATIO` and the spacings by at least
 :data:`SPACING_RATIO`, **in the same direction**. What no rule of lengths can see: a scene in a unit 10 times smaller
 than its object's, whose extent then matches the object's (a dense model against a sparse
-scan looks the same).
+scan looks the same). What it calls mixed wrongly: a densely sampled model in a much sparser
+scene (spacings 6 or more times apart and extents 4 or more): the line then says "if their
+units differ", and nothing else changes.
 """
 
 from __future__ import annotations
