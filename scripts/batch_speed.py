@@ -12,9 +12,9 @@ them as .npy files with a list file, then, in one run:
    of the whole command (start-up and model loading included);
 3. **the results**: the largest difference between the two runs' transforms, and the pairs
    whose verdicts differ;
-4. **an interrupt**: the batch again into a fresh folder, stopped (SIGINT) once about half
-   of the pairs are written, then run again: how many it reports as finished earlier, and
-   whether their files were left untouched;
+4. **a kill**: the batch again into a fresh folder, killed (SIGKILL, nothing graceful) once
+   about half of the pairs are written, then run again: how many it reports as finished
+   earlier, and whether their files were left untouched;
 5. **a cluster**: the batch on a local Dask cluster of 2 worker processes (``--scheduler``),
    its transforms against the batch's.
 
@@ -57,10 +57,19 @@ def make_pairs(scans_dir: Path, count: int, work: Path) -> Path:
     return work / "pairs.txt"
 
 
-def one_at_a_time(listing: Path) -> tuple[float, dict[str, tuple[np.ndarray, str]]]:
-    """Seconds for every pair through register + assess_registration in this process."""
+def one_at_a_time(
+    listing: Path, threads: int | None = None
+) -> tuple[float, dict[str, tuple[np.ndarray, str]]]:
+    """Seconds for every pair through register + assess_registration in this process
+    (torch's threads: ``threads``, default as torch sets them)."""
+    import torch
+
     from masknet import assess_registration, register
     from masknet.registration.plan import default_model, default_two_sided
+
+    before = torch.get_num_threads()
+    if threads:
+        torch.set_num_threads(threads)
 
     default_model(), default_two_sided()  # loaded before the clock, as the batch loads once
     rows = [line.split() for line in listing.read_text().splitlines()]
@@ -74,7 +83,9 @@ def one_at_a_time(listing: Path) -> tuple[float, dict[str, tuple[np.ndarray, str
             result.transform,
             assess_registration(template, kept, result.transform).verdict,
         )
-    return time.perf_counter() - tic, out
+    seconds = time.perf_counter() - tic
+    torch.set_num_threads(before)
+    return seconds, out
 
 
 def batch(listing: Path, out: Path, *extra: str) -> tuple[float, subprocess.CompletedProcess]:
@@ -96,20 +107,20 @@ def records(out: Path) -> dict[str, tuple[np.ndarray, str]]:
 
 
 def interrupted(listing: Path, out: Path, workers: int, total: int) -> dict[str, object]:
-    """Stop a batch half-way with SIGINT, run it again; what the second run redid."""
+    """Kill a batch half-way (SIGKILL), run it again; what the second run redid."""
     command = [sys.executable, "-m", "masknet.cli", "register-many", "--list", str(listing)]
     command += ["-o", str(out), "--workers", str(workers), "--exit-zero"]
     process = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
     while len(list(out.glob("*.json"))) < total // 2 and process.poll() is None:
         time.sleep(0.2)
-    process.send_signal(signal.SIGINT)
+    process.send_signal(signal.SIGKILL)
     first_err = process.communicate(timeout=300)[1]
     kept = {p.name: p.stat().st_mtime_ns for p in out.glob("*.json")}
     again = subprocess.run(command, capture_output=True, text=True)
     untouched = all((out / name).stat().st_mtime_ns == t for name, t in kept.items())
     said = [line for line in again.stderr.splitlines() if "finished earlier" in line]
     return {
-        "finished before the interrupt": len(kept),
+        "finished before the kill": len(kept),
         "first run's exit status": process.returncode,
         "first run's last line": first_err.strip().splitlines()[-1] if first_err.strip() else "",
         "second run said": said[0] if said else "",
@@ -124,37 +135,56 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--scans", type=Path, default=None)
     parser.add_argument("--work", type=Path, default=Path("batch_speed_work"))
+    parser.add_argument(
+        "--parts", default="speed,kill,cluster", help="which of speed, kill, cluster to run"
+    )
     args = parser.parse_args()
+    parts = set(args.parts.split(","))
     from masknet.experiments.scans import scans_folder
 
     listing = make_pairs(args.scans or scans_folder(), args.pairs, args.work)
+    if "speed" in parts:
+        speed(listing, args)
+    if "kill" in parts:
+        stop = interrupted(listing, args.work / "killed", args.workers, args.pairs)
+        print("\nkill and rerun: " + "; ".join(f"{k}: {v}" for k, v in stop.items()))
+    if "cluster" in parts:
+        cluster(listing, args)
+
+
+def speed(listing: Path, args: argparse.Namespace) -> None:
+    """The loop (torch's default threads, then one), the batch, and their results."""
     single_s, single = one_at_a_time(listing)
-    batch_s, done = batch(listing, args.work / "batch", "--workers", str(args.workers))
+    one_thread_s, _ = one_at_a_time(listing, threads=1)
+    batch_s, _ = batch(listing, args.work / "batch", "--workers", str(args.workers))
     found = records(args.work / "batch")
     common = sorted(set(single) & set(found))
     diff = max(float(np.abs(single[n][0] - found[n][0]).max()) for n in common)
     verdicts = sum(single[n][1] != found[n][1] for n in common)
     print(
-        f"| pairs | one call at a time (s) | register-many, {args.workers} workers (s) | speed-up |"
+        f"| pairs | one call at a time (s) | the same, one thread (s) | register-many, "
+        f"{args.workers} workers (s) | speed-up | over one thread |"
     )
-    print("|---|---|---|---|")
+    print("|---|---|---|---|---|---|")
     print(
-        f"| {len(common)} of {args.pairs} | {single_s:.1f} | {batch_s:.1f} | {single_s / batch_s:.2f} |"
+        f"| {len(common)} of {args.pairs} | {single_s:.1f} | {one_thread_s:.1f} | {batch_s:.1f} "
+        f"| {single_s / batch_s:.2f} | {one_thread_s / batch_s:.2f} |"
     )
     print(f"\nlargest transform difference: {diff:.3g}; verdicts that differ: {verdicts}")
-    stop = interrupted(listing, args.work / "interrupted", args.workers, args.pairs)
-    print("\ninterrupt and rerun: " + "; ".join(f"{k}: {v}" for k, v in stop.items()))
+
+
+def cluster(listing: Path, args: argparse.Namespace) -> None:
+    """The batch on a local Dask cluster of two worker processes, against the batch's."""
     try:
         import distributed
     except ImportError:
         print("\ncluster: distributed is not installed (pip install 'masknet[cluster]')")
         return
+    found = records(args.work / "batch")
     with distributed.LocalCluster(
         n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
-    ) as cluster:
-        cluster_s, _ = batch(
-            listing, args.work / "cluster", "--scheduler", cluster.scheduler_address
-        )
+    ) as local:
+        cluster_s, _ = batch(listing, args.work / "cluster", "--scheduler", local.scheduler_address)
     on_cluster = records(args.work / "cluster")
     same = [n for n in found if n in on_cluster]
     worst = max(float(np.abs(found[n][0] - on_cluster[n][0]).max()) for n in same)

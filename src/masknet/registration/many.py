@@ -53,11 +53,23 @@ class PairOutcome(NamedTuple):
 
 
 def _one_thread() -> None:
-    """A worker's initializer: one thread for every library in this process, and Ctrl-C
-    left to the parent (which stops the batch), so a worker prints no traceback."""
+    """A worker's initializer: one thread for every library in this process, Ctrl-C left to
+    the parent (which stops the batch), so a worker prints no traceback, and an exit when
+    the parent is gone."""
     import signal
+    import threading
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # A worker whose parent was killed outright (SIGKILL, out of memory) would wait for work
+    # forever, holding the terminal's pipes: it leaves once the parent is gone.
+    parent = os.getppid()
+
+    def leave_with_the_parent() -> None:
+        while os.getppid() == parent:
+            time.sleep(1.0)
+        os._exit(1)
+
+    threading.Thread(target=leave_with_the_parent, daemon=True).start()
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     import torch
 
