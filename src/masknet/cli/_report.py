@@ -7,7 +7,11 @@ import sys
 
 import numpy as np
 
-__all__ = ["report_path", "shown_numbers"]
+__all__ = ["print_result", "report_path", "shown_numbers"]
+
+# Below this fraction of the template on the scan where a scene search found it, the CLI
+# warns that the object may not be in the scan.
+LOW_FITNESS = 0.5
 
 
 def shown_numbers(info: dict) -> str:
@@ -64,3 +68,61 @@ def report_path(info: dict, rotation: np.ndarray) -> None:
             "may be symmetric",
             file=sys.stderr,
         )
+
+
+def print_result(args, name: str, template, source, source_rows, result) -> None:
+    """What ran and what it found: sizes, masks, the scene search, the rounds' moves and the
+    estimated motion (``source_rows``: the file's rows kept, for the dropped count)."""
+    n, m = result.sampled
+    sampled = "" if (n, m) == (len(template), len(source)) else f" (sampled to {n} and {m})"
+    if sampled and "path" in result.info:  # auto and robust: only the networks see samples
+        sampled = f" (the networks see {n:,} and {m:,} sampled points)"
+    dropped = len(source_rows) - len(source)
+    dropped_text = f", {dropped:,} non-finite rows dropped" if dropped else ""
+    loop = ""
+    if args.iterations > 1 and not args.no_mask:
+        from masknet.registration.refinement import DEFAULT_REFINER
+
+        refine = args.refine_masks or DEFAULT_REFINER
+        loop = f"; {args.iterations} rounds, masks of rounds >= 2: {refine}"
+    print(
+        f"{name}: template {len(template):,} points, source {len(source):,}{sampled}{dropped_text}"
+        f"{loop}"
+    )
+    if result.mask is not None:
+        print(f"inliers: {int(result.mask.sum()):,} of {len(template):,} template points")
+    if result.scene is not None:
+        print(
+            f"scene search: {result.scene.regions} regions of SOURCE searched, "
+            f"{result.scene.spacing:.2g} template radii apart, "
+            f"in {result.times['search']:.1f} s; {100 * result.scene.coverage:.1f}% "
+            "of the template lies on the scene where it was found"
+        )
+        if result.scene.coverage < LOW_FITNESS:
+            print(
+                "masknet: warning: under half of TEMPLATE lies on SOURCE where it fits best; "
+                "the object may not be in this scan (or TEMPLATE shows more of it than the "
+                "scan sees)",
+                file=sys.stderr,
+            )
+    if result.source_mask is not None:
+        print(f"source kept: {int(result.source_mask.sum()):,} of {len(source):,} points")
+    if len(result.rounds) > 1:  # how far each round moved the source: has the loop settled?
+        from masknet.geometry.se3 import transform_points
+        from masknet.registration.hypotheses import rotation_between_deg
+
+        steps = []
+        for r, (before, after) in enumerate(zip(result.rounds, result.rounds[1:], strict=False), 2):
+            shift = np.linalg.norm(
+                transform_points(after, source) - transform_points(before, source), axis=-1
+            )
+            steps.append(
+                f"round {r} {rotation_between_deg(before, after):.3f} deg, "
+                f"median point {np.median(shift):.3g}"
+            )
+        print("rounds moved the source: " + "; ".join(steps) + " (input units)")
+    angle = float(result.rotation_deg)
+    print(
+        f"estimated motion: rotation {angle:.2f} deg, translation {np.linalg.norm(result.t):.4g} "
+        f"(input units); {1e3 * result.times['total']:.1f} ms"
+    )

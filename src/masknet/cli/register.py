@@ -25,13 +25,9 @@ from masknet.cli._common import (
     progress,
 )
 from masknet.cli._pictures import registration_views
-from masknet.cli._report import report_path, shown_numbers
+from masknet.cli._report import print_result, report_path, shown_numbers
 from masknet.errors import MaskNetError
 from masknet.registration.methods import METHOD_TITLES, METHODS, PIPELINES
-
-# Below this fraction of the template on the scan where a scene search found it, the CLI
-# warns that the object may not be in the scan.
-LOW_FITNESS = 0.5
 
 if TYPE_CHECKING:  # heavy imports stay out of ``masknet --help``
     import numpy as np
@@ -213,7 +209,6 @@ def scene_option(
 def run(args: argparse.Namespace) -> int:
     """Register; write the outputs all-or-nothing and print what the method reported.
     Returns the exit status (:data:`masknet.cli._common.EXIT_CODES`)."""
-    import numpy as np
 
     from masknet.io import (
         read_point_attributes,
@@ -347,59 +342,7 @@ def run(args: argparse.Namespace) -> int:
     with progress("writing the outputs"):
         removed = write_all(writers, stale=derived)
 
-    n, m = result.sampled
-    sampled = "" if (n, m) == (len(template), len(source)) else f" (sampled to {n} and {m})"
-    if sampled and "path" in result.info:  # auto and robust: only the networks see samples
-        sampled = f" (the networks see {n:,} and {m:,} sampled points)"
-    dropped = len(source_rows) - len(source)
-    dropped_text = f", {dropped:,} non-finite rows dropped" if dropped else ""
-    loop = ""
-    if args.iterations > 1 and not args.no_mask:
-        from masknet.registration.refinement import DEFAULT_REFINER
-
-        refine = args.refine_masks or DEFAULT_REFINER
-        loop = f"; {args.iterations} rounds, masks of rounds >= 2: {refine}"
-    print(
-        f"{name}: template {len(template):,} points, source {len(source):,}{sampled}{dropped_text}"
-        f"{loop}"
-    )
-    if result.mask is not None:
-        print(f"inliers: {int(result.mask.sum()):,} of {len(template):,} template points")
-    if result.scene is not None:
-        print(
-            f"scene search: {result.scene.regions} regions of SOURCE searched, "
-            f"{result.scene.spacing:.2g} template radii apart, "
-            f"in {result.times['search']:.1f} s; {100 * result.scene.coverage:.1f}% "
-            "of the template lies on the scene where it was found"
-        )
-        if result.scene.coverage < LOW_FITNESS:
-            print(
-                "masknet: warning: under half of TEMPLATE lies on SOURCE where it fits best; "
-                "the object may not be in this scan (or TEMPLATE shows more of it than the "
-                "scan sees)",
-                file=sys.stderr,
-            )
-    if result.source_mask is not None:
-        print(f"source kept: {int(result.source_mask.sum()):,} of {len(source):,} points")
-    if len(result.rounds) > 1:  # how far each round moved the source: has the loop settled?
-        from masknet.geometry.se3 import transform_points
-        from masknet.registration.hypotheses import rotation_between_deg
-
-        steps = []
-        for r, (before, after) in enumerate(zip(result.rounds, result.rounds[1:], strict=False), 2):
-            shift = np.linalg.norm(
-                transform_points(after, source) - transform_points(before, source), axis=-1
-            )
-            steps.append(
-                f"round {r} {rotation_between_deg(before, after):.3f} deg, "
-                f"median point {np.median(shift):.3g}"
-            )
-        print("rounds moved the source: " + "; ".join(steps) + " (input units)")
-    angle = float(result.rotation_deg)
-    print(
-        f"estimated motion: rotation {angle:.2f} deg, translation {np.linalg.norm(result.t):.4g} "
-        f"(input units); {1e3 * result.times['total']:.1f} ms"
-    )
+    print_result(args, name, template, source, source_rows, result)
     report_path(result.info, result.R)
     print("reported by the method: " + shown_numbers(result.info))
     print(f"did it work: {check.verdict}: {check.reason}")
