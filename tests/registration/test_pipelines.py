@@ -10,6 +10,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from masknet.data import bundled_sample_path, load_modelnet40
+from masknet.geometry.sampling import NetworkClouds
 from masknet.models import MaskNet, TwoSidedMaskNet
 from masknet.registration.auto import auto_register as run_auto
 from masknet.registration.backends.base import MaskModels, PipelineRun
@@ -19,7 +20,7 @@ from masknet.registration.robust import robust_register as run_robust
 pytestmark = pytest.mark.usefixtures("one_thread")
 
 # info["path"], as documented (masknet.registration.auto, .coarse)
-AUTO_PATHS = {"fast", "robust/correspondences", "robust/search"}
+AUTO_PATHS = {"fast", "consensus", "robust/consensus", "robust/correspondences", "robust/search"}
 ROBUST_PATHS = {"correspondences", "search"}
 SEARCH_ONLY = RobustOptions(correspondence_hypotheses=0)  # skip the FPFH hypotheses
 
@@ -52,7 +53,8 @@ def _times() -> dict[str, float]:
 def _run(pipeline, template, source, models, options=None):
     """A pipeline on clouds small enough that the networks see them whole."""
     options = RobustOptions() if options is None else options
-    return pipeline(template, source, template, source, models, options, _times(), "auto")
+    nets = NetworkClouds.given(template, source)
+    return pipeline(template, source, nets, models, options, _times(), "auto")
 
 
 def test_auto_settles_near_pairs_on_its_fast_path(known_pairs, networks, pose_error):

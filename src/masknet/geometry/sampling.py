@@ -15,6 +15,8 @@ range, and a random subset keeps that bias) at a cost that stays linear in the p
 
 from __future__ import annotations
 
+import time
+from functools import cached_property
 from typing import NamedTuple
 
 import fpsample
@@ -24,6 +26,7 @@ from masknet.errors import MaskNetError
 from masknet.geometry.knn import cloud_tree
 
 __all__ = [
+    "NetworkClouds",
     "FPSResult",
     "farthest_point_sample",
     "fit_to_network",
@@ -174,3 +177,57 @@ def fit_to_network(
     # (top-k selection uses it).
     src_idx = farthest_point_sample(source[0], max_points, min_spacing=kept.radius).indices
     return template[:, kept.indices], source[:, src_idx], kept.indices, src_idx
+
+
+class NetworkClouds:
+    """A pair at the networks' size, sampled on first use by :func:`fit_to_network`: a
+    pipeline that ends before any network runs (a scan registered by its consensus
+    front end) pays nothing for it. template, source: (B, N, 3) and (B, M, 3);
+    ``times["sample"]`` gets the seconds the sampling took.
+
+    Example::
+
+        nets = NetworkClouds(template, source, single=True, max_points=1024, times={})
+        nets.template.shape  # (1, 1024, 3), sampled now
+    """
+
+    def __init__(
+        self,
+        template: np.ndarray,
+        source: np.ndarray,
+        single: bool,
+        max_points: int,
+        times: dict[str, float] | None = None,
+    ) -> None:
+        self._clouds = template, source, single, max_points
+        self._times = {} if times is None else times
+
+    @classmethod
+    def given(cls, template: np.ndarray, source: np.ndarray) -> NetworkClouds:
+        """Clouds already at the networks' size: (B, n, 3) and (B, m, 3), kept as they are."""
+        return cls(
+            template, source, template.shape[0] == 1, max(template.shape[1], source.shape[1])
+        )
+
+    @cached_property
+    def sampled(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """(template, source, template indices, source indices), the indices None where
+        nothing was sampled."""
+        tic = time.perf_counter()
+        out = fit_to_network(*self._clouds)
+        self._times["sample"] = self._times.get("sample", 0.0) + time.perf_counter() - tic
+        return out
+
+    def sizes(self) -> tuple[int, int]:
+        """(template, source) points the networks saw; the clouds' own sizes where no
+        network asked for them."""
+        clouds = self.sampled if "sampled" in self.__dict__ else self._clouds
+        return clouds[0].shape[1], clouds[1].shape[1]
+
+    @property
+    def template(self) -> np.ndarray:
+        return self.sampled[0]
+
+    @property
+    def source(self) -> np.ndarray:
+        return self.sampled[1]

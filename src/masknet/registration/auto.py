@@ -13,64 +13,75 @@
    5% of the points (:func:`masknet.registration.prepared.check_points`).
    A correct result fits at least ``accept_fitness``; a result stopped at a wrong pose
    fits less.
-3. **Escalation.** Below that, the coarse-to-fine pipeline of ``method="robust"``
-   (:mod:`masknet.registration.robust.search`) runs, and its fast path's result takes part as one
-   more hypothesis (it wins if it fits best).
+3. **Escalation.** Below that, for templates of ``consensus_from`` points or more, the
+   consensus front end (:mod:`masknet.registration.robust.consensus`: a voxel budget,
+   RANSAC on FPFH matches, point-to-plane ICP, the verdict); a ``likely correct`` pose
+   ends the call. Otherwise the coarse-to-fine pipeline of ``method="robust"``
+   (:mod:`masknet.registration.robust.search`) runs, and the fast path's result takes
+   part as one more hypothesis (it wins if it fits best); an ``uncertain`` consensus
+   replaces the search's answer where the verdict ranks it higher (the search's one-way
+   score can prefer a pose slid along a wall on sparse scans).
 
-``info["path"]`` says which ran (``"fast"``, or ``"robust/correspondences"`` and
-``"robust/search"``), and ``info["escalated_fitness"]`` the fast path's fit that sent it on
-(NaN when it did not).
+Scans of ``CONSENSUS_FIRST`` times ``consensus_from`` points or more try the consensus
+front end before the fast path; the networks' clouds are sampled only when a network
+runs. ``info["path"]`` says which ran (``"fast"``, ``"consensus"``,
+``"robust/consensus"``, ``"robust/correspondences"`` and ``"robust/search"``), and
+``info["escalated_fitness"]`` the fast path's fit that sent it on (NaN when it did not).
 """
 
 from __future__ import annotations
 
 import time
+from typing import NamedTuple
 
 import numpy as np
 
-from masknet.geometry.clouds import MIN_POINTS
+from masknet.geometry.clouds import MIN_POINTS, median_spacing
 from masknet.geometry.knn import cloud_tree
-from masknet.geometry.sampling import spread_labels
+from masknet.geometry.sampling import NetworkClouds, spread_labels
 from masknet.geometry.se3 import transform_points
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
+from masknet.registration.assessment import assess_registration
 from masknet.registration.backends.base import MaskModels, PipelineRun
 from masknet.registration.fit import FIT_SPACINGS, PoseFit, pose_fit
 from masknet.registration.hypotheses import rotation_between_deg
 from masknet.registration.icp import icp
 from masknet.registration.options import ICPCriteria, RobustOptions
-from masknet.registration.prepared import (
-    check_points,
-    prepare_pair,
-)
+from masknet.registration.prepared import PreparedPair, check_points, prepare_pair
 from masknet.registration.robust import NetworkMasks, pipeline_run
+from masknet.registration.robust.consensus import ConsensusRun, consensus_register, verdict_rank
 from masknet.registration.robust.search import REFINE_TOLERANCE, coarse_to_fine
 from masknet.registration.rounds import mask_and_register
 
 __all__ = ["auto_register"]
 
+# Templates of this many times ``consensus_from`` points try the consensus front end
+# before the fast path: on scans that large the fast path seldom holds, and the networks'
+# sampling alone costs a tenth of a second.
+CONSENSUS_FIRST = 8
+
 
 def auto_register(
     template: np.ndarray,
     source: np.ndarray,
-    template_net: np.ndarray,
-    source_net: np.ndarray,
+    nets: NetworkClouds,
     models: MaskModels,
     options: RobustOptions,
     times: dict[str, float],
     precision: str = "auto",
 ) -> PipelineRun:
     """The pipeline of the module docstring for template (B, N, 3) and source (B, M, 3),
-    float64, pair by pair, at full resolution; the networks see template_net (B, n, 3) and
-    source_net (B, m, 3), the clouds sampled to their size. ``models.first`` masks the fast
+    float64, pair by pair, at full resolution; the networks see ``nets`` (B, n, 3) and
+    (B, m, 3), the clouds sampled to their size on first use. ``models.first`` masks the fast
     path (None: plain ICP), ``models.search`` the escalation (None: no mask). Masks are over
     the full clouds. The method table's adapter of ``"auto"``."""
     model, search_model = models
     runs = []
     for b in range(template.shape[0]):
-        nets = (template_net[b : b + 1], source_net[b : b + 1])
+        pair_nets = _PairNets(nets, b)
         runs.append(
-            _one(template[b], source[b], nets, model, search_model, options, times, precision)
+            _one(template[b], source[b], pair_nets, model, search_model, options, times, precision)
         )
     info = {key: np.concatenate([r.info[key] for r in runs]) for key in runs[0].info}
 
@@ -88,24 +99,86 @@ def auto_register(
 def _one(
     template: np.ndarray,
     source: np.ndarray,
-    nets: tuple[np.ndarray, np.ndarray],
+    nets: _PairNets,
     model: MaskNet | TwoSidedMaskNet | None,
     search_model: TwoSidedMaskNet | None,
     options: RobustOptions,
     times: dict[str, float],
     precision: str,
 ) -> PipelineRun:
-    """One pair: template (N, 3), source (M, 3); ``nets`` the (1, n, 3) and (1, m, 3)
-    clouds the networks see."""
+    """One pair: template (N, 3), source (M, 3); ``nets`` the clouds the networks see."""
+    consensus = None
+    tries = options.consensus_points > 0 and len(template) >= options.consensus_from
+    if tries and len(template) >= CONSENSUS_FIRST * options.consensus_from:
+        consensus = consensus_register(template, source, options, times)
+        if consensus is not None and consensus.check.verdict == "likely correct":
+            return _consensus_run(consensus, template, source, model, "consensus")
+    fast = _fast_path(template, source, nets, model, options, times, precision)
+    if fast.accepted is not None:
+        return fast.accepted
+    if tries and consensus is None:
+        consensus = consensus_register(template, source, options, times)
+        if consensus is not None and consensus.check.verdict == "likely correct":
+            return _consensus_run(consensus, template, source, model, "robust/consensus")
+    run = _escalate(template, source, nets, fast, model, search_model, options, times, precision)
+    if consensus is not None and consensus.check.verdict == "uncertain":
+        # The search's one-way score can prefer a slid pose that the verdict sees through.
+        searched = assess_registration(
+            consensus.template_grid, consensus.source_grid, run.transform[0]
+        )
+        if verdict_rank(consensus.check) > verdict_rank(searched):
+            return _consensus_run(consensus, template, source, model, "robust/consensus")
+    return run
+
+
+class _PairNets(NamedTuple):
+    """Pair ``b`` of the networks' clouds, sampled when first asked for."""
+
+    nets: NetworkClouds
+    b: int
+
+    def clouds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(1, n, 3) and (1, m, 3)."""
+        b = self.b
+        return self.nets.template[b : b + 1], self.nets.source[b : b + 1]
+
+
+class _Fast(NamedTuple):
+    """The fast path: its result where it fits (``accepted``), else what the escalation
+    uses: its transform (4, 4), fit, the check's fitness, masks, and the prepared pair."""
+
+    accepted: PipelineRun | None
+    transform: np.ndarray
+    fit: PoseFit
+    right: float
+    mask: np.ndarray | None
+    source_mask: np.ndarray | None
+    prepared: PreparedPair
+
+
+def _fast_path(
+    template: np.ndarray,
+    source: np.ndarray,
+    nets: _PairNets,
+    model: MaskNet | TwoSidedMaskNet | None,
+    options: RobustOptions,
+    times: dict[str, float],
+    precision: str,
+) -> _Fast:
+    """Step 1 and 2 of the module docstring: Mask-ICP on the networks' clouds, ICP with
+    the pair cut-off at full resolution, and the check of its fit."""
     icp_options = ICPCriteria()  # the paper's Mask-ICP: 10 iterations, all pairs
-    fast = mask_and_register(*nets, "icp", model, 1, icp_options, times, precision=precision)
+    template_net, source_net = nets.clouds()
+    fast = mask_and_register(
+        template_net, source_net, "icp", model, 1, icp_options, times, precision=precision
+    )
     tic = time.perf_counter()
     prepared = prepare_pair(template, source, options.fine_points)
     fine_template, tree, spacing, fine, surface = prepared[:5]
     source_mask = None
     if fast.source_mask is not None:  # a two-sided network: its kept points, spread
-        source_mask = spread_labels(source, nets[1][0], fast.source_mask[0])
-        kept_fine = spread_labels(fine, nets[1][0], fast.source_mask[0]) & surface
+        source_mask = spread_labels(source, source_net[0], fast.source_mask[0])
+        kept_fine = spread_labels(fine, source_net[0], fast.source_mask[0]) & surface
         surface = kept_fine if kept_fine.sum() >= MIN_POINTS else surface
     kept = fine[surface]
     # The check's points among those kept (a two-sided network's mask narrows both).
@@ -126,47 +199,93 @@ def _one(
     else:
         right = fit.fitness
     times["fast"] = times.get("fast", 0.0) + time.perf_counter() - tic
+    accepted = None
     if right >= options.accept_fitness:
         mask = None
         if model is not None:  # the template points the moved source covers
             moved = transform_points(transform, kept)
             mask = (cloud_tree(moved).query(template, k=1)[0] <= FIT_SPACINGS * spacing)[None]
         info = _info("fast", fit, np.nan)
-        return PipelineRun(
+        accepted = PipelineRun(
             transform[None], mask, None if source_mask is None else source_mask[None], info
         )
+    fast_mask = None if fast.mask is None else fast.mask[0]
+    return _Fast(accepted, transform, fit, right, fast_mask, fast.source_mask, prepared)
+
+
+def _escalate(
+    template: np.ndarray,
+    source: np.ndarray,
+    nets: _PairNets,
+    fast: _Fast,
+    model: MaskNet | TwoSidedMaskNet | None,
+    search_model: TwoSidedMaskNet | None,
+    options: RobustOptions,
+    times: dict[str, float],
+    precision: str,
+) -> PipelineRun:
+    """Step 3 of the module docstring: the coarse-to-fine search, the fast path's pose one
+    more answer."""
     if search_model is not None and search_model is model and fast.mask is not None:
         # The fast path's network is the search's: its masks serve again.
-        search_model = _GivenMasks(fast.mask[0], fast.source_mask)
+        search_model = _GivenMasks(fast.mask, fast.source_mask)
     masks = None
     if search_model is not None:
-        masks = NetworkMasks(search_model, nets[0][0], nets[1][0], precision)
-    run = pipeline_run([coarse_to_fine(template, source, masks, options, times, prepared)])
-    if run.info["score"][0] < fit.score:  # the fast path's pose fits better after all
-        info = _info("fast", fit, right)
-        # The search's answers that fit as well and lie elsewhere make this one ambiguous.
-        others = [(run.transform[0], run.info["fitness"][0], run.info["score"][0])]
-        if np.isfinite(run.info["runner_up"][0]).all():
-            others.append(
-                (
-                    run.info["runner_up"][0],
-                    run.info["runner_up_fitness"][0],
-                    run.info["runner_up_score"][0],
-                )
-            )
-        for other, other_fitness, other_score in others:
-            apart = rotation_between_deg(other, transform) >= options.distinct_deg
-            if apart and other_score >= fit.score - options.ambiguity_margin:
-                info["ambiguous"] = np.array([True])
-                info["runner_up"] = other[None].copy()
-                info["runner_up_fitness"] = np.array([other_fitness])
-                info["runner_up_score"] = np.array([other_score])
-                break
-        return PipelineRun(transform[None], run.mask, run.source_mask, info)
+        template_net, source_net = nets.clouds()
+        masks = NetworkMasks(search_model, template_net[0], source_net[0], precision)
+    run = pipeline_run([coarse_to_fine(template, source, masks, options, times, fast.prepared)])
+    if run.info["score"][0] < fast.fit.score:  # the fast path's pose fits better after all
+        return _fast_after_all(run, fast, options)
     info = dict(run.info)
     info["path"] = np.array([f"robust/{run.info['path'][0]}"])
-    info["escalated_fitness"] = np.array([right])
+    info["escalated_fitness"] = np.array([fast.right])
     return PipelineRun(run.transform, run.mask, run.source_mask, info)
+
+
+def _fast_after_all(run: PipelineRun, fast: _Fast, options: RobustOptions) -> PipelineRun:
+    """The fast path's pose, which fits better than the search's answer; ambiguous where
+    one of the search's answers lies elsewhere and fits about as well."""
+    transform = fast.transform
+    info = _info("fast", fast.fit, fast.right)
+    others = [(run.transform[0], run.info["fitness"][0], run.info["score"][0])]
+    if np.isfinite(run.info["runner_up"][0]).all():
+        others.append(
+            (
+                run.info["runner_up"][0],
+                run.info["runner_up_fitness"][0],
+                run.info["runner_up_score"][0],
+            )
+        )
+    for other, other_fitness, other_score in others:
+        apart = rotation_between_deg(other, transform) >= options.distinct_deg
+        if apart and other_score >= fast.fit.score - options.ambiguity_margin:
+            info["ambiguous"] = np.array([True])
+            info["runner_up"] = other[None].copy()
+            info["runner_up_fitness"] = np.array([other_fitness])
+            info["runner_up_score"] = np.array([other_score])
+            break
+    return PipelineRun(transform[None], run.mask, run.source_mask, info)
+
+
+def _consensus_run(
+    found: ConsensusRun,
+    template: np.ndarray,
+    source: np.ndarray,
+    model: MaskNet | TwoSidedMaskNet | None,
+    path: str,
+) -> PipelineRun:
+    """The consensus front end's answer as the pipeline's result: its fit on the finer
+    grid; with a network, the template points the moved source covers."""
+    grid_template, grid_source = found.template_grid, found.source_grid
+    limit = FIT_SPACINGS * median_spacing(grid_template, sample=2048)
+    fit = pose_fit(cloud_tree(grid_template), grid_source, found.transform, limit)
+    mask = None
+    if model is not None:
+        moved = transform_points(found.transform, source)
+        mask = (cloud_tree(moved).query(template, k=1)[0] <= limit)[None]
+    info = _info(path, fit, np.nan)
+    info["source"] = np.array(["consensus"])
+    return PipelineRun(found.transform[None], mask, None, info)
 
 
 def _info(path: str, fit: PoseFit, escalated: float) -> dict[str, np.ndarray]:

@@ -9,13 +9,15 @@ returned transform maps the source onto the template (masknet's convention).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from masknet.geometry.open3d_clouds import to_open3d
 from masknet.io import require_open3d
 from masknet.registration.correspondences import fpfh_features
 
-__all__ = ["open3d_fpfh_ransac", "open3d_fgr"]
+__all__ = ["open3d_fgr", "open3d_fpfh_ransac", "ransac_on_features"]
 
 
 def _cloud_and_features(
@@ -82,15 +84,32 @@ def _ransac(
     downsample: bool = False,
     orient: bool = False,
 ) -> tuple[np.ndarray, float, float]:
-    reg = o3d.pipelines.registration
     src, src_f = _cloud_and_features(o3d, source, voxel_size, downsample, orient)
     tpl, tpl_f = _cloud_and_features(o3d, template, voxel_size, downsample, orient)
+    result = ransac_on_features(o3d, tpl, src, tpl_f, src_f, voxel_size, max_iterations, confidence)
+    return np.asarray(result.transformation), result.fitness, result.inlier_rmse
+
+
+def ransac_on_features(
+    o3d: Any,
+    template: Any,
+    source: Any,
+    template_features: Any,
+    source_features: Any,
+    voxel_size: float,
+    max_iterations: int = 100_000,
+    confidence: float = 0.999,
+) -> Any:
+    """Open3D's RANSAC on mutual FPFH matches of two Open3D clouds (template, then source,
+    masknet's order) with the tutorial's settings: inlier distance 1.5 voxels, edge-length
+    and distance checkers. Returns Open3D's ``RegistrationResult`` (source -> template)."""
+    reg = o3d.pipelines.registration
     distance = 1.5 * voxel_size
-    result = reg.registration_ransac_based_on_feature_matching(
-        src,
-        tpl,
-        src_f,
-        tpl_f,
+    return reg.registration_ransac_based_on_feature_matching(
+        source,
+        template,
+        source_features,
+        template_features,
         True,
         distance,
         reg.TransformationEstimationPointToPoint(False),
@@ -101,7 +120,6 @@ def _ransac(
         ],
         reg.RANSACConvergenceCriteria(max_iterations, confidence),
     )
-    return np.asarray(result.transformation), result.fitness, result.inlier_rmse
 
 
 def open3d_fgr(

@@ -211,6 +211,11 @@ class RobustOptions:
     distinct_deg: poses at least this far apart are different answers.
     ambiguity_margin: a different answer whose fitness is within this of the best makes
         the result ``ambiguous``.
+    consensus_points: ``"auto"`` only: template points on the grid of the consensus front
+        end (:mod:`masknet.registration.robust.consensus`); 0 skips it.
+    consensus_from: ``"auto"`` only: templates of at least this many points try the
+        consensus front end: before the fast path from 8 times as many points (large
+        scans, where the fast path seldom holds), else when the fast path escalates.
     """
 
     feature_points: tuple[int, ...] = (300, 1000)
@@ -227,6 +232,8 @@ class RobustOptions:
     fine_points: int = 4096
     distinct_deg: float = 10.0
     ambiguity_margin: float = 0.02
+    consensus_points: int = 1500
+    consensus_from: int = 2048
 
     def __post_init__(self) -> None:
         grids = tuple(self.feature_points)
@@ -242,7 +249,14 @@ class RobustOptions:
             "candidates",
         ):
             _integer(name, getattr(self, name), 0)
-        for name in ("hypothesis_points", "max_iterations", "inlier_iterations", "fine_points"):
+        for name in (
+            "hypothesis_points",
+            "max_iterations",
+            "inlier_iterations",
+            "fine_points",
+            "consensus_points",
+            "consensus_from",
+        ):
             _integer(name, getattr(self, name), 0)
         if self.ransac_trials < 1 or self.correspondence_hypotheses < 0:
             raise MaskNetError("robust: ransac_trials >= 1, correspondence_hypotheses >= 0")
@@ -254,6 +268,8 @@ class RobustOptions:
             )
         if not 0 <= self.accept_fitness <= 1.01 or not 0 <= self.ambiguity_margin <= 1:
             raise MaskNetError("robust: accept_fitness in [0, 1.01], ambiguity_margin in [0, 1]")
+        if 0 < self.consensus_points < 16:
+            raise MaskNetError("robust: consensus_points must be 0 (off) or >= 16")
         if not 0 < self.distinct_deg <= 180:
             raise MaskNetError("robust: distinct_deg in (0, 180]")
         _positive("max_correspondence_distance", self.max_correspondence_distance)

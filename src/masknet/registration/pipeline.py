@@ -24,7 +24,7 @@ import numpy as np
 
 from masknet.errors import MaskNetError
 from masknet.geometry.clouds import MIN_POINTS, SPACING_SAMPLE, Frame, median_spacing
-from masknet.geometry.sampling import fit_to_network, spread_mask
+from masknet.geometry.sampling import NetworkClouds, fit_to_network, spread_mask
 from masknet.geometry.se3 import transform_points
 from masknet.registration.backends.base import MaskModels
 from masknet.registration.fit import inlier_fit
@@ -60,9 +60,10 @@ class FramedPair(NamedTuple):
 
     frame: the call's :class:`~masknet.geometry.clouds.Frame`. template, source: (B, N, 3)
     and (B, M, 3) in the frame, the source reduced to the scene points on the object
-    after a scene search. sampled_template, sampled_source: the clouds at the networks'
-    size (the same arrays when nothing was sampled); template_index, source_index: the
-    sampled rows, or None. single: one pair was given. template_input: (B, N, 3) the
+    after a scene search. nets: the clouds at the networks' size, sampled on first use
+    (:class:`~masknet.geometry.sampling.NetworkClouds`); its parts are the properties
+    sampled_template, sampled_source (the same arrays when nothing was sampled),
+    template_index and source_index (the sampled rows, or None). single: one pair was given. template_input: (B, N, 3) the
     template in input units. template_rows, source_rows: (N0,), (M0,) bool input rows kept
     by ``drop_nonfinite``, or None. scene: the search's :class:`SceneMatch` and the whole
     scene (M0', 3) in input units, or None."""
@@ -70,15 +71,28 @@ class FramedPair(NamedTuple):
     frame: Frame
     template: np.ndarray
     source: np.ndarray
-    sampled_template: np.ndarray
-    sampled_source: np.ndarray
-    template_index: np.ndarray | None
-    source_index: np.ndarray | None
+    nets: NetworkClouds
     single: bool
     template_input: np.ndarray
     template_rows: np.ndarray | None
     source_rows: np.ndarray | None
     scene: tuple[SceneMatch, np.ndarray] | None
+
+    @property
+    def sampled_template(self) -> np.ndarray:
+        return self.nets.sampled[0]
+
+    @property
+    def sampled_source(self) -> np.ndarray:
+        return self.nets.sampled[1]
+
+    @property
+    def template_index(self) -> np.ndarray | None:
+        return self.nets.sampled[2]
+
+    @property
+    def source_index(self) -> np.ndarray | None:
+        return self.nets.sampled[3]
 
 
 class Estimate(NamedTuple):
@@ -180,14 +194,12 @@ def enter_frame(
         options = dataclasses.replace(plan.options, max_correspondence_distance=cut / frame.scale)
         plan = dataclasses.replace(plan, options=options)
     in_template, in_source = frame.points_in(template), frame.points_in(source)
-    tic = time.perf_counter()
-    sampled = fit_to_network(in_template, in_source, single, plan.max_points)
-    times["sample"] = time.perf_counter() - tic
+    nets = NetworkClouds(in_template, in_source, single, plan.max_points, times)
     pair = FramedPair(
         frame,
         in_template,
         in_source,
-        *sampled,
+        nets,
         single,
         template,
         clouds.template_rows,
@@ -206,8 +218,7 @@ def run_method(pair: FramedPair, plan: CallPlan, times: dict[str, float]) -> Est
         total, mask, source_mask, info = adapter(plan.method)(
             pair.template,
             pair.source,
-            pair.sampled_template,
-            pair.sampled_source,
+            pair.nets,
             models,
             plan.options,
             times,
@@ -340,7 +351,7 @@ def leave_frame(
         times=times,
         info={key: out(value) for key, value in info.items()},
         rounds=rounds,
-        sampled=(pair.sampled_template.shape[1], pair.sampled_source.shape[1]) if single else None,
+        sampled=pair.nets.sizes() if single else None,
         correspondence_inliers=out(inliers),
         source_mask=out(source_mask),
         method=plan.method,

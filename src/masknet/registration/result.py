@@ -47,7 +47,9 @@ class RegistrationResult:
             ``fitness`` and ``inlier_rmse`` (Open3D's definitions). PointNetLK:
             ``converged``, ``iterations``, ``feature_residual``.
         rounds: the cumulative transform after each round, (4, 4) or (B, 4, 4) each.
-        sampled: (template, source) sizes the method ran on, for single pairs.
+        sampled: (template, source) sizes the method ran on, for single pairs (for
+            ``auto`` and ``robust``, the sizes the networks saw; the clouds' own where no
+            network ran).
         correspondence_inliers: (N,) or (B, N) bool, for PRNet and RPM-Net: the template
             points taking part in a confident correspondence in the last round (the rule
             is in :mod:`masknet.models.prnet` and :mod:`masknet.models.rpmnet`); template

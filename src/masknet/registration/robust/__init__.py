@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from masknet.geometry.sampling import spread_labels
+from masknet.geometry.sampling import NetworkClouds, spread_labels
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
 from masknet.registration.backends.base import MaskModels, PipelineRun
@@ -58,8 +58,7 @@ class NetworkMasks:
 def robust_register(
     template: np.ndarray,
     source: np.ndarray,
-    template_net: np.ndarray,
-    source_net: np.ndarray,
+    nets: NetworkClouds,
     models: MaskModels,
     options: RobustOptions,
     times: dict[str, float],
@@ -67,7 +66,7 @@ def robust_register(
 ) -> PipelineRun:
     """The coarse-to-fine pipeline for template (B, N, 3) and source (B, M, 3), float64,
     one pair at a time, at full resolution; the network (``models.first``, None: no masks)
-    sees template_net (B, n, 3) and source_net (B, m, 3), the clouds sampled to its size.
+    sees ``nets`` (B, n, 3) and (B, m, 3), the clouds sampled to its size.
     Masks are over the full clouds. Stage times are summed into ``times``. The method
     table's adapter of ``"robust"``."""
     model = models.first
@@ -75,7 +74,7 @@ def robust_register(
     for b in range(template.shape[0]):
         masks = None
         if model is not None:
-            masks = NetworkMasks(model, template_net[b], source_net[b], precision)
+            masks = NetworkMasks(model, nets.template[b], nets.source[b], precision)
         runs.append(coarse_to_fine(template[b], source[b], masks, options, times))
     return pipeline_run(runs)
 

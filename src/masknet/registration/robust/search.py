@@ -77,7 +77,7 @@ from masknet.registration.prepared import (
     random_subset,
 )
 
-__all__ = ["REFINE_TOLERANCE", "CoarseRun", "coarse_to_fine"]
+__all__ = ["REFINE_TOLERANCE", "CoarseRun", "coarse_to_fine", "has_open3d"]
 
 # The refinement's ICP stops once its mean squared error changes by less than this
 # fraction: finer steps move a pose by far less than its error.
@@ -261,7 +261,7 @@ class _Search:
         best two refined. The refined answers where one fits as a right pose does (the
         early exit), else None once every grid is done."""
         options = self.options
-        if not (_has_open3d() and options.correspondence_hypotheses):
+        if not (has_open3d() and options.correspondence_hypotheses):
             return None
         # A larger template gets finer grids: features of a room at an object's
         # resolution would see walls and little else.
@@ -414,7 +414,7 @@ class _Search:
         return winner, rival, ambiguous
 
 
-def _has_open3d() -> bool:
+def has_open3d() -> bool:
     """Whether Open3D imports (it may be installed and still fail, e.g. without libusb)."""
     from masknet.errors import MaskNetError
     from masknet.io import require_open3d
