@@ -99,8 +99,7 @@ def test_every_adapter_imports_to_a_callable_of_its_kind(name):
         assert parameters == [
             "template",
             "source",
-            "template_net",
-            "source_net",
+            "nets",
             "models",
             "options",
             "times",

@@ -78,14 +78,19 @@ def test_the_frame_is_unit_free_and_converts_distances(clouds):
         plan_mm.options.max_correspondence_distance
     )
     assert plan_m.options.max_correspondence_distance == pytest.approx(0.1 / pair_m.frame.scale)
+    assert "sample" not in times  # the networks' clouds are sampled on first use
+    assert pair_m.sampled_template.shape == pair_m.template.shape  # 1,024 points: kept whole
     assert "sample" in times
 
 
 def test_large_clouds_are_sampled_for_the_networks(clouds):
     template, source = clouds
     plan = plan_for(max_points=256)
-    pair, _ = enter_frame(check_clouds(template, source, plan), plan, {})
+    times = {}
+    pair, _ = enter_frame(check_clouds(template, source, plan), plan, times)
+    assert pair.nets.sizes() == (1024, len(source))  # nothing sampled yet
     assert pair.sampled_template.shape == (1, 256, 3)
+    assert times["sample"] > 0 and pair.nets.sizes()[0] == 256
     assert pair.template.shape == (1, 1024, 3)  # the full clouds stay beside them
     assert pair.template_index.shape == (256,)
 

@@ -53,9 +53,9 @@ Backend = Callable[
 ]
 
 # A pipeline adapter: a whole call at full resolution, pair by pair.
-#   (template (B, N, 3), source (B, M, 3), template_net (B, n, 3), source_net (B, m, 3):
-#    the clouds sampled to the networks' size, models: MaskModels, options, times: seconds
-#    per stage (added to), precision: the networks') -> PipelineRun
+#   (template (B, N, 3), source (B, M, 3), nets: geometry.sampling.NetworkClouds, the
+#    clouds sampled to the networks' size on first use, models: MaskModels, options,
+#    times: seconds per stage (added to), precision: the networks') -> PipelineRun
 Pipeline = Callable[..., PipelineRun]
 
 
