@@ -54,10 +54,18 @@ def centroid_radius(points: np.ndarray) -> np.ndarray:
     return np.linalg.norm(points - points.mean(-2, keepdims=True), axis=-1).max(-1)
 
 
+# median_spread measures clouds larger than this on a seeded random subset of this size:
+# a median over 65,536 points moves by well under a per cent, and a million-point scan's
+# unit and scene checks cost 0.27 s on every point.
+SPREAD_POINTS = 65_536
+
+
 def median_spread(points: np.ndarray) -> float:
     """The median distance of points (P, 3) from their coordinate-wise median: a cloud's
     extent that stray points and outliers, even a third of them, barely move."""
-    points = np.asarray(points, dtype=np.float64)
+    from masknet.geometry.sampling import random_subset
+
+    points = random_subset(np.asarray(points, dtype=np.float64), SPREAD_POINTS)
     return float(np.median(np.linalg.norm(points - np.median(points, axis=0), axis=1)))
 
 

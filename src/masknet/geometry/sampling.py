@@ -32,6 +32,7 @@ __all__ = [
     "fit_to_network",
     "grid_subset",
     "nearest_sample",
+    "random_subset",
     "spread_mask",
 ]
 
@@ -231,3 +232,10 @@ class NetworkClouds:
     @property
     def source(self) -> np.ndarray:
         return self.sampled[1]
+
+
+def random_subset(points: np.ndarray, count: int, seed: int = 0) -> np.ndarray:
+    """At most ``count`` of ``points`` (P, 3), a seeded random subset without repeats."""
+    if len(points) <= count:
+        return points
+    return points[np.random.default_rng(seed).choice(len(points), count, replace=False)]

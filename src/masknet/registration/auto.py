@@ -274,15 +274,17 @@ def _consensus_run(
     model: MaskNet | TwoSidedMaskNet | None,
     path: str,
 ) -> PipelineRun:
-    """The consensus front end's answer as the pipeline's result: its fit on the finer
-    grid; with a network, the template points the moved source covers."""
+    """The consensus front end's answer as the pipeline's result: its fit on the check's
+    grid; with a network, the template points the moved source covers (measured on that
+    grid: over the full clouds it cost more than the whole front end on 1M points)."""
     grid_template, grid_source = found.template_grid, found.source_grid
     limit = FIT_SPACINGS * median_spacing(grid_template, sample=2048)
     fit = pose_fit(cloud_tree(grid_template), grid_source, found.transform, limit)
     mask = None
-    if model is not None:
-        moved = transform_points(found.transform, source)
-        mask = (cloud_tree(moved).query(template, k=1)[0] <= limit)[None]
+    if model is not None:  # on the grid, each template point taking its grid point's label
+        moved = transform_points(found.transform, grid_source)
+        covered = cloud_tree(moved).query(grid_template, k=1)[0] <= limit
+        mask = spread_labels(template, grid_template, covered)[None]
     info = _info(path, fit, np.nan)
     info["source"] = np.array(["consensus"])
     return PipelineRun(found.transform[None], mask, None, info)

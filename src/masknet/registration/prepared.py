@@ -30,7 +30,7 @@ from masknet._moved import moved_names
 from masknet.geometry.clouds import MIN_POINTS, SPACING_SAMPLE, median_spacing
 from masknet.geometry.knn import cloud_tree
 from masknet.geometry.normals import plane_offsets
-from masknet.geometry.sampling import grid_subset
+from masknet.geometry.sampling import grid_subset, random_subset
 from masknet.registration.fit import FIT_SPACINGS
 
 __all__ = [
@@ -128,13 +128,6 @@ def _neighbour_distances(points: np.ndarray, neighbours: int) -> np.ndarray:
 def _most(keep: np.ndarray) -> np.ndarray:
     """``keep``, or all True where it keeps under half (a cloud sparser than the radius)."""
     return keep if keep.sum() >= max(MIN_POINTS, len(keep) // 2) else np.ones(len(keep), bool)
-
-
-def random_subset(points: np.ndarray, count: int, seed: int = 0) -> np.ndarray:
-    """At most ``count`` of ``points`` (P, 3), a seeded random subset without repeats."""
-    if len(points) <= count:
-        return points
-    return points[np.random.default_rng(seed).choice(len(points), count, replace=False)]
 
 
 # The template keeps this many times the source's points (32,768 by default): a 3DMatch
