@@ -35,7 +35,7 @@ The template should be the object as the scan sees it (a view captured by a sens
 a scanned model is): the score asks every template point to lie on the scan, so a full
 360-degree model against a one-sided view is found less often.
 
-Cost, 2 CPU threads: a few seconds for a 12,000-point object in a 240,000-point scene
+Cost, 2 CPU threads: 4-5 s for a 12,000-point object in a 240,000-point scene
 ten times its size; it grows with the scene's area in template radii, up to
 ``max_placements`` (then the centre grid is made coarser).
 
