@@ -206,10 +206,11 @@ def test_register_finds_an_object_in_a_scene(tmp_path, capsys):
     ]
     assert main(swapped) == 0
     assert "give the object as TEMPLATE" in capsys.readouterr().err
-    # Forced on a scene without the object: it says it found little.
+    # Forced on a scene without the object: it says it found little; the exit status is 0,
+    # or 3 where the verdict calls the placement it ended at likely wrong.
     np.save(tmp_path / "other.npy", shapes[0] * [0.2, 3.0, 0.2])
     other = ["register", str(tmp_path / "other.npy"), str(tmp_path / "scene.npy"), "-o", str(out)]
-    assert main([*other, "--scene", "on"]) == 0
+    assert main([*other, "--scene", "on"]) in (0, 3)
     captured = capsys.readouterr()
     assert "scene search:" in captured.out and "may not be in this scan" in captured.err
 
