@@ -106,3 +106,12 @@ def test_overlap_fit_counts_within_the_near_band(grid):
     within_near, within, near = overlap_fit(cloud_tree(grid), points, 0.5)
     assert within_near == 1.0  # every point in the near band fits
     assert within == 0.5 and near == 0.5
+
+
+def test_covered_points_are_the_template_points_near_the_moved_source():
+    from masknet.registration.fit import covered_points
+
+    template = np.array([[0.0, 0, 0], [1, 0, 0], [5, 0, 0]])
+    moved = np.array([[0.05, 0, 0], [1.2, 0, 0]])
+    np.testing.assert_array_equal(covered_points(template, moved, 0.1), [True, False, False])
+    np.testing.assert_array_equal(covered_points(template, moved, 0.25), [True, True, False])

@@ -36,6 +36,7 @@ from masknet.experiments.context import BenchmarkContext, ExperimentResult
 from masknet.experiments.scans import THREEDMATCH_FILES, load_pair, scans_folder
 from masknet.geometry.open3d_clouds import to_open3d
 from masknet.registration.api import register
+from masknet.registration.open3d_icp import point_to_plane_at_cuts
 
 __all__ = [
     "consensus_pose",
@@ -54,21 +55,7 @@ def _point_to_plane(o3d, template, source, start: np.ndarray, unit: float) -> tu
     """Open3D point-to-plane ICP of source onto template from ``start``: 5 cm pairs,
     then 2 cm (``unit`` metres per input unit); returns (transform, fitness at 2 cm)."""
     template.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.1 / unit, max_nn=30))
-    return _icp_at_cuts(o3d, template, source, start, (0.05 / unit, 0.02 / unit))
-
-
-def _icp_at_cuts(o3d, template, source, start: np.ndarray, cuts: tuple) -> tuple:
-    """Open3D point-to-plane ICP (50 iterations each) of the Open3D cloud ``source`` onto
-    ``template`` (with normals) from ``start`` (4, 4), pairs cut at each of ``cuts`` in
-    turn: (transform, fitness at the last cut)."""
-    reg = o3d.pipelines.registration
-    pose = start
-    for cut in cuts:
-        estimate = reg.TransformationEstimationPointToPlane()
-        criteria = reg.ICPConvergenceCriteria(max_iteration=50)
-        result = reg.registration_icp(source, template, cut, pose, estimate, criteria)
-        pose = np.asarray(result.transformation)
-    return pose, float(result.fitness)
+    return point_to_plane_at_cuts(template, source, start, (0.05 / unit, 0.02 / unit), 50)
 
 
 def open3d_tutorial(
@@ -127,11 +114,8 @@ def refine_on_grid(
     """Open3D point-to-plane ICP of source (M, 3) onto template (N, 3), metres, from
     ``start`` (4, 4), on both clouds down-sampled to :data:`CONSENSUS_GRID_M`, the pairs cut
     at each of :data:`CONSENSUS_CUTS_M` in turn: (pose (4, 4), fitness at the last cut)."""
-    from masknet.io import require_open3d
-
-    o3d = require_open3d("the consensus pose")
     grid_t, grid_s = grids or _even_clouds(template, source)
-    return _icp_at_cuts(o3d, grid_t, grid_s, start, CONSENSUS_CUTS_M)
+    return point_to_plane_at_cuts(grid_t, grid_s, start, CONSENSUS_CUTS_M, 50)
 
 
 def consensus_pose(

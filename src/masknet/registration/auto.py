@@ -44,7 +44,7 @@ from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
 from masknet.registration.assessment import assess_registration
 from masknet.registration.backends.base import MaskModels, PipelineRun
-from masknet.registration.fit import FIT_SPACINGS, PoseFit, pose_fit
+from masknet.registration.fit import FIT_SPACINGS, PoseFit, covered_points, pose_fit
 from masknet.registration.hypotheses import rotation_between_deg
 from masknet.registration.icp import icp
 from masknet.registration.options import ICPCriteria, RobustOptions
@@ -204,7 +204,7 @@ def _fast_path(
         mask = None
         if model is not None:  # the template points the moved source covers
             moved = transform_points(transform, kept)
-            mask = (cloud_tree(moved).query(template, k=1)[0] <= FIT_SPACINGS * spacing)[None]
+            mask = covered_points(template, moved, FIT_SPACINGS * spacing)[None]
         info = _info("fast", fit, np.nan)
         accepted = PipelineRun(
             transform[None], mask, None if source_mask is None else source_mask[None], info
@@ -283,7 +283,7 @@ def _consensus_run(
     mask = None
     if model is not None:  # on the grid, each template point taking its grid point's label
         moved = transform_points(found.transform, grid_source)
-        covered = cloud_tree(moved).query(grid_template, k=1)[0] <= limit
+        covered = covered_points(grid_template, moved, limit)
         mask = spread_labels(template, grid_template, covered)[None]
     info = _info(path, fit, np.nan)
     info["source"] = np.array(["consensus"])

@@ -57,6 +57,7 @@ __all__ = [
     "PoseFit",
     "RegistrationQuality",
     "RoundFits",
+    "covered_points",
     "evaluate_registration",
     "given_cut",
     "fits_worse",
@@ -201,6 +202,14 @@ def overlap_fit(
     near = np.isfinite(d)
     close = int((d <= limit).sum())
     return close / max(int(near.sum()), 1), close / len(points), float(near.mean())
+
+
+def covered_points(template: np.ndarray, moved_source: np.ndarray, limit: float) -> np.ndarray:
+    """(N,) bool: the template points (N, 3) within ``limit`` of the source as a pose moved
+    it (M, 3): the overlap mask the pipelines return for a pose."""
+    from masknet.geometry.knn import cloud_tree
+
+    return cloud_tree(moved_source).query(template, k=1)[0] <= limit
 
 
 def given_cut(

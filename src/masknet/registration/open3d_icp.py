@@ -8,6 +8,8 @@ Open3D is optional; a missing install raises :class:`~masknet.errors.MaskNetErro
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import torch
 
@@ -15,7 +17,7 @@ from masknet.geometry.open3d_clouds import to_open3d
 from masknet.io import require_open3d
 from masknet.registration.icp import ICPSolution
 
-__all__ = ["open3d_icp"]
+__all__ = ["open3d_icp", "point_to_plane_at_cuts"]
 
 
 def open3d_icp(
@@ -81,3 +83,26 @@ def open3d_icp(
         torch.tensor([fitness], dtype=torch.float64),
         torch.tensor([rmse], dtype=torch.float64),
     )
+
+
+def point_to_plane_at_cuts(
+    template: Any, source: Any, start: np.ndarray, cuts: tuple[float, ...], max_iteration: int
+) -> tuple[np.ndarray, float]:
+    """Open3D's point-to-plane ICP of the Open3D cloud ``source`` onto ``template`` (which
+    has its normals) from ``start`` (4, 4), pairs cut at each of ``cuts`` (input units) in
+    turn, ``max_iteration`` each: (transform (4, 4) source -> template, fitness at the last
+    cut)."""
+    o3d = require_open3d("point-to-plane ICP")
+    reg = o3d.pipelines.registration
+    pose, fitness = np.asarray(start, dtype=np.float64), 0.0
+    for cut in cuts:
+        result = reg.registration_icp(
+            source,
+            template,
+            cut,
+            pose,
+            reg.TransformationEstimationPointToPlane(),
+            reg.ICPConvergenceCriteria(max_iteration=max_iteration),
+        )
+        pose, fitness = np.asarray(result.transformation), float(result.fitness)
+    return pose, fitness

@@ -37,9 +37,10 @@ import numpy as np
 from masknet.geometry.clouds import median_spacing, rms_radius
 from masknet.geometry.open3d_clouds import to_open3d
 from masknet.geometry.sampling import random_subset
-from masknet.registration.assessment import Assessment, assess_registration
+from masknet.registration.assessment import VERDICTS, Assessment, assess_registration
 from masknet.registration.correspondences import fpfh_features, voxel_for
 from masknet.registration.open3d_global import ransac_on_features
+from masknet.registration.open3d_icp import point_to_plane_at_cuts
 from masknet.registration.options import RobustOptions
 
 __all__ = ["ConsensusRun", "consensus_register", "verdict_rank"]
@@ -57,7 +58,7 @@ FINE_GRID = 3  # the refinement's second grid: this many times finer
 # verdict on the first grid called the truth and poses 50 cm off alike `likely wrong`;
 # twice as fine, it parts them as the refinement's grid does, at 90 ms against 170.
 CHECK_GRID = 2
-CUTS = (1.5, 0.4)  # the refinement's pair cut-offs, in voxels: the first grid, then the finer
+CUTS = (1.5, 0.4)  # the refinement's pair cut-offs, in voxels: on the first grid, on the finer
 ICP_ITERATIONS = 30
 FEATURE_NEIGHBOURS = 100  # the tutorial's FPFH neighbours
 SEED = 0
@@ -82,8 +83,7 @@ class ConsensusRun(NamedTuple):
 
 def verdict_rank(check: Assessment) -> tuple[int, float]:
     """A sort key: better verdicts first, then the larger overlap fit."""
-    order = {"likely correct": 2, "uncertain": 1, "likely wrong": 0}
-    return order[check.verdict], check.overlap_fit
+    return -VERDICTS.index(check.verdict), check.overlap_fit
 
 
 def consensus_register(
@@ -132,21 +132,10 @@ def consensus_register(
 
 def _point_to_plane(o3d: Any, coarse: list, fine: list, start: np.ndarray, voxel: float) -> Any:
     """Point-to-plane ICP from ``start``: on the ``coarse`` grid clouds (template, source;
-    the template has its normals from the features), then on the ``fine`` ones."""
-    reg = o3d.pipelines.registration
-    fine[0].estimate_normals(
-        o3d.geometry.KDTreeSearchParamHybrid(radius=2 * voxel / FINE_GRID * 1.5, max_nn=30)
-    )
-    pose = start
-    grids = [coarse] + [fine] * (len(CUTS) - 1)
-    for (template, source), cut in zip(grids, CUTS, strict=True):
-        result = reg.registration_icp(
-            source,
-            template,
-            cut * voxel,
-            pose,
-            reg.TransformationEstimationPointToPlane(),
-            reg.ICPConvergenceCriteria(max_iteration=ICP_ITERATIONS),
-        )
-        pose = np.asarray(result.transformation)
+    the template has its normals from the features) at the first cut, then on the ``fine``
+    ones at the second."""
+    # Normals from three fine-grid edges around each point (one first-grid voxel).
+    fine[0].estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=voxel, max_nn=30))
+    pose, _ = point_to_plane_at_cuts(*coarse, start, (CUTS[0] * voxel,), ICP_ITERATIONS)
+    pose, _ = point_to_plane_at_cuts(*fine, pose, (CUTS[1] * voxel,), ICP_ITERATIONS)
     return pose

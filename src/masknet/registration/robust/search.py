@@ -64,7 +64,7 @@ from masknet.registration.correspondences import (
     ransac_poses,
     voxel_for,
 )
-from masknet.registration.fit import FIT_SPACINGS, pose_fit, pose_fits
+from masknet.registration.fit import FIT_SPACINGS, covered_points, pose_fit, pose_fits
 from masknet.registration.hypotheses import Scored, distinct, rank, rotation_between_deg
 from masknet.registration.icp import icp, icp_from_starts
 from masknet.registration.options import RobustOptions
@@ -152,8 +152,9 @@ def coarse_to_fine(
     transform = winner.pose
     if masks is not None:  # the template points the moved kept source covers
         # (also after an early exit, where the network never ran)
-        moved = transform_points(transform, search.kept_source)
-        mask = cloud_tree(moved).query(template, k=1)[0] <= search.limit
+        mask = covered_points(
+            template, transform_points(transform, search.kept_source), search.limit
+        )
     if source_mask is not None and len(search.source) < len(source):
         # Each point of the whole source takes the label of its nearest subset point.
         source_mask = spread_labels(source, search.source, source_mask)
