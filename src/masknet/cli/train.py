@@ -123,6 +123,19 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "(shipped name, e.g. modelnet40, or a .safetensors file) against the partial source; "
         "pair with --keep-ratio 0.7",
     )
+    p.add_argument(
+        "--distill",
+        metavar="MASKNET",
+        help="masknet: learn from this frozen MaskNet's scores as well as the labels (shipped "
+        "name, e.g. modelnet40, or a .safetensors file); with --loss bce and a smaller "
+        "--model-config",
+    )
+    p.add_argument(
+        "--distill-weight",
+        type=float,
+        default=0.5,
+        help="the teacher's share of the target with --distill, in [0, 1] (default 0.5)",
+    )
     add_pair_options(p)
     _scans.add_train_options(p)
 
@@ -147,6 +160,8 @@ def build_task(args: argparse.Namespace) -> TrainSetup:
         raise MaskNetError(
             f"--template-mask trains a registration network, not --model {args.model}"
         )
+    if args.distill and args.model != "masknet":
+        raise MaskNetError(f"--distill trains a MaskNet (--model masknet), not {args.model}")
     if args.scans and args.model in NETWORK_METHODS:
         raise MaskNetError(f"--scans trains MaskNet (--model masknet), not {args.model}")
     return TASK_BUILDERS[args.model](args)
@@ -167,10 +182,12 @@ def _masknet(args: argparse.Namespace) -> TrainSetup:
         "loss": args.loss,
         "model_config": _encoder(args) | (args.model_config or {}),
     }
+    if args.distill:
+        settings |= {"teacher": args.distill, "distill_weight": args.distill_weight}
     try:
         MaskNetTask(**settings).build_model()
     except (TypeError, ValueError) as exc:
-        raise MaskNetError(f"--model-config does not fit masknet: {exc}") from None
+        raise MaskNetError(f"masknet: {exc}") from None
     if args.scans:
         return TrainSetup(
             MaskNetTask.on_scans(_scans.scan_mix(args), **settings), MaskNet, args.precision

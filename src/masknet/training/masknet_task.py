@@ -30,6 +30,10 @@ class MaskNetTask(PairTask):
         Use :meth:`denoising` for the denoising task's defaults.
     mix: real scans mixed in (:class:`~masknet.training.scan_mix.ScanMix`); metrics are
         then logged per kind of batch too. :meth:`on_scans` names such a run.
+    teacher: distil a (smaller) network from this frozen MaskNet (shipped name or
+        ``.safetensors`` file): the BCE target is ``distill_weight`` times the teacher's
+        score plus the rest times the true label (``loss="bce"`` only).
+    distill_weight: the teacher's share of the target, in [0, 1].
     """
 
     loss: Literal["mse", "bce"] = "mse"
@@ -38,6 +42,14 @@ class MaskNetTask(PairTask):
     metric: str = "precision"
     maximize: bool = True
     role: Literal["template", "denoise"] = "template"
+    teacher: str | None = None
+    distill_weight: float = 0.5
+
+    def __post_init__(self) -> None:
+        if self.teacher is not None and self.loss != "bce":
+            raise ValueError("distilling from a teacher needs loss='bce'")
+        if not 0.0 <= self.distill_weight <= 1.0:
+            raise ValueError(f"distill_weight must lie in [0, 1], got {self.distill_weight}")
 
     @classmethod
     def denoising(cls, pairs: PairConfig, **kwargs) -> MaskNetTask:
@@ -84,7 +96,8 @@ class MaskNetTask(PairTask):
             # that keep everything) still gets a gradient of 1, where BCE on clamped
             # scores gets none.
             logits = model(scored, given, logits=True).float()
-            loss = nn.functional.binary_cross_entropy_with_logits(logits, target)
+            soft = target if self.teacher is None else self._soft_target(scored, given, target)
+            loss = nn.functional.binary_cross_entropy_with_logits(logits, soft)
             scores = torch.sigmoid(logits)
         with torch.no_grad():
             if self.role == "denoise":
@@ -96,5 +109,19 @@ class MaskNetTask(PairTask):
         metrics = {key: metrics[key] for key in keys}
         return loss, metrics if self.mix is None else by_kind(batch, metrics)
 
+    def _soft_target(self, scored: Tensor, given: Tensor, target: Tensor) -> Tensor:
+        """(B, N): the true labels blended with the frozen teacher's scores."""
+        teacher = getattr(self, "_teacher", None)
+        if teacher is None:
+            from masknet.training.registration_task import load_mask_network
+
+            teacher = self._teacher = load_mask_network(self.teacher).to(scored.device)
+        with torch.no_grad():
+            scores = torch.sigmoid(teacher(scored, given, logits=True).float())
+        return self.distill_weight * scores + (1.0 - self.distill_weight) * target
+
     def describe_extra(self) -> dict:
-        return {"loss": self.loss} | ({"role": self.role} if self.role != "template" else {})
+        extra = {"loss": self.loss} | ({"role": self.role} if self.role != "template" else {})
+        if self.teacher is not None:
+            extra |= {"teacher": self.teacher, "distill_weight": self.distill_weight}
+        return extra

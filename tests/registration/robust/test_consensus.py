@@ -120,3 +120,63 @@ def test_verdicts_rank_before_overlap_fits():
 def test_a_consensus_grid_of_too_few_points_is_refused(points):
     with pytest.raises(MaskNetError, match="consensus_points"):
         RobustOptions(consensus_points=points)
+
+
+@pytest.fixture(scope="module")
+def sparse_pairs():
+    """Eight re-sampled ModelNet40 pairs of the bundled sample (512 / 358 points: template
+    and source drawn apart), as the robust benchmark's sparse set makes them."""
+    from masknet.data import bundled_sample_path, load_modelnet40
+    from masknet.data.views import ViewConfig, make_view_pairs, normalize_cloud
+
+    points = load_modelnet40(bundled_sample_path(), "test").points
+    rng = np.random.default_rng(3)
+    view = ViewConfig(template_points=512, noise_sigma=0.0, falloff=0.0)
+    shapes = [normalize_cloud(points[i]) for i in rng.choice(len(points), 8, replace=False)]
+    return make_view_pairs(shapes, view, rng)
+
+
+def test_sparse_clouds_try_the_consensus_first(sparse_pairs, o3d):
+    """Templates under ``consensus_below`` points: the front end before the fast path. On
+    these 8 pairs 7 end there, each within 2.1 degrees and without sampling for the
+    networks; the mean error is 2.5 degrees against 3.7 with the front end off."""
+    from masknet.evaluation.registration import pair_arrays
+
+    template, source, truth = pair_arrays(sparse_pairs)
+    errors = {1024: [], 0: []}
+    ended = 0
+    for i in range(len(truth)):
+        for below, found in errors.items():
+            result = register(template[i], source[i], consensus_below=below)
+            error = pose_errors(result.transform[None], truth[i][None])[0][0]
+            found.append(error)
+            if result.info["path"] == "consensus":
+                assert below > 0 and error < 5.0, (i, error)
+                assert result.times["sample"] == 0.0  # the networks never ran
+                ended += 1
+    assert ended >= 5, ended
+    assert np.mean(errors[1024]) <= np.mean(errors[0]), errors
+
+
+def test_the_pose_as_given_wins_a_tie_with_a_flip():
+    """A symmetric shape fits a pose 180 degrees off as well: the one nearer the start
+    wins when the verdict rates both alike, and a better verdict beats nearness."""
+    from masknet.registration.robust.consensus import _start_competes
+
+    rng = np.random.default_rng(0)
+    # The surface of a box elongated along x: turned 180 degrees about x, it covers itself.
+    cloud = rng.uniform(-1, 1, (600, 3))
+    side = rng.integers(0, 3, len(cloud))
+    cloud[np.arange(len(cloud)), side] = np.sign(cloud[np.arange(len(cloud)), side])
+    cloud *= [2.0, 0.5, 0.3]
+    flip = np.diag([1.0, -1.0, -1.0, 1.0])
+    check = assess_registration(cloud, cloud, flip)
+    pose, kept = _start_competes(flip, check, np.eye(4), cloud, cloud, RobustOptions())
+    np.testing.assert_allclose(pose, np.eye(4))
+    assert kept.verdict == check.verdict
+    # A pose the verdict rates lower does not win by being near the start.
+    turned = np.eye(4)
+    turned[:3, :3] = [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
+    assert verdict_rank(assess_registration(cloud, cloud, turned)) < verdict_rank(check)
+    pose, kept = _start_competes(flip, check, turned, cloud, cloud, RobustOptions())
+    np.testing.assert_allclose(pose, flip)
