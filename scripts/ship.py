@@ -64,7 +64,45 @@ def ship_masknet(args: argparse.Namespace, previous: dict | None) -> None:
     card = cards.base_card(args.name, run, log, model.config, best, test_results, previous)
     if "scans" in run["task"]:
         card["scans_test"] = scan_results(model, run, args)
+    if model.config != MaskNet().config:
+        card["speed"] = inference_times(model)
+        print("inference ms", card["speed"]["ms"])
     install(args.run, f"masknet_{args.name}.safetensors", card, cards.render_masknet_card(card))
+
+
+def inference_times(model: MaskNet, repeats: int = 30) -> dict:
+    """Median ms of one ``predict_mask`` call (fp32) for 512 and 1,024 template points (a
+    source of 70% of them), this network and the paper's, on this machine's torch threads."""
+    import platform
+    import time
+
+    paper = MaskNet.pretrained("modelnet40")
+    rng = np.random.default_rng(0)
+    out = {}
+    for points in (512, 1024):
+        template = rng.normal(size=(points, 3)).astype(np.float32)
+        source = template[: int(0.7 * points)]
+        ms = {}
+        for label, network in (("this", model), ("paper", paper)):
+            network.predict_mask(template, source, precision="fp32")  # warm-up
+            times = []
+            for _ in range(repeats):
+                tic = time.perf_counter()
+                network.predict_mask(template, source, precision="fp32")
+                times.append(1e3 * (time.perf_counter() - tic))
+            ms[label] = float(np.median(times))
+        out[str(points)] = ms
+    cpu = platform.processor() or platform.machine()
+    cpuinfo = Path("/proc/cpuinfo")
+    if cpuinfo.exists():
+        names = [
+            line.split(":", 1)[1].strip()
+            for line in cpuinfo.read_text().splitlines()
+            if line.startswith("model name")
+        ]
+        cpu = names[0] if names else cpu
+    machine = f"{cpu}, torch {torch.__version__}"
+    return {"ms": out, "repeats": repeats, "threads": torch.get_num_threads(), "machine": machine}
 
 
 def scan_results(model: MaskNet, run: dict, args: argparse.Namespace) -> dict:

@@ -176,10 +176,16 @@ def render_masknet_card(card: dict) -> str:
         else f"Trained on clean, synthetic, unit-radius CAD samples with {100 * (1 - pairs['keep_ratio']):.0f}% missing points.\n"
         "Expect lower precision on real sensor data, other missing ratios, larger rotations, noise and outliers."
     )
+    arch = card["architecture"]
+    paper = (
+        "the paper's architecture"
+        if (arch["encoder_channels"], arch["head_channels"]) == PAPER_CHANNELS
+        else "the paper's design at a smaller size"
+    )
     return f"""# Model card: `masknet_{card["name"]}`{version}
 
-MaskNet (Sarode, Dhagat et al., 3DV 2020), the paper's architecture
-(encoder {card["architecture"]["encoder_channels"]}, head {card["architecture"]["head_channels"]}),
+MaskNet (Sarode, Dhagat et al., 3DV 2020), {paper}
+(encoder {arch["encoder_channels"]}, head {arch["head_channels"]}),
 trained by `masknet train` in this repository. Load it with
 `MaskNet.pretrained("{card["name"]}")`.
 
@@ -206,13 +212,37 @@ points); random top-k is the chance baseline.
 |---|---|---|---|---|---|
 {chr(10).join(rows)}
 
-{scans_text(card)}## Training curve
+{scans_text(card)}{speed_text(card)}## Training curve
 | epoch | lr | train loss | train precision | val precision | minutes |
 |---|---|---|---|---|---|
 {curve}
 
 ## Limits
 {limits}
+"""
+
+
+PAPER_CHANNELS = ([64, 64, 64, 128, 1024], [1024, 512, 256, 128])
+
+
+def speed_text(card: dict) -> str:
+    """The card's inference times beside the paper's network, where measured."""
+    speed = card.get("speed")
+    if not speed:
+        return ""
+    rows = "\n".join(
+        f"| {points} | {ms['this']:.1f} | {ms['paper']:.1f} | {ms['paper'] / ms['this']:.1f}x |"
+        for points, ms in speed["ms"].items()
+    )
+    return f"""## Inference time
+One pair (the template's points, a source of 70% of them), fp32, median of
+{speed["repeats"]} calls of `predict_mask` after a warm-up, {speed["threads"]} torch threads,
+{speed["machine"]}; beside the paper's network (`masknet_modelnet40`).
+
+| template points | this network, ms | the paper's, ms | faster |
+|---|---|---|---|
+{rows}
+
 """
 
 
