@@ -284,18 +284,23 @@ def _consensus_run(
 ) -> PipelineRun:
     """The consensus front end's answer as the pipeline's result: its fit on the check's
     grid; with a network, the template points the moved source covers (measured on that
-    grid: over the full clouds it cost more than the whole front end on 1M points)."""
+    grid: over the full clouds it cost more than the whole front end on 1M points), and
+    with a two-sided one (a source mask asked for) the source points the pose lays on the
+    template."""
     grid_template, grid_source = found.template_grid, found.source_grid
     limit = FIT_SPACINGS * median_spacing(grid_template, sample=2048)
     fit = pose_fit(cloud_tree(grid_template), grid_source, found.transform, limit)
-    mask = None
+    mask = source_mask = None
     if model is not None:  # on the grid, each template point taking its grid point's label
         moved = transform_points(found.transform, grid_source)
         covered = covered_points(grid_template, moved, limit)
         mask = spread_labels(template, grid_template, covered)[None]
+        if isinstance(model, TwoSidedMaskNet):
+            on_template = covered_points(moved, grid_template, limit)
+            source_mask = spread_labels(source, grid_source, on_template)[None]
     info = _info(path, fit, np.nan)
     info["source"] = np.array(["consensus"])
-    return PipelineRun(found.transform[None], mask, None, info)
+    return PipelineRun(found.transform[None], mask, source_mask, info)
 
 
 def _info(path: str, fit: PoseFit, escalated: float) -> dict[str, np.ndarray]:
