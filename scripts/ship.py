@@ -64,6 +64,8 @@ def ship_masknet(args: argparse.Namespace, previous: dict | None) -> None:
     card = cards.base_card(args.name, run, log, model.config, best, test_results, previous)
     if "scans" in run["task"]:
         card["scans_test"] = scan_results(model, run, args)
+    if args.note:
+        card["note"] = args.note
     if model.config != MaskNet().config:
         card["speed"] = inference_times(model)
         print("inference ms", card["speed"]["ms"])
@@ -249,7 +251,9 @@ def main() -> None:
         p.add_argument("--eval-scans", help="masknet, refine: a folder of scans never trained on")
         p.add_argument("--pairs-per-scan", type=int, default=100)
         p.add_argument("--version", default="1.0", help="refine: the version on the card")
-        p.add_argument("--note", help="refine: a line for the card that the run cannot tell")
+        p.add_argument(
+            "--note", help="masknet, refine: a line for the card that the run cannot tell"
+        )
         p.add_argument(
             "--previous-run",
             type=Path,

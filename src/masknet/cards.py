@@ -201,7 +201,7 @@ trained by `masknet train` in this repository. Load it with
 - Optimiser: Adam, lr {train["lr"]} ({train["lr_schedule"]} schedule, min {train["min_lr"]}), batch
   {train["batch_size"]}, {task["loss"].upper()} loss, {train["precision"]} autocast, seed {train["seed"]}.
 - Epochs: {epochs_text(card)} (best validation epoch {card["best_epoch"]}, the one shipped),
-  {card["training_minutes"]:.0f} minutes on {card["machine"]}.
+  {card["training_minutes"]:.0f} minutes on {card["machine"]}.{_note(card)}
 {previous_text(card)}
 ## Test metrics
 {card["test"]["all"]["pairs"]} seeded pairs (seed {card["test"]["all"]["seed"]}) per row group from the
