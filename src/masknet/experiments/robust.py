@@ -240,7 +240,7 @@ def run(ctx: BenchmarkContext) -> ExperimentResult:
                 f"{r['ms_median'] / best['ms_median']:.2f} | {verdict} |"
             )
             stage = r.get("stage_ms", {})
-            shown = ("sample", "mask", "register", "fast", "features", "ransac")
+            shown = ("sample", "mask", "register", "fast", "consensus", "features", "ransac")
             shown += ("hypotheses", "refine", "total")
             stage_lines.append(
                 f"| {set_name} | {name} | "
@@ -287,8 +287,8 @@ def run(ctx: BenchmarkContext) -> ExperimentResult:
         "| ms |\n|---|---|---|---|---|---|---|\n"
         + "\n".join(local_lines)
         + "\n\nWhere the time goes: mean ms of each stage of register's `result.times`, over the pairs where the stage ran (so a row need not add up to its total)."
-        "\n\n| set | pipeline | sample | mask | Mask-ICP | fast check | features | ransac | "
-        "hypotheses | refine | total |\n|---|---|---|---|---|---|---|---|---|---|---|\n"
+        "\n\n| set | pipeline | sample | mask | Mask-ICP | fast check | consensus | features | "
+        "ransac | hypotheses | refine | total |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n"
         + "\n".join(stage_lines)
     )
 
