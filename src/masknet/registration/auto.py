@@ -28,7 +28,9 @@ the fast path; the networks' clouds are sampled only when a network runs. On spa
 the fast path holds on a fifth to a third of the pairs and the search costs 4-6 times the
 front end; there the pose as given competes with RANSAC's (a symmetric shape fits a flip as
 well), and an ``uncertain`` consensus does not compete with the search's answer (the
-verdict rated right search answers below consensus poses 60-180 degrees off). ``info["path"]`` says which ran (``"fast"``, ``"consensus"``,
+verdict rated right search answers below consensus poses 60-180 degrees off). After the
+fast path the pose as given competes too, where its ICP fits about as many points as
+RANSAC's pose (the verdict's cost is spared elsewhere). ``info["path"]`` says which ran (``"fast"``, ``"consensus"``,
 ``"robust/consensus"``, ``"robust/correspondences"`` and ``"robust/search"``), and
 ``info["escalated_fitness"]`` the fast path's fit that sent it on (NaN when it did not).
 """
@@ -123,7 +125,9 @@ def _one(
     if fast.accepted is not None:
         return fast.accepted
     if scan and consensus is None:
-        consensus = consensus_register(template, source, options, times)
+        consensus = consensus_register(
+            template, source, options, times, from_start=True, start_gate=True
+        )
         if consensus is not None and consensus.check.verdict == "likely correct":
             return _consensus_run(consensus, template, source, model, "robust/consensus")
     run = _escalate(template, source, nets, fast, model, search_model, options, times, precision)
