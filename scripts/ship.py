@@ -75,8 +75,9 @@ def ship_masknet(args: argparse.Namespace, previous: dict | None) -> None:
 def inference_times(model: MaskNet, repeats: int = 30) -> dict:
     """Median ms of one ``predict_mask`` call (fp32) for 512 and 1,024 template points (a
     source of 70% of them), this network and the paper's, on this machine's torch threads."""
-    import platform
     import time
+
+    from masknet.runtime import cpu_name
 
     paper = MaskNet.pretrained("modelnet40")
     rng = np.random.default_rng(0)
@@ -94,16 +95,7 @@ def inference_times(model: MaskNet, repeats: int = 30) -> dict:
                 times.append(1e3 * (time.perf_counter() - tic))
             ms[label] = float(np.median(times))
         out[str(points)] = ms
-    cpu = platform.processor() or platform.machine()
-    cpuinfo = Path("/proc/cpuinfo")
-    if cpuinfo.exists():
-        names = [
-            line.split(":", 1)[1].strip()
-            for line in cpuinfo.read_text().splitlines()
-            if line.startswith("model name")
-        ]
-        cpu = names[0] if names else cpu
-    machine = f"{cpu}, torch {torch.__version__}"
+    machine = f"{cpu_name()}, torch {torch.__version__}"
     return {"ms": out, "repeats": repeats, "threads": torch.get_num_threads(), "machine": machine}
 
 

@@ -116,3 +116,10 @@ def test_importing_masknet_shortens_openmp_spinning_unless_the_user_chose(preset
         [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
     )
     assert out.stdout.strip() == expected
+
+
+def test_cpu_name_names_the_machine():
+    from masknet.runtime import cpu_name
+
+    name = cpu_name()
+    assert isinstance(name, str) and name.strip() and "\n" not in name

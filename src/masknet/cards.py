@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import csv
 import json
-import platform
 from pathlib import Path
 
 import torch
@@ -75,8 +74,10 @@ def run_summary(run_dir: Path) -> dict:
 
 def machine(run: dict) -> str:
     """The training machine: this one, with the run's thread setting."""
+    from masknet.runtime import cpu_name
+
     threads = run["train"].get("threads") or torch.get_num_threads()
-    return f"{platform.processor() or platform.machine()}, {threads} threads, torch {torch.__version__}"
+    return f"{cpu_name()}, {threads} threads, torch {torch.__version__}"
 
 
 def epochs_text(card: dict) -> str:

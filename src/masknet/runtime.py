@@ -47,6 +47,21 @@ def _default_precision(device_type: str) -> str:
     return "bf16" if ("avx512_bf16" in flags or "amx_bf16" in flags) else "fp32"
 
 
+@functools.lru_cache(maxsize=1)
+def cpu_name() -> str:
+    """The CPU's model name (Linux's ``/proc/cpuinfo``), else the platform's processor or
+    machine string: what a timing or a model card states as its machine."""
+    import platform
+
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
 def small_blas(function: F) -> F:
     """Decorate an entry point whose numpy linear algebra works on small arrays (batches of
     3x3 SVDs, a few hundred points): numpy's BLAS runs single-threaded within it.

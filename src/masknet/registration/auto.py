@@ -30,8 +30,9 @@ front end; there the pose as given competes with RANSAC's (a symmetric shape fit
 well), and an ``uncertain`` consensus does not compete with the search's answer (the
 verdict rated right search answers below consensus poses 60-180 degrees off). After the
 fast path the pose as given competes too, where its ICP fits about as many points as
-RANSAC's pose (the verdict's cost is spared elsewhere). ``info["path"]`` says which ran (``"fast"``, ``"consensus"``,
-``"robust/consensus"``, ``"robust/correspondences"`` and ``"robust/search"``), and
+RANSAC's pose (the verdict's cost is spared elsewhere). ``info["path"]`` says which ran
+(``"fast"``, ``"consensus"``, ``"robust/consensus"``, ``"robust/correspondences"`` and
+``"robust/search"``), and
 ``info["escalated_fitness"]`` the fast path's fit that sent it on (NaN when it did not).
 """
 
