@@ -66,6 +66,7 @@ __all__ = [
     "write_points",
     "write_mask",
     "write_text_atomic",
+    "has_open3d",
     "require_open3d",
 ]
 
@@ -121,6 +122,15 @@ def require_open3d(feature: str) -> ModuleType:
             "Install it with `pip install open3d`; on Debian/Ubuntu it also needs "
             "`apt-get install libusb-1.0-0`."
         ) from exc
+
+
+def has_open3d() -> bool:
+    """Whether Open3D imports (it may be installed and still fail, e.g. without libusb)."""
+    try:
+        require_open3d("Open3D")
+    except MaskNetError:
+        return False
+    return True
 
 
 def _first_line(text: str) -> str:

@@ -26,11 +26,12 @@ Scans of ``CONSENSUS_FIRST`` times ``consensus_from`` points or more, and sparse
 (templates of fewer than ``consensus_below`` points), try the consensus front end before
 the fast path; the networks' clouds are sampled only when a network runs. On sparse clouds
 the fast path holds on a fifth to a third of the pairs and the search costs 4-6 times the
-front end; there the pose as given competes with RANSAC's (a symmetric shape fits a flip as
-well), and an ``uncertain`` consensus does not compete with the search's answer (the
+front end; there the pose as given is judged first (``start="first"``: `likely correct`
+ends the call before the features and RANSAC) and else competes with RANSAC's (a symmetric
+shape fits a flip as well), and an ``uncertain`` consensus does not compete with the search's answer (the
 verdict rated right search answers below consensus poses 60-180 degrees off). After the
 fast path the pose as given competes too, where its ICP fits about as many points as
-RANSAC's pose (the verdict's cost is spared elsewhere). ``info["path"]`` says which ran
+RANSAC's pose (``start="gated"``: the verdict's cost is spared elsewhere). ``info["path"]`` says which ran
 (``"fast"``, ``"consensus"``, ``"robust/consensus"``, ``"robust/correspondences"`` and
 ``"robust/search"``), and
 ``info["escalated_fitness"]`` the fast path's fit that sent it on (NaN when it did not).
@@ -49,7 +50,7 @@ from masknet.geometry.sampling import NetworkClouds, spread_labels
 from masknet.geometry.se3 import transform_points
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
-from masknet.registration.assessment import assess_registration
+from masknet.registration.assessment import judge
 from masknet.registration.backends.base import MaskModels, PipelineRun
 from masknet.registration.fit import FIT_SPACINGS, PoseFit, covered_points, pose_fit
 from masknet.registration.hypotheses import rotation_between_deg
@@ -119,16 +120,15 @@ def _one(
     scan = on and len(template) >= options.consensus_from
     sparse = on and len(template) < options.consensus_below
     if sparse or (scan and len(template) >= CONSENSUS_FIRST * options.consensus_from):
-        consensus = consensus_register(template, source, options, times, from_start=sparse)
+        start = "first" if sparse else "never"
+        consensus = consensus_register(template, source, options, times, start)
         if consensus is not None and consensus.check.verdict == "likely correct":
             return _consensus_run(consensus, template, source, model, "consensus")
     fast = _fast_path(template, source, nets, model, options, times, precision)
     if fast.accepted is not None:
         return fast.accepted
     if scan and consensus is None:
-        consensus = consensus_register(
-            template, source, options, times, from_start=True, start_gate=True
-        )
+        consensus = consensus_register(template, source, options, times, "gated")
         if consensus is not None and consensus.check.verdict == "likely correct":
             return _consensus_run(consensus, template, source, model, "robust/consensus")
     run = _escalate(template, source, nets, fast, model, search_model, options, times, precision)
@@ -136,9 +136,7 @@ def _one(
         # The search's one-way score can prefer a pose slid along a wall that the verdict
         # sees through. Not on sparse clouds: there the verdict called right search answers
         # worse than consensus poses 60-180 degrees off.
-        searched = assess_registration(
-            consensus.template_grid, consensus.source_grid, run.transform[0]
-        )
+        searched = judge(consensus.prepared, run.transform[0])
         if verdict_rank(consensus.check) > verdict_rank(searched):
             return _consensus_run(consensus, template, source, model, "robust/consensus")
     return run

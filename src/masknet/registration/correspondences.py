@@ -82,7 +82,8 @@ def feature_cloud(points: np.ndarray, voxel: float) -> FeatureCloud:
 def fpfh_features(o3d: Any, cloud: Any, voxel: float, neighbours: int, orient: bool) -> Any:
     """Open3D's FPFH ``Feature`` of an Open3D ``cloud`` at scale ``voxel``: normals from the
     points within 2 voxels (at most 30), features from those within 5 (at most
-    ``neighbours``). Normals are estimated here, replacing any the cloud has.
+    ``neighbours``). Normals are estimated here where the cloud has none (with those
+    settings: a cloud whose normals were estimated so keeps them).
 
     ``orient`` turns each normal towards the cloud's centroid. FPFH's angles change with
     the signs of the normals, and Open3D leaves each sign as its eigen-solver gives it,
@@ -92,7 +93,8 @@ def fpfh_features(o3d: Any, cloud: Any, voxel: float, neighbours: int, orient: b
     up to 180 degrees, ``robust`` then stopped at the correspondences on every pair, in
     13 ms instead of 22 (docs/RESULTS.md)."""
     search = o3d.geometry.KDTreeSearchParamHybrid
-    cloud.estimate_normals(search(radius=2 * voxel, max_nn=30))
+    if not cloud.has_normals():
+        cloud.estimate_normals(search(radius=2 * voxel, max_nn=30))
     if orient and len(cloud.points):
         cloud.orient_normals_towards_camera_location(np.asarray(cloud.points).mean(0))
     return o3d.pipelines.registration.compute_fpfh_feature(

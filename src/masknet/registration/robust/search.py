@@ -56,6 +56,7 @@ from masknet.geometry.clouds import MIN_POINTS, centroid_radius
 from masknet.geometry.knn import cloud_tree
 from masknet.geometry.sampling import spread_labels
 from masknet.geometry.se3 import hypothesis_rotations, transform_points
+from masknet.io import has_open3d
 from masknet.registration.correspondences import (
     FeatureCloud,
     compatible_poses,
@@ -77,7 +78,7 @@ from masknet.registration.prepared import (
     random_subset,
 )
 
-__all__ = ["REFINE_TOLERANCE", "CoarseRun", "coarse_to_fine", "has_open3d"]
+__all__ = ["REFINE_TOLERANCE", "CoarseRun", "coarse_to_fine"]
 
 # The refinement's ICP stops once its mean squared error changes by less than this
 # fraction: finer steps move a pose by far less than its error.
@@ -413,18 +414,6 @@ class _Search:
             and reached[id(rival)] >= reached[id(winner)] - options.ambiguity_margin
         )
         return winner, rival, ambiguous
-
-
-def has_open3d() -> bool:
-    """Whether Open3D imports (it may be installed and still fail, e.g. without libusb)."""
-    from masknet.errors import MaskNetError
-    from masknet.io import require_open3d
-
-    try:
-        require_open3d("FPFH features")
-    except MaskNetError:
-        return False
-    return True
 
 
 def _short_icp_from_identity(
