@@ -124,8 +124,10 @@ def require_open3d(feature: str) -> ModuleType:
         ) from exc
 
 
+@functools.cache
 def has_open3d() -> bool:
-    """Whether Open3D imports (it may be installed and still fail, e.g. without libusb)."""
+    """Whether Open3D imports (it may be installed and still fail, e.g. without libusb);
+    asked once per process."""
     try:
         require_open3d("Open3D")
     except MaskNetError:

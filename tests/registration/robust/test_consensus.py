@@ -241,7 +241,7 @@ def test_a_start_the_verdict_calls_right_spares_ransac(sparse_pairs, o3d, monkey
 
 def test_features_on_a_sparse_grid_stay_local(sparse_pairs, o3d, monkeypatch):
     """At most a quarter of the smaller grid's points are a feature's neighbours: the
-    tutorial's 100 on a ~200-point grid are half the shape."""
+    tutorial's 100 on a ~200-point grid are half the shape, at twice the cost."""
     import masknet.registration.robust.consensus as consensus
     from masknet.evaluation.registration import pair_arrays
 

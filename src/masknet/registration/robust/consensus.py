@@ -13,7 +13,7 @@ that agree with each other do not slide, and they cost little on a coarse grid:
 2. **Consensus.** FPFH on the grid and Open3D's RANSAC on mutual matches (edge-length and
    distance checks, 1.5 voxels), the settings of Open3D's global-registration tutorial,
    seeded and on one thread so that a call repeats; a feature's neighbours are at most a
-   quarter of the smaller grid, so that they stay local on a sparse cloud's grid.
+   quarter of the smaller grid (on a sparse cloud's grid, 100 are half the shape).
 3. **Refinement without sliding.** Point-to-plane ICP (Open3D), pairs cut at 1.5 voxels on
    the grid, then at 0.4 voxels on a grid three times finer: the planes' normals hold the
    pose against the slide that point-to-point pairs allow.
@@ -75,12 +75,13 @@ CUTS = (1.5, 0.4)  # the refinement's pair cut-offs, in voxels: on the first gri
 ICP_ITERATIONS = 30
 START_ITERATIONS = 10  # point-to-point ICP from the pose as given, every pair (sparse clouds)
 FEATURE_NEIGHBOURS = 100  # the tutorial's FPFH neighbours
-# ... and at most the grid's points over this. On 60 re-sampled ModelNet40 pairs (512
-# points, grids of ~220) and 60 scan pairs (512/358 points) the features of at most 55
-# neighbours instead of 100 took 4 ms less a pair and erred less: mean 11.3 degrees
-# against 14.7 and 8.0 against 8.1, 90th percentile 9.7 against 14.0 and 3.4 against 4.1
-# (an eighth: 10.3 and 5.1, 90th percentile 15.5 and 3.4). Grids of 400 points or more
-# keep the tutorial's 100.
+# ... and at most the smaller grid's points over this (grids of 400 points or more keep
+# 100). On a sparse cloud's ~200-point grid, 100 neighbours within 5 voxels are half the
+# shape: the features cost twice as much (8.6 ms a pair against 4.3) and are near-global.
+# Their accuracy is a wash: on the robust benchmark's sparse sets (100 pairs each, the
+# start judged first), 100 neighbours / a quarter gave mean errors of 5.5 / 3.9 degrees
+# (re-sampled), 3.9 / 2.2 (scans) and 0.6 / 4.1 (scans, shared points), each difference
+# one or two flips of a symmetric view; a third and a sixth gave 3.4-8.3 degrees.
 FEATURE_SHARE = 4
 SEED = 0
 # RANSAC's draws at most (it stops earlier once 99.9% sure). The tutorial's 100,000 cost
@@ -136,8 +137,8 @@ def consensus_register(
     float64, any unit. None where Open3D is missing, a grid leaves too few points for
     RANSAC, or the source's grid holds over ``MAX_SOURCE_SHARE`` times the template's.
 
-    ``start``, what the pose as given does (:func:`_start_competes`): ``"never"`` takes
-    part; ``"first"`` is refined and judged first, ends the call where it is ``likely
+    ``start``, what the pose as given does (:func:`_start_competes`): with ``"never"`` it
+    takes no part; ``"first"`` is refined and judged first, ends the call where it is ``likely
     correct`` and else competes with RANSAC's pose; ``"gated"`` competes only where its ICP
     fits about as many source points as RANSAC's pose did (Open3D's fitness within
     ``ambiguity_margin``), which spares the verdict of poses that landed elsewhere. Stage
@@ -191,12 +192,14 @@ def _consensus(o3d: Any, grids: _Grids, options: RobustOptions, start: str) -> C
     """Steps 2 to 4 on ``grids``, with the pose as given as ``start`` says."""
 
     def run(pose: np.ndarray, check: Assessment) -> ConsensusRun:
-        return ConsensusRun(pose, check, grids.voxel, *grids[3:])
+        return ConsensusRun(
+            pose, check, grids.voxel, grids.template_grid, grids.source_grid, grids.prepared
+        )
 
     near = near_check = None
     if start == "first":
-        # On sparse clouds the pose as given is right about as often as RANSAC's: judged
-        # first, it spared RANSAC on 5 of 6 re-sampled pairs (docs/RESULTS.md).
+        # On sparse clouds the pose as given is right about as often as RANSAC's, at a
+        # third of the cost (docs/RESULTS.md, "Sparse clouds: the consensus front end first").
         near = _point_to_plane(grids, _centroids_matched(o3d, *grids.coarse))[0]
         near_check = judge(grids.prepared, near)
         if near_check.verdict == "likely correct":
@@ -216,9 +219,7 @@ def _ransac_pose(o3d: Any, grids: _Grids) -> tuple[np.ndarray, float]:
     """Step 2 and 3: RANSAC on FPFH matches of the first grid, refined; the pose (4, 4) and
     Open3D's fitness at the refinement's last cut."""
     coarse, voxel = grids.coarse, grids.voxel
-    # At most a quarter of the smaller grid: on a sparse cloud's ~200-point grid the
-    # tutorial's 100 neighbours within 5 voxels are half the shape, and its features
-    # differ too little (see FEATURE_SHARE).
+    # At most a quarter of the smaller grid (see FEATURE_SHARE).
     neighbours = min(FEATURE_NEIGHBOURS, min(len(c.points) for c in coarse) // FEATURE_SHARE)
     features = [fpfh_features(o3d, c, voxel, neighbours, orient=False) for c in coarse]
     before = o3d.utility.get_max_threads()
@@ -232,10 +233,9 @@ def _ransac_pose(o3d: Any, grids: _Grids) -> tuple[np.ndarray, float]:
 
 
 def _point_to_plane(grids: _Grids, start: np.ndarray) -> tuple[np.ndarray, float]:
-    """Point-to-plane ICP from ``start``: on the ``coarse`` grid clouds (template, source;
-    the template has its normals from the features) at the first cut, then on the ``fine``
-    ones (the template with its normals) at the second. The pose (4, 4) and Open3D's
-    fitness at the second cut."""
+    """Point-to-plane ICP from ``start`` (4, 4): on the first grid's clouds at the first
+    cut, then on the finer grid's at the second (both templates have their normals from
+    :func:`_grids`). The pose (4, 4) and Open3D's fitness at the second cut."""
     voxel = grids.voxel
     pose, _ = point_to_plane_at_cuts(*grids.coarse, start, (CUTS[0] * voxel,), ICP_ITERATIONS)
     return point_to_plane_at_cuts(*grids.fine, pose, (CUTS[1] * voxel,), ICP_ITERATIONS)
