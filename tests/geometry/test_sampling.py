@@ -100,3 +100,13 @@ def test_spread_labels_gives_each_point_its_nearest_labelled_points_label():
     )
     rows = spread_labels(points, labelled, np.array([[1, 2], [3, 4]]))  # labels of any shape
     np.testing.assert_array_equal(rows, [[1, 2], [3, 4], [1, 2], [3, 4]])
+
+
+def test_first_in_cells_keeps_the_first_point_of_each_cell():
+    from masknet.geometry.sampling import first_in_cells
+
+    points = np.array([[0.1, 0.1, 0.1], [0.2, 0.2, 0.2], [1.5, 0.1, 0.1], [-0.5, 0.0, 0.0]])
+    kept = np.sort(first_in_cells(points, 1.0, origin=np.zeros(3)))
+    np.testing.assert_array_equal(kept, [0, 2, 3])  # point 1 shares point 0's cell
+    # From the points' own corner (-0.5, 0, 0): 0, 1 and 3 share a cell, 2 is alone.
+    np.testing.assert_array_equal(np.sort(first_in_cells(points, 1.0)), [0, 2])

@@ -145,3 +145,13 @@ def test_a_viewpoint_scores_the_side_facing_the_sensor(scene_pair):
     assert (kept & on_object).sum() > 0.4 * on_object.sum() and (kept & ~on_object).sum() < 20
     with pytest.raises(MaskNetError, match="viewpoint"):
         SceneSearch(viewpoint=(0.0, np.nan, 1.0)).check()
+
+
+def test_placements_are_dropped_early_and_their_points_grow():
+    """The first drop of placements comes after 2 iterations, with an eighth of the
+    template's points (at least 16), doubling at each drop."""
+    from masknet.registration import scene
+
+    assert scene.PRUNE_AT[0] == 2
+    assert [scene._points_at(i, 256) for i in (0, 1, 2, 5, 10, 14)] == [32, 32, 64, 128, 256, 256]
+    assert scene._points_at(0, 64) == 16

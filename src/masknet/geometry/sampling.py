@@ -29,6 +29,7 @@ __all__ = [
     "NetworkClouds",
     "FPSResult",
     "farthest_point_sample",
+    "first_in_cells",
     "fit_to_network",
     "grid_subset",
     "nearest_sample",
@@ -96,6 +97,19 @@ def _gaps_in_order(chosen: np.ndarray, block: int = 512) -> np.ndarray:
     return gaps
 
 
+def first_in_cells(points: np.ndarray, edge: float, origin: np.ndarray | None = None) -> np.ndarray:
+    """Indices (K,) int64 of the first point (in input order) of ``points`` (P, 3) in each
+    occupied cell of a cubic grid of edge ``edge`` with a corner at ``origin`` (3,) (None:
+    the points' lower corner), in the cells' order (one int64 key per cell: a 1-D sort,
+    not a sort of rows)."""
+    cells = np.floor((points - (points.min(0) if origin is None else origin)) / edge)
+    cells = cells.astype(np.int64)
+    cells -= cells.min(0)
+    dims = cells.max(0) + 1
+    keys = (cells[:, 0] * dims[1] + cells[:, 1]) * dims[2] + cells[:, 2]
+    return np.unique(keys, return_index=True)[1]
+
+
 def grid_subset(points: np.ndarray, count: int, seed: int = 0) -> np.ndarray:
     """Indices (K,) int64 of at most ``count`` of ``points`` (P, 3), one per occupied cell
     of a cubic grid whose edge leaves about ``count`` cells (K within 10% below ``count``
@@ -118,10 +132,7 @@ def grid_subset(points: np.ndarray, count: int, seed: int = 0) -> np.ndarray:
     extent = float((shuffled.max(0) - low).max()) or 1.0
     edge = extent / np.sqrt(count)  # a surface fills about (extent / edge)^2 cells
     for _ in range(8):
-        cells = np.floor((shuffled - low) / edge).astype(np.int64)
-        dims = cells.max(0) + 1
-        keys = (cells[:, 0] * dims[1] + cells[:, 1]) * dims[2] + cells[:, 2]
-        _, first = np.unique(keys, return_index=True)
+        first = first_in_cells(shuffled, edge)
         if 0.9 * count <= len(first) <= count:
             break
         # Cells scale with the inverse square of the edge on a surface; a little over
