@@ -110,3 +110,19 @@ def test_first_in_cells_keeps_the_first_point_of_each_cell():
     np.testing.assert_array_equal(kept, [0, 2, 3])  # point 1 shares point 0's cell
     # From the points' own corner (-0.5, 0, 0): 0, 1 and 3 share a cell, 2 is alone.
     np.testing.assert_array_equal(np.sort(first_in_cells(points, 1.0)), [0, 2])
+
+
+def test_first_in_cells_matches_a_sort_of_rows():
+    """One int64 key per cell gives the cells that sorting the rows does, negative
+    coordinates and an empty cloud included."""
+    from masknet.geometry.sampling import first_in_cells
+
+    points = np.random.default_rng(0).normal(size=(5000, 3)) * 3
+    cells = np.floor(points / 0.5).astype(np.int64)
+    _, expected = np.unique(cells, axis=0, return_index=True)
+    kept = first_in_cells(points, 0.5, origin=np.zeros(3))
+    np.testing.assert_array_equal(np.sort(kept), np.sort(expected))
+    assert len(first_in_cells(np.empty((0, 3)), 0.5)) == 0
+    # A grid too large for one int64 key falls back to the rows.
+    far = np.array([[0.0, 0.0, 0.0], [1e7, 1e7, 1e7], [1e7, 1e7, 1e7 + 1e-5]])
+    np.testing.assert_array_equal(np.sort(first_in_cells(far, 1e-6)), [0, 1, 2])

@@ -148,10 +148,36 @@ def test_a_viewpoint_scores_the_side_facing_the_sensor(scene_pair):
 
 
 def test_placements_are_dropped_early_and_their_points_grow():
-    """The first drop of placements comes after 2 iterations, with an eighth of the
-    template's points (at least 16), doubling at each drop."""
+    """Drops after 2, 5 and 10 iterations and every 5 after; the points grow from an eighth
+    (at least 16) at each of the first three drops."""
     from masknet.registration import scene
 
-    assert scene.PRUNE_AT[0] == 2
+    assert [i for i in range(31) if scene._drops(i)] == [2, 5, 10, 15, 20, 25, 30]
     assert [scene._points_at(i, 256) for i in (0, 1, 2, 5, 10, 14)] == [32, 32, 64, 128, 256, 256]
-    assert scene._points_at(0, 64) == 16
+    assert [scene._points_at(i, 64) for i in (0, 2, 5, 10)] == [16, 16, 32, 64]
+
+
+@pytest.mark.parametrize("points", [40, 64, 500, 1024, 3000])
+def test_both_stages_take_farthest_point_samples(points):
+    """One farthest-point order serves the placements and the refinement: each stage's
+    points are the farthest-point sample of its size."""
+    from masknet.geometry.sampling import farthest_point_sample
+    from masknet.registration.scene import _Placement
+
+    tpl = np.random.default_rng(1).normal(size=(points, 3))
+    opts = SceneSearch()
+    placed = _Placement(tpl, None, None, opts)
+    hypothesis = farthest_point_sample(tpl, opts.hypothesis_points).indices
+    np.testing.assert_array_equal(placed.small, hypothesis)
+    refine = farthest_point_sample(tpl, opts.refine_points).indices
+    np.testing.assert_array_equal(placed.order[: opts.refine_points], refine)
+
+
+@pytest.mark.parametrize("iterations", [1, 2, 12])
+def test_a_short_or_long_search_still_finds_the_object(scene_pair, iterations):
+    obj, scene, truth, _ = scene_pair
+    found = locate(obj, scene, SceneSearch(max_iterations=iterations))
+    assert found.transform.shape == (4, 4) and np.isfinite(found.transform).all()
+    if iterations >= 12:
+        rot, trans = pose_errors(found.transform[None], truth[None])
+        assert rot[0] < 1.0 and trans[0] < 0.02

@@ -102,11 +102,15 @@ def first_in_cells(points: np.ndarray, edge: float, origin: np.ndarray | None = 
     occupied cell of a cubic grid of edge ``edge`` with a corner at ``origin`` (3,) (None:
     the points' lower corner), in the cells' order (one int64 key per cell: a 1-D sort,
     not a sort of rows)."""
+    if not len(points):
+        return np.empty(0, np.int64)
     cells = np.floor((points - (points.min(0) if origin is None else origin)) / edge)
     cells = cells.astype(np.int64)
     cells -= cells.min(0)
-    dims = cells.max(0) + 1
-    keys = (cells[:, 0] * dims[1] + cells[:, 1]) * dims[2] + cells[:, 2]
+    try:  # raises where the grid holds more cells than an int64 counts
+        keys = np.ravel_multi_index(cells.T, cells.max(0) + 1)
+    except ValueError:
+        return np.unique(cells, axis=0, return_index=True)[1]
     return np.unique(keys, return_index=True)[1]
 
 

@@ -303,8 +303,9 @@ class SceneSearch:
     of a candidate's region. min_region_points: smaller regions are skipped.
     hypotheses: rotations per centre (the cube's 24, nearest the identity first).
     hypothesis_points: template points in the batched hypothesis stage.
-    max_iterations: ICP iterations per stage (Open3D's name; rounds are register's
-    ``iterations``). trim: fraction of template points that score.
+    max_iterations: ICP iterations of the placements, and twice as many in the refinement
+    (Open3D's name; rounds are register's ``iterations``). trim: fraction of template
+    points that score.
     candidates: best placements refined. refine_points: template points then.
     refine_distance: correspondence cut-off of the refinement.
     inlier_distance: scene points this close to the moved template are the object's (at

@@ -15,10 +15,10 @@ clutter. :func:`locate` searches instead:
    in each of the 24 rotations of the cube, and every placement runs trimmed ICP *of the
    template onto the thinned scene* (each template point finds its nearest scene point,
    and the best ``trim`` of the pairs move it: the object explains itself, the clutter
-   need not be explained), all placements at once. After 2, 5 and 10 iterations the
-   worst three quarters are dropped, and (without a viewpoint) the points used grow as
-   the placements shrink: an eighth of them (at least 16) while every placement runs,
-   doubling at each drop.
+   need not be explained), all placements at once. After 2, 5 and 10 iterations (and
+   every 5 after) the worst three quarters are dropped, and (without a viewpoint) the
+   points used grow as the placements shrink: at the default 64, 16 until the second
+   drop, 32 until the third, then all.
 4. Scoring: the trimmed mean squared distance of the moved template points to the
    scene (the best ``trim`` fraction): low where the object lies on scene points.
 5. Refinement: the ``candidates`` best placements run ICP again at ``refine_points``
@@ -68,12 +68,12 @@ from masknet.registration.options import DEFAULT_SPACINGS, SceneSearch
 __all__ = ["SceneSearch", "SceneMatch", "is_scene", "locate", "polish"]
 
 # Hypothesis-stage iterations at which the worst three quarters of the placements are
-# dropped (a stage: the iterations between two drops). Every 5 iterations before, the
-# first stage ran 5 iterations of every placement and cost two thirds of the search: on
-# the carton's scene 2.3 s of search became 1.5 s, the same pose; on 20 synthetic scenes
-# the view was found every time (0.27 s median against 0.51 s), the full model 9 times (9)
-# and with the sensor's position 10 times (11) (docs/RESULTS.md, the carton).
+# dropped (and every PRUNE_EVERY after the last). Dropping every 5 iterations from the
+# start ran 5 iterations of every placement first, most of the search: on the carton's
+# scene the search took 4.3 s before and 1.9 s after, the same pose (docs/RESULTS.md,
+# the carton).
 PRUNE_AT = (2, 5, 10)
+PRUNE_EVERY = 5
 MIN_FACING = 0.2  # with a viewpoint: a placement showing the sensor fewer points is out
 
 
@@ -239,16 +239,18 @@ def locate(
     return SceneMatch(transform, source_mask, coverage, rmse, len(centres), count, seconds, spacing)
 
 
-def _stage(iteration: int) -> int:
-    """How many drops of placements came before ``iteration``."""
-    return sum(iteration >= at for at in PRUNE_AT)
+def _drops(iteration: int) -> bool:
+    """Whether the worst three quarters of the placements are dropped at ``iteration``."""
+    last = PRUNE_AT[-1]
+    return iteration in PRUNE_AT or (iteration > last and (iteration - last) % PRUNE_EVERY == 0)
 
 
 def _points_at(iteration: int, points: int) -> int:
     """Template points in the placements' trimmed ICP at ``iteration`` of ``points``: an
-    eighth in the first stage, doubling at each drop of placements (at least 16)."""
-    share = 8 >> min(_stage(iteration), 3)
-    return min(points, max(points // share, 16))
+    eighth (at least 16) until the first drop of placements, doubling at each of the next
+    three. At the default 64 points: 16 until the second drop, then 32, then 64."""
+    drops = sum(iteration >= at for at in PRUNE_AT)
+    return min(points, max(points // (8 >> min(drops, 3)), 16))
 
 
 def _candidate_centres(
@@ -311,17 +313,16 @@ class _Placement:
         poses[:, :3, :3] = np.tile(rotations, (len(centres), 1, 1))
         poses[:, :3, 3] = np.repeat(centres, len(rotations), axis=0)
         for iteration in range(opts.max_iterations):
-            # Points grow as placements shrink: a quarter of them while every placement
-            # runs, all of them for the last sixteenth (the first k of a farthest-point
-            # order are themselves spread over the template). Not with a sensor: the
-            # facing test leaves too few of a quarter (the carton, the Kinect's position
-            # given, was found 111 degrees off).
+            # Points grow as placements shrink (_points_at; the first k of a farthest-
+            # point order are themselves spread over the template). Not with a sensor:
+            # the facing test leaves too few of a quarter (the carton, the Kinect's
+            # position given, was found 111 degrees off).
             used = len(small) if sensor is not None else _points_at(iteration, len(small))
             points = small[:used]
             normals = None if small_normals is None else small_normals[:used]
             moved, matched, d2 = _nearest(poses, points, thin, thin_tree)
             facing = _facing(poses, moved, normals, sensor)
-            if iteration in PRUNE_AT:
+            if _drops(iteration):
                 # Placements that fit worst are dropped as they go: the right one fits early.
                 keep = np.argsort(_scores(d2, facing, opts.trim), kind="stable")
                 keep = keep[: max(len(keep) // 4, opts.candidates)]
