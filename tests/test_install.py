@@ -10,6 +10,7 @@ import sys
 import numpy as np
 import pytest
 
+import masknet._open3d
 from masknet import MaskNetError
 from masknet.cli import main
 
@@ -93,7 +94,7 @@ def _ply_without_open3d(tmp_path, monkeypatch):
         "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\n"
         "property float z\nend_header\n0 0 0\n"
     )
-    monkeypatch.setattr(mio, "_load_open3d", broken)
+    monkeypatch.setattr(masknet._open3d, "_load_open3d", broken)
     mio.read_points(path)
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from masknet import io as mio
+import masknet._open3d
 from masknet.errors import MaskNetError, MaskNetWarning
 from masknet.io import (
     SUPPORTED_READ,
@@ -115,7 +115,7 @@ def test_read_ply_with_trimesh_when_open3d_missing(tmp_path, monkeypatch):
     def broken():
         raise ImportError("libusb-1.0.so.0: cannot open shared object file")
 
-    monkeypatch.setattr(mio, "_load_open3d", broken)
+    monkeypatch.setattr(masknet._open3d, "_load_open3d", broken)
     np.testing.assert_allclose(read_points(path), pts)
     _raises(tmp_path / "cloud.pcd", "needs Open3D", "libusb", "pip install open3d")
 
@@ -124,7 +124,7 @@ def test_require_open3d_message(monkeypatch):
     def broken():
         raise ImportError("No module named 'open3d'")
 
-    monkeypatch.setattr(mio, "_load_open3d", broken)
+    monkeypatch.setattr(masknet._open3d, "_load_open3d", broken)
     with pytest.raises(MaskNetError) as info:
         require_open3d("Viewing clouds")
     msg = str(info.value)
@@ -423,7 +423,7 @@ def test_ctrl_c_while_open3d_imports_is_an_interrupt_not_a_missing_package(monke
                 raise ImportError("initialization failed") from None
         return real_import(name, *args, **kwargs)
 
-    masknet_io._load_open3d.cache_clear()
+    masknet._open3d._load_open3d.cache_clear()
     # Python's own handler, as in a terminal: a process started in the background by a
     # shell inherits SIGINT ignored, and then Ctrl-C is nothing to hold
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
@@ -434,5 +434,5 @@ def test_ctrl_c_while_open3d_imports_is_an_interrupt_not_a_missing_package(monke
     assert signal.getsignal(signal.SIGINT) is before  # the user's handler is back
     signal.signal(signal.SIGINT, previous)
     monkeypatch.setattr(builtins, "__import__", real_import)
-    masknet_io._load_open3d.cache_clear()
+    masknet._open3d._load_open3d.cache_clear()
     assert masknet_io.require_open3d("reading .pcd files") is o3d

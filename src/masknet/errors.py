@@ -40,6 +40,12 @@ _CHECKED: contextvars.ContextVar[bool] = contextvars.ContextVar(
 )
 
 
+def first_line(text: str) -> str:
+    """The first non-blank line of ``text`` (an exception's message), stripped; "" if none."""
+    lines = [line.strip() for line in text.strip().splitlines() if line.strip()]
+    return lines[0] if lines else ""
+
+
 def warn(message: str, stacklevel: int = 3) -> None:
     """Issue ``message`` as a :class:`MaskNetWarning`, once per call of a
     :func:`warns_once` entry point (every time outside one); never within

@@ -28,31 +28,24 @@ user's way) and treat any reported failure, or zero points, as an error.
 into place with :func:`os.replace`, so a failure never leaves a partial file.
 
 Open3D is optional and slow to import, so it is imported lazily by
-:func:`require_open3d`.
+:func:`require_open3d` (:mod:`masknet._open3d`, with the capture of its output).
 """
 
 from __future__ import annotations
 
 import contextlib
-import ctypes
-import functools
-import io
 import os
-import re
-import signal
-import tempfile
-import threading
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
-from types import ModuleType
 from typing import NamedTuple
 
 import numpy as np
 
 from masknet._atomic import atomic_target, write_text_atomic
 from masknet._extras import need
-from masknet.errors import MaskNetError
+from masknet._open3d import captured_output, has_open3d, open3d_failure, require_open3d
+from masknet.errors import MaskNetError, first_line
 from masknet.io_checks import check_cloud, check_pcd_body, check_ply_body
 
 __all__ = [
@@ -74,119 +67,6 @@ SUPPORTED_READ = (".ply", ".pcd", ".xyz", ".txt", ".csv", ".npy", ".bin")
 SUPPORTED_WRITE = (".ply", ".pcd", ".xyz", ".txt", ".npy")
 
 PathLike = str | os.PathLike
-
-_ANSI = re.compile(r"\x1b\[[0-9;]*m")
-_FAILURE = re.compile(r"fail|error", re.IGNORECASE)
-
-
-# --------------------------------------------------------------------------- Open3D
-
-
-@functools.lru_cache(maxsize=1)
-def _load_open3d() -> ModuleType:
-    """Import Open3D once (slow), and quieten its logger to errors only.
-
-    Ctrl-C during the import would break Open3D's C initialisation, which then reports
-    itself as not importable; the interrupt is held until the import ends and raised then,
-    so that it is reported as what it is."""
-    interrupted: list[int] = []
-    previous = signal.getsignal(signal.SIGINT)
-    # Only where Python may set handlers, and over a handler Python knows (not C's).
-    held = threading.current_thread() is threading.main_thread() and previous is not None
-    if held:
-        signal.signal(signal.SIGINT, lambda signum, frame: interrupted.append(signum))
-    try:
-        import open3d
-    finally:
-        if held:
-            signal.signal(signal.SIGINT, previous)
-    if interrupted:  # the user's handler decides now (KeyboardInterrupt by default)
-        signal.raise_signal(signal.SIGINT)
-    open3d.utility.set_verbosity_level(open3d.utility.VerbosityLevel.Error)
-    return open3d
-
-
-def require_open3d(feature: str) -> ModuleType:
-    """Return the ``open3d`` module, or raise a MaskNetError saying how to install it.
-
-    ``feature`` names what needs it, e.g. ``"reading .pcd files"``; it starts the
-    message. Import failures of any kind count (a missing package, or a shared
-    library such as libusb that the wheel needs).
-    """
-    try:
-        return _load_open3d()
-    except Exception as exc:  # ImportError, OSError from a missing shared library, ...
-        reason = _first_line(str(exc)) or type(exc).__name__
-        raise MaskNetError(
-            f"{feature} needs Open3D, which did not import ({reason}). "
-            "Install it with `pip install open3d`; on Debian/Ubuntu it also needs "
-            "`apt-get install libusb-1.0-0`."
-        ) from exc
-
-
-@functools.cache
-def has_open3d() -> bool:
-    """Whether Open3D imports (it may be installed and still fail, e.g. without libusb);
-    asked once per process."""
-    try:
-        require_open3d("Open3D")
-    except MaskNetError:
-        return False
-    return True
-
-
-def _first_line(text: str) -> str:
-    lines = [line.strip() for line in text.strip().splitlines() if line.strip()]
-    return lines[0] if lines else ""
-
-
-@contextlib.contextmanager
-def _captured_output() -> Iterator[io.StringIO]:
-    """Capture what is printed to stdout/stderr, at Python and file-descriptor level.
-
-    Open3D logs through Python's ``sys.stdout``; the RPly library it uses for PLY
-    writes to the C stderr. The captured text is in the yielded buffer on exit.
-    """
-    buf = io.StringIO()
-    saved: list[tuple[int, int]] = []
-    sink = None
-    try:
-        sink = tempfile.TemporaryFile()
-        for fd in (1, 2):
-            try:
-                saved.append((fd, os.dup(fd)))
-                os.dup2(sink.fileno(), fd)
-            except OSError:
-                pass
-    except OSError:  # no temporary file: capture at Python level only
-        sink = None
-    try:
-        with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
-            yield buf
-    finally:
-        _flush_c_stdio()
-        for fd, copy in saved:
-            os.dup2(copy, fd)
-            os.close(copy)
-        if sink is not None:
-            sink.seek(0)
-            buf.write(sink.read().decode("utf-8", "replace"))
-            sink.close()
-
-
-def _flush_c_stdio() -> None:
-    with contextlib.suppress(Exception):  # not on every platform
-        ctypes.CDLL(None).fflush(None)
-
-
-def _open3d_failure(captured: str) -> str | None:
-    """The first failure Open3D (or RPly) reported in ``captured``, cleaned up; else None."""
-    for line in _ANSI.sub("", captured).splitlines():
-        if _FAILURE.search(line):
-            line = re.sub(r"^\[Open3D [A-Z]+\]\s*", "", line.strip())
-            return line.rstrip(".")
-    return None
-
 
 # --------------------------------------------------------------------------- reading
 
@@ -290,10 +170,10 @@ def read_point_attributes(path: PathLike, for_output: PathLike | None = None) ->
     if fmt not in ("ply", "pcd") or not holds:
         return PointAttributes()
     try:
-        o3d = _load_open3d()
-    except Exception:
+        o3d = require_open3d(f"{name}: reading colours and normals")
+    except MaskNetError:
         return PointAttributes()
-    with _captured_output(), o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+    with captured_output(), o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
         cloud = o3d.io.read_point_cloud(
             name, format=fmt, remove_nan_points=False, remove_infinite_points=False
         )
@@ -308,14 +188,14 @@ def _read_open3d(name: str, fmt: str) -> np.ndarray:
     feature = f"{name}: reading .{fmt} files"
     if fmt == "ply":
         try:
-            o3d = _load_open3d()
-        except Exception:
+            o3d = require_open3d(feature)
+        except MaskNetError:
             return _read_trimesh(name)
     else:
         o3d = require_open3d(feature)
     verbosity = o3d.utility.VerbosityLevel.Warning  # so that failures are reported
     try:
-        with _captured_output() as out, o3d.utility.VerbosityContextManager(verbosity):
+        with captured_output() as out, o3d.utility.VerbosityContextManager(verbosity):
             cloud = o3d.io.read_point_cloud(
                 name, format=fmt, remove_nan_points=False, remove_infinite_points=False
             )
@@ -324,7 +204,7 @@ def _read_open3d(name: str, fmt: str) -> np.ndarray:
             f"{name}: truncated or corrupt .{fmt} file (its header asks for "
             "more memory than there is)"
         ) from exc
-    failure = _open3d_failure(out.getvalue())
+    failure = open3d_failure(out.getvalue())
     if failure is not None:
         raise MaskNetError(f"{name}: unreadable, truncated or corrupt .{fmt} file ({failure})")
     points = np.asarray(cloud.points, dtype=np.float64)
@@ -340,7 +220,7 @@ def _read_trimesh(name: str) -> np.ndarray:
     try:
         obj = trimesh.load(name)
     except Exception as exc:
-        reason = _first_line(str(exc)) or type(exc).__name__
+        reason = first_line(str(exc)) or type(exc).__name__
         raise MaskNetError(
             f"{name}: unreadable, truncated or corrupt .ply file ({reason})"
         ) from exc
@@ -384,7 +264,7 @@ def _read_text(name: str) -> np.ndarray:
                 rows = load(lines[first + 1 :])
                 if rows.size:  # a header over numbers, not a file of words
                     return rows
-        reason = _first_line(str(exc))
+        reason = first_line(str(exc))
         raise MaskNetError(f"{name}: cannot parse as numbers ({reason})") from exc
 
 
@@ -400,7 +280,7 @@ def _read_npy(name: str) -> np.ndarray:
     except (OSError, MemoryError):
         raise
     except Exception as exc:  # a corrupt header fails in numpy's parser in many ways
-        reason = _first_line(str(exc)) or type(exc).__name__
+        reason = first_line(str(exc)) or type(exc).__name__
         raise MaskNetError(f"{name}: not a valid, readable .npy file ({reason})") from exc
     if not isinstance(arr, np.ndarray):  # an .npz archive under a .npy name
         with contextlib.suppress(Exception):
@@ -490,10 +370,10 @@ def write_points(
 
             cloud = to_open3d(points, normals=normals, colors=colors)
             verbosity = o3d.utility.VerbosityLevel.Warning
-            with _captured_output() as out, o3d.utility.VerbosityContextManager(verbosity):
+            with captured_output() as out, o3d.utility.VerbosityContextManager(verbosity):
                 ok = o3d.io.write_point_cloud(tmp, cloud)
             if not ok:
-                reason = _open3d_failure(out.getvalue()) or "Open3D reported failure"
+                reason = open3d_failure(out.getvalue()) or "Open3D reported failure"
                 raise MaskNetError(f"{name}: cannot write ({reason})")
         elif ext == ".npy":
             np.save(tmp, points)

@@ -10,7 +10,7 @@ import torch
 from scipy.spatial import cKDTree
 
 import masknet
-import masknet.io as mio
+import masknet._open3d
 from masknet import MaskNet, MaskNetError, RegistrationResult, evaluate_registration, register
 from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
 from masknet.geometry.clouds import Frame, median_spacing
@@ -310,7 +310,7 @@ def test_open3d_icp_method_without_open3d(monkeypatch, pairs):
     def broken():
         raise ImportError("No module named 'open3d'")
 
-    monkeypatch.setattr(mio, "_load_open3d", broken)
+    monkeypatch.setattr(masknet._open3d, "_load_open3d", broken)
     with pytest.raises(MaskNetError, match="open3d ICP backend needs Open3D"):
         register(
             pairs.template[0].numpy(), pairs.source[0].numpy(), method="open3d-icp", use_mask=False
