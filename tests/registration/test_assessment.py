@@ -121,22 +121,34 @@ def test_refusals(shape, template, source, transform, match):
 
 @pytest.mark.parametrize("scale", [1.0, 1e-3, 1e3])
 @pytest.mark.parametrize("degrees", [0.0, 2.0, 5.0, 10.0, 45.0])
-def test_the_nearest_fit_is_the_same_with_and_without_open3d(
-    shape, degrees, scale, monkeypatch, o3d
-):
-    """The verdict's short ICP is Open3D's where it imports, the project's elsewhere: the
-    same algorithm, so the same verdict and nearly the same nearest fit, in any unit
-    (Open3D's stopping rule is absolute: it is given in inlier distances)."""
-    import masknet.io
+def test_the_nearest_fit_is_the_same_with_and_without_open3d(shape, degrees, scale, o3d):
+    """The verdict's short ICP is Open3D's where the pair was prepared for it (the
+    consensus front end), the project's elsewhere: the same algorithm, so the same verdict
+    and nearly the same nearest fit, in any unit (Open3D's stopping rule is absolute: it
+    is given in inlier distances)."""
     from masknet.registration.assessment import judge, prepare_check
 
     partial = shape[shape[:, 0] < np.quantile(shape[:, 0], 0.7)]
-    prepared = prepare_check(scale * shape, scale * partial)
     pose = turned(partial, degrees)
     pose[:3, 3] *= scale
-    with_open3d = judge(prepared, pose)
-    monkeypatch.setattr(masknet.io, "has_open3d", lambda: False)
-    without = judge(prepared, pose)
+    with_open3d = judge(prepare_check(scale * shape, scale * partial, open3d=True), pose)
+    without = judge(prepare_check(scale * shape, scale * partial), pose)
     assert with_open3d.verdict == without.verdict
     assert with_open3d.nearby_deg == pytest.approx(without.nearby_deg, abs=0.2)
     assert with_open3d.overlap_fit == pytest.approx(without.overlap_fit, abs=0.02)
+
+
+def test_a_verdict_does_not_import_open3d():
+    """Open3D takes about a second to import: a command-line verdict must not pay it."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, numpy as np\n"
+        "from masknet import assess_registration\n"
+        "p = np.random.default_rng(0).normal(size=(500, 3))\n"
+        "assess_registration(p, p[:300], np.eye(4))\n"
+        "print('open3d' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"

@@ -126,21 +126,28 @@ class PreparedCheck(NamedTuple):
     template: (P, 3) the template's even subset (at most ``CLOUD_POINTS``), the ICP's and
     the source-side fit's target. template_points, source_points: (P', 3), (Q, 3) the
     points asked (at most ``MAX_POINTS`` each). tree: a KD-tree of ``template``. limit:
-    the inlier distance, input units."""
+    the inlier distance, input units. open3d: whether the nearest fit's ICP runs in
+    Open3D."""
 
     template: np.ndarray
     template_points: np.ndarray
     source_points: np.ndarray
     tree: Any
     limit: float
+    open3d: bool = False
 
 
 def prepare_check(
-    template: np.ndarray, source: np.ndarray, max_correspondence_distance: float | None = None
+    template: np.ndarray,
+    source: np.ndarray,
+    max_correspondence_distance: float | None = None,
+    open3d: bool = False,
 ) -> PreparedCheck:
     """The clouds of the verdict for template (N, 3) and source (M, 3), float64, already
     checked (``register``'s inputs): even subsets, the template's KD-tree and the inlier
-    distance (None: 1.5 times the larger median spacing), computed once."""
+    distance (None: 1.5 times the larger median spacing), computed once. ``open3d``: the
+    nearest fit's ICP runs in Open3D (for callers that have imported it already: the
+    consensus front end)."""
     from masknet.errors import MaskNetError
     from masknet.geometry.knn import cloud_tree
 
@@ -163,21 +170,21 @@ def prepare_check(
         _subset(even_source, MAX_POINTS, 1),
         cloud_tree(even_template),
         limit,
+        open3d,
     )
 
 
 def _nearest_fit(prepared: PreparedCheck, transform: np.ndarray) -> np.ndarray:
     """The pose (4, 4) that a short point-to-point ICP reaches from ``transform``: at most
-    ``NEAR_ITERATIONS``, pairs cut at ``NEAR`` inlier distances. Open3D's ICP where it
-    imports (on a few hundred points, half the verdict's time), the project's numpy ICP
-    otherwise: the same algorithm (on 600 poses of sparse pairs, right and 2-45 degrees
-    off, the two gave the same verdict on 599). Not point-to-plane: on sparse symmetric
-    shapes it slides along the symmetry at no cost, and the truth read `likely wrong`
-    (docs/RESULTS.md, "Did it work? The verdict")."""
-    from masknet.io import has_open3d
-
+    ``NEAR_ITERATIONS``, pairs cut at ``NEAR`` inlier distances. Open3D's ICP where the
+    pair was prepared for it (on a few hundred points, half the verdict's time), the
+    project's numpy ICP otherwise, so that a verdict never pays for importing Open3D: the
+    same algorithm (on 600 poses of sparse pairs, right and 2-45 degrees off, the two gave
+    the same verdict on 599). Not point-to-plane: on sparse symmetric shapes it slides
+    along the symmetry at no cost, and the truth read `likely wrong` (docs/RESULTS.md,
+    "Sparse clouds: the consensus front end first")."""
     cut = NEAR * prepared.limit
-    if has_open3d():
+    if prepared.open3d:
         from masknet.registration.open3d_icp import open3d_icp
 
         # Open3D's RMSE criterion is absolute: given in inlier distances, it does not

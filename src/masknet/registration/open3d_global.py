@@ -17,7 +17,9 @@ from masknet.geometry.open3d_clouds import to_open3d
 from masknet.io import require_open3d
 from masknet.registration.correspondences import fpfh_features
 
-__all__ = ["open3d_fgr", "open3d_fpfh_ransac", "ransac_on_features"]
+__all__ = ["TUTORIAL_NEIGHBOURS", "open3d_fgr", "open3d_fpfh_ransac", "ransac_on_features"]
+
+TUTORIAL_NEIGHBOURS = 100  # FPFH neighbours within 5 voxels, as the tutorial takes them
 
 
 def _cloud_and_features(
@@ -26,7 +28,7 @@ def _cloud_and_features(
     cloud = to_open3d(points)
     if downsample:  # the tutorial's first step, for clouds denser than the voxel
         cloud = cloud.voxel_down_sample(voxel_size)
-    return cloud, fpfh_features(o3d, cloud, voxel_size, 100, orient)
+    return cloud, fpfh_features(o3d, cloud, voxel_size, TUTORIAL_NEIGHBOURS, orient)
 
 
 def open3d_fpfh_ransac(

@@ -52,7 +52,7 @@ from masknet.registration.assessment import (
 )
 from masknet.registration.correspondences import fpfh_features, voxel_for
 from masknet.registration.hypotheses import rotation_between_deg
-from masknet.registration.open3d_global import ransac_on_features
+from masknet.registration.open3d_global import TUTORIAL_NEIGHBOURS, ransac_on_features
 from masknet.registration.open3d_icp import point_to_plane_at_cuts
 from masknet.registration.options import RobustOptions
 
@@ -74,8 +74,8 @@ CHECK_GRID = 2
 CUTS = (1.5, 0.4)  # the refinement's pair cut-offs, in voxels: on the first grid, on the finer
 ICP_ITERATIONS = 30
 START_ITERATIONS = 10  # point-to-point ICP from the pose as given, every pair (sparse clouds)
-FEATURE_NEIGHBOURS = 100  # the tutorial's FPFH neighbours
-# ... and at most the smaller grid's points over this (grids of 400 points or more keep
+FEATURE_NEIGHBOURS = TUTORIAL_NEIGHBOURS
+# ... at most the smaller grid's points over this (grids of 400 points or more keep
 # 100). On a sparse cloud's ~200-point grid, 100 neighbours within 5 voxels are half the
 # shape: the features cost twice as much (8.6 ms a pair against 4.3) and are near-global.
 # Their accuracy is a wash: on the robust benchmark's sparse sets (100 pairs each, the
@@ -184,7 +184,7 @@ def _grids(
     template_grid, source_grid = (
         np.asarray(c.voxel_down_sample(voxel / CHECK_GRID).points) for c in clouds
     )
-    prepared = prepare_check(template_grid, source_grid)
+    prepared = prepare_check(template_grid, source_grid, open3d=True)
     return _Grids(coarse, fine, voxel, template_grid, source_grid, prepared)
 
 
