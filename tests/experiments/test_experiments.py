@@ -18,7 +18,9 @@ def quick_run(tmp_path_factory):
     mp = pytest.MonkeyPatch()
     mp.delenv("MASKNET_DATA", raising=False)  # the bundled sample, as in CI without data
     try:
-        code = main(["benchmark", "all", "--quick", "--out", str(out), "--threads", "1"])
+        # A smoke run: every experiment's code path, on a few pairs.
+        argv = ["benchmark", "all", "--quick", "--pairs", "8", "--out", str(out), "--threads", "1"]
+        code = main(argv)
     finally:
         mp.undo()
     assert code == 0

@@ -7,7 +7,7 @@ import pytest
 import torch
 from scipy.spatial import cKDTree
 
-from masknet.geometry.knn import KNN, knn_points
+from masknet.geometry.knn import KNN, NearestField, cloud_tree, knn_points, nearest_field_cells
 
 
 def _clouds(b: int, p: int, r: int, dtype=torch.float64, seed: int = 0):
@@ -161,3 +161,27 @@ def test_tree_distances_carry_gradients():
 def test_unknown_method_raises():
     with pytest.raises(ValueError, match="auto, tree or brute"):
         knn_points(torch.rand(1, 4, 3), torch.rand(1, 4, 3), method="ball")
+
+
+def test_the_nearest_field_finds_a_point_close_to_the_nearest():
+    """Inside the box each query's point is at most 3.5 cells farther than the nearest (the
+    cell centre's nearest occupied cell, and the first point in it), typically a fraction
+    of a cell; a lone point's cell finds it; a query outside the box takes the boundary."""
+    rng = np.random.default_rng(3)
+    cloud = rng.uniform(-1, 1, (2000, 3)) * [4, 4, 0.2]  # a slab: most voxels empty
+    queries = rng.uniform(-5, 5, (5000, 3))
+    cell = 0.1
+    field = NearestField(cloud, cell, margin=1.0)
+    found_d, found_i = field.query(queries)
+    exact_d, _ = cloud_tree(cloud).query(queries, k=1)
+    np.testing.assert_allclose(found_d, np.linalg.norm(cloud[found_i] - queries, axis=1))
+    assert (found_d >= exact_d - 1e-12).all()
+    inside = (np.abs(queries) <= [5, 5, 1.2]).all(1)
+    assert 0.2 < inside.mean() < 0.3
+    assert (found_d[inside] <= exact_d[inside] + 3.5 * cell).all()
+    assert np.median(found_d[inside] - exact_d[inside]) < 0.25 * cell
+    lone = NearestField(np.array([[0.0, 0, 0], [3, 3, 3]]), cell, margin=1.0)
+    assert lone.query(np.array([[0.01, 0.02, 0.0], [9.0, 9, 9]]))[1].tolist() == [0, 1]
+    assert nearest_field_cells(cloud, cell, 1.0) == int(np.prod(field.shape))
+    with pytest.raises(ValueError, match="k=1"):
+        field.query(queries, k=2)

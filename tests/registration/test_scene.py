@@ -181,3 +181,38 @@ def test_a_short_or_long_search_still_finds_the_object(scene_pair, iterations):
     if iterations >= 12:
         rot, trans = pose_errors(found.transform[None], truth[None])
         assert rot[0] < 1.0 and trans[0] < 0.02
+
+
+def test_the_first_steps_look_up_a_field_and_the_refinement_halves(scene_pair, monkeypatch):
+    """Until the first drop every placement's matches come from the NearestField; after,
+    from the KD-tree. Every candidate takes the first refinement iterations, a quarter the
+    rest. Without the field (a scene too large for its cells) the object is found as well."""
+    from masknet.geometry.knn import NearestField
+    from masknet.registration import scene
+
+    obj, points, truth, _ = scene_pair
+    lookups, refined = [], []
+    query = NearestField.query
+    monkeypatch.setattr(
+        NearestField, "query", lambda self, *a, **k: [lookups.append(1), query(self, *a, **k)][1]
+    )
+    refine = scene._Placement._refined
+    monkeypatch.setattr(
+        scene._Placement, "_refined", lambda self, *a: [refined.append(a[-1]), refine(self, *a)][1]
+    )
+    found = locate(obj, points)
+    opts = SceneSearch()
+    assert len(lookups) == scene.FIELD_UNTIL + 1
+    first = opts.candidates
+    assert refined == [scene.REFINE_FIRST] * first + [
+        2 * opts.max_iterations - scene.REFINE_FIRST
+    ] * (first // 4)
+    rot, trans = pose_errors(found.transform[None], truth[None])
+    assert rot[0] < 1.0 and trans[0] < 0.02
+    monkeypatch.setattr(scene, "FIELD_MAX_CELLS", 10)
+    assert scene._coarse_field(points) is None
+    lookups.clear()
+    without = locate(obj, points)
+    assert not lookups
+    rot, trans = pose_errors(without.transform[None], truth[None])
+    assert rot[0] < 1.0 and trans[0] < 0.02

@@ -115,7 +115,8 @@ def _sets(ctx: BenchmarkContext, modelnet_pairs: int, per_scan: int) -> dict[str
         "ModelNet40 10% outliers": ctx.test_pairs(PairConfig(outlier_ratio=0.1), modelnet_pairs),
     }
     if scans_folder().is_dir():  # the evaluation scans, where they are (CI has them)
-        for shared, name in ((True, "scans, shared points"), (False, "scans, re-sampled")):
+        kinds = ((True, "scans, shared points"), (False, "scans, re-sampled"))
+        for shared, name in kinds[:1] if ctx.quick else kinds:  # quick: one kind suffices
             sets[name] = scan_eval_pairs(per_scan, shared, ctx.seed)
     return sets
 
@@ -181,7 +182,7 @@ def _pipeline_rows(pairs: Pairs, kwargs: dict) -> dict:
 
 def masks_per_round(ctx: BenchmarkContext) -> ExperimentResult:
     """Mask precision and rotation error per round of Mask-ICP, by refinement mask."""
-    modelnet_pairs = 8 if ctx.quick else min(ctx.pairs, 300)
+    modelnet_pairs = 4 if ctx.quick else min(ctx.pairs, 300)
     per_scan = 1 if ctx.quick else 15
     rows = []
     for set_name, pairs in _sets(ctx, modelnet_pairs, per_scan).items():
@@ -292,7 +293,7 @@ def refine_masks(ctx: BenchmarkContext) -> ExperimentResult:
     from masknet.models.refine import RefineMaskNet
 
     refiners = {"rule": NearestNeighbourMasks(), "learned": RefineMaskNet.pretrained()}
-    count = 8 if ctx.quick else min(ctx.pairs, 300)
+    count = 4 if ctx.quick else min(ctx.pairs, 300)
     per_scan = 1 if ctx.quick else 15
     rows = refiner_table(ctx, refiners, count, per_scan)
     summary = (

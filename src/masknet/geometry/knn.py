@@ -20,7 +20,15 @@ import numpy as np
 import torch
 from torch import Tensor
 
-__all__ = ["CloudTree", "KDTreeIndex", "KNN", "cloud_tree", "knn_points"]
+__all__ = [
+    "CloudTree",
+    "KDTreeIndex",
+    "KNN",
+    "NearestField",
+    "cloud_tree",
+    "knn_points",
+    "nearest_field_cells",
+]
 
 
 class CloudTree:
@@ -38,6 +46,61 @@ class CloudTree:
 
     def query(self, points: np.ndarray, k: int = 1, **options: Any) -> tuple:
         return self._tree.query(np.ascontiguousarray(points, dtype=self.dtype), k=k, **options)
+
+
+class NearestField:
+    """Approximate nearest neighbours of a cloud (P, 3) by lookup: a voxel grid of edge
+    ``cell`` over the cloud's box, widened by ``margin``, where every voxel holds the
+    cloud point of its nearest occupied voxel (one exact Euclidean distance transform,
+    scipy's). A query is one array lookup instead of a tree search. Inside the box the
+    point found is at most 3.5 ``cell`` (four half-diagonals) farther than the nearest
+    point, and typically a fraction of a cell; a query outside the box takes its nearest
+    boundary voxel. ``query`` answers as :class:`CloudTree` does, with k=1:
+    (distances (Q,) to the points found, indices (Q,)).
+
+    For many coarse queries against one cloud, as when thousands of placements of a
+    template take their first steps; the grid costs 12 bytes per voxel.
+    """
+
+    def __init__(self, points: np.ndarray, cell: float, margin: float) -> None:
+        from scipy.ndimage import distance_transform_edt
+
+        self.points = np.asarray(points, dtype=np.float64)
+        self.cell = float(cell)
+        self.origin = self.points.min(0) - margin
+        self.shape = _field_shape(self.points, self.cell, margin)
+        cells = np.ravel_multi_index(self.voxels(self.points).T, self.shape)
+        owner = np.zeros(int(np.prod(self.shape)), np.int32)
+        owner[cells[::-1]] = np.arange(len(cells), dtype=np.int32)[::-1]  # the first point
+        empty = np.ones(self.shape, bool)
+        empty.flat[cells] = False
+        nearest_cell = np.empty((3, *self.shape), np.int32)
+        distance_transform_edt(
+            empty, return_distances=False, return_indices=True, indices=nearest_cell
+        )
+        self.owner = owner[np.ravel_multi_index(tuple(nearest_cell), self.shape)].ravel()
+
+    def voxels(self, points: np.ndarray) -> np.ndarray:
+        """(Q, 3) int64 voxel coordinates of ``points`` (Q, 3) (unclipped)."""
+        return np.floor((points - self.origin) / self.cell).astype(np.int64)
+
+    def query(self, points: np.ndarray, k: int = 1) -> tuple[np.ndarray, np.ndarray]:
+        if k != 1:
+            raise ValueError("NearestField answers k=1 only")
+        points = np.asarray(points, dtype=np.float64)
+        keys = np.clip(self.voxels(points), 0, np.array(self.shape) - 1)
+        idx = self.owner[np.ravel_multi_index(keys.T, self.shape)]
+        return np.linalg.norm(self.points[idx] - points, axis=1), idx
+
+
+def _field_shape(points: np.ndarray, cell: float, margin: float) -> tuple[int, int, int]:
+    extent = np.ptp(np.asarray(points, dtype=np.float64), axis=0) + 2 * margin
+    return tuple(int(n) for n in np.floor(extent / cell) + 1)
+
+
+def nearest_field_cells(points: np.ndarray, cell: float, margin: float) -> int:
+    """Voxels of the :class:`NearestField` that ``points`` (P, 3) would build."""
+    return int(np.prod(_field_shape(points, cell, margin)))
 
 
 def cloud_tree(points: np.ndarray, dtype: type = np.float64) -> CloudTree:
