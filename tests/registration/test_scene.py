@@ -185,7 +185,7 @@ def test_a_short_or_long_search_still_finds_the_object(scene_pair, iterations):
 
 def test_the_first_steps_look_up_a_field_and_the_refinement_halves(scene_pair, monkeypatch):
     """Until the first drop every placement's matches come from the NearestField; after,
-    from the KD-tree. Every candidate takes the first refinement iterations, a quarter the
+    and with a viewpoint throughout, from the KD-tree. Every candidate takes the first refinement iterations, a quarter the
     rest. Without the field (a scene too large for its cells) the object is found as well."""
     from masknet.geometry.knn import NearestField
     from masknet.registration import scene
@@ -209,6 +209,9 @@ def test_the_first_steps_look_up_a_field_and_the_refinement_halves(scene_pair, m
     ] * (first // 4)
     rot, trans = pose_errors(found.transform[None], truth[None])
     assert rot[0] < 1.0 and trans[0] < 0.02
+    lookups.clear()
+    locate(obj, points, SceneSearch(viewpoint=(3.0, 3.0, 8.0), max_iterations=3))
+    assert not lookups  # with a viewpoint the tree serves throughout
     monkeypatch.setattr(scene, "FIELD_MAX_CELLS", 10)
     assert scene._coarse_field(points) is None
     lookups.clear()

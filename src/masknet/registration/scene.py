@@ -19,9 +19,9 @@ clutter. :func:`locate` searches instead:
    every 5 after) the worst three quarters are dropped, and (without a viewpoint) the
    points used grow as the placements shrink: at the default 64, 16 until the second
    drop, 32 until the third, then all. Until the first drop, when every placement runs,
-   each template point's scene point is looked up in a voxel field of the scene's nearest
-   points (:class:`~masknet.geometry.knn.NearestField`, 0.1-radius cells) instead of
-   searched in the KD-tree.
+   each template point's scene point is looked up (without a viewpoint) in a voxel field
+   of the scene's nearest points (:class:`~masknet.geometry.knn.NearestField`, cells of
+   0.125 radii) instead of searched in the KD-tree.
 4. Scoring: the trimmed mean squared distance of the moved template points to the
    scene (the best ``trim`` fraction): low where the object lies on scene points.
 5. Refinement: the ``candidates`` best placements run ICP again at ``refine_points``
@@ -84,7 +84,7 @@ PRUNE_EVERY = 5
 # throughout and 1.3 s with the field, the same pose. FIELD_MAX_CELLS bounds its memory
 # (12 bytes a cell); a scene too large for it in cells of at most FIELD_CELL_MAX radii
 # searches the tree throughout.
-FIELD_CELL = 0.1
+FIELD_CELL = 0.125
 FIELD_CELL_MAX = 0.3
 FIELD_MAX_CELLS = 8_000_000
 FIELD_UNTIL = PRUNE_AT[0]  # the last iteration that looks up the field
@@ -224,7 +224,10 @@ def locate(
     normals = None if sensor is None else _outward_normals(tpl)
     # 3-4. Every rotation at every centre, the best few kept.
     placed = _Placement(tpl, normals, sensor, opts)
-    poses, count = placed.search(centres, thin, thin_tree, _coarse_field(thin))
+    # With a viewpoint the tree serves throughout: the carton, the Kinect's position given,
+    # was lost (130 degrees off) when even the first iteration looked up the field.
+    field = _coarse_field(thin) if sensor is None else None
+    poses, count = placed.search(centres, thin, thin_tree, field)
     # 5. The best placements at finer resolution against the thinned scene, rescored.
     pose = placed.best_refined(poses, thin)
     # Last: the full template against the full-resolution scene around the object.
