@@ -185,28 +185,31 @@ def test_a_short_or_long_search_still_finds_the_object(scene_pair, iterations):
 
 def test_the_first_steps_look_up_a_field_and_the_refinement_halves(scene_pair, monkeypatch):
     """Until the first drop every placement's matches come from the NearestField; after,
-    and with a viewpoint throughout, from the KD-tree. Every candidate takes the first refinement iterations, a quarter the
-    rest. Without the field (a scene too large for its cells) the object is found as well."""
+    and with a viewpoint throughout, from the KD-tree. Every candidate takes the first
+    refinement iterations, a quarter the rest. Without the field (a scene too large for
+    its cells) the object is found as well."""
     from masknet.geometry.knn import NearestField
     from masknet.registration import scene
 
     obj, points, truth, _ = scene_pair
     lookups, refined = [], []
-    query = NearestField.query
-    monkeypatch.setattr(
-        NearestField, "query", lambda self, *a, **k: [lookups.append(1), query(self, *a, **k)][1]
-    )
-    refine = scene._Placement._refined
-    monkeypatch.setattr(
-        scene._Placement, "_refined", lambda self, *a: [refined.append(a[-1]), refine(self, *a)][1]
-    )
+    query, refine = NearestField.query, scene._Placement._refined
+
+    def counted_query(self, *args, **kwargs):
+        lookups.append(1)
+        return query(self, *args, **kwargs)
+
+    def counted_refine(self, *args):
+        refined.append(args[-1])  # its iterations
+        return refine(self, *args)
+
+    monkeypatch.setattr(NearestField, "query", counted_query)
+    monkeypatch.setattr(scene._Placement, "_refined", counted_refine)
     found = locate(obj, points)
     opts = SceneSearch()
     assert len(lookups) == scene.FIELD_UNTIL + 1
-    first = opts.candidates
-    assert refined == [scene.REFINE_FIRST] * first + [
-        2 * opts.max_iterations - scene.REFINE_FIRST
-    ] * (first // 4)
+    total, first, kept = 2 * opts.max_iterations, scene.REFINE_FIRST, opts.candidates // 4
+    assert refined == [first] * opts.candidates + [total - first] * kept
     rot, trans = pose_errors(found.transform[None], truth[None])
     assert rot[0] < 1.0 and trans[0] < 0.02
     lookups.clear()

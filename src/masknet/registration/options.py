@@ -304,7 +304,8 @@ class SceneSearch:
     hypotheses: rotations per centre (the cube's 24, nearest the identity first).
     hypothesis_points: template points in the batched hypothesis stage.
     max_iterations: ICP iterations of the placements, and twice as many in the refinement
-    (Open3D's name; rounds are register's ``iterations``). trim: fraction of template
+    for the best quarter of its candidates (the others stop after 5) (Open3D's name;
+    rounds are register's ``iterations``). trim: fraction of template
     points that score.
     candidates: best placements refined. refine_points: template points then.
     refine_distance: correspondence cut-off of the refinement.

@@ -38,7 +38,7 @@ The template should be the object as the scan sees it (a view captured by a sens
 a scanned model is): the score asks every template point to lie on the scan, so a full
 360-degree model against a one-sided view is found less often.
 
-Cost, 2 CPU threads: about 1.5 s for a 12,000-point object in a 240,000-point scene
+Cost, 2 CPU threads: about 1.5-2 s for a 12,000-point object in a 240,000-point scene
 ten times its size; it grows with the scene's area in template radii, up to
 ``max_placements`` (then the centre grid is made coarser).
 
@@ -80,10 +80,11 @@ PRUNE_EVERY = 5
 # Until the first drop every placement runs, and the nearest scene point of each template
 # point is looked up in a NearestField of cells FIELD_CELL template radii wide instead of
 # searched in the KD-tree (a placement starts up to 0.43 radii from the object, so its first
-# steps need no finer match). On the carton's scene the search took 1.8 s with the tree
-# throughout and 1.3 s with the field, the same pose. FIELD_MAX_CELLS bounds its memory
-# (12 bytes a cell); a scene too large for it in cells of at most FIELD_CELL_MAX radii
-# searches the tree throughout.
+# steps need no finer match). On the carton's scene, alternating in one run, the whole
+# call took 0.70 times as long with the field and the halved refinement below, the same
+# pose (docs/RESULTS.md, the carton). FIELD_MAX_CELLS bounds its memory (4 bytes a cell
+# kept, about 30 while it is built); a scene too large for it in cells of at most
+# FIELD_CELL_MAX radii searches the tree throughout.
 FIELD_CELL = 0.125
 FIELD_CELL_MAX = 0.3
 FIELD_MAX_CELLS = 8_000_000
@@ -263,7 +264,9 @@ def _coarse_field(thin: np.ndarray) -> NearestField | None:
     """The :class:`NearestField` of the thinned scene (T, 3) for the search's first
     iterations (cells of :data:`FIELD_CELL` radii, coarser for a large scene), or None
     where even :data:`FIELD_CELL_MAX` would exceed :data:`FIELD_MAX_CELLS` cells."""
-    cell, margin = FIELD_CELL, 1.0  # a placed template reaches 1 radius beyond its centre
+    # Most of a placed template lies within 1 radius of its centre (the radius is measured
+    # from the bounding box's centre, so a point may reach further: it takes the boundary).
+    cell, margin = FIELD_CELL, 1.0
     while nearest_field_cells(thin, cell, margin) > FIELD_MAX_CELLS:
         cell *= 1.25
         if cell > FIELD_CELL_MAX:
@@ -378,8 +381,9 @@ class _Placement:
     def best_refined(self, poses: np.ndarray, thin: np.ndarray) -> np.ndarray:
         """(4, 4): the best of ``poses`` (K, 4, 4) after ICP at finer resolution against the
         thinned scene (T, 3) around each, by their trimmed fit. Halving, as in the search:
-        every pose takes :data:`REFINE_FIRST` iterations, and the best quarter by fit the
-        rest of ``2 * max_iterations``."""
+        every pose takes :data:`REFINE_FIRST` iterations (per pass: two with a viewpoint),
+        and the best quarter by fit the rest of ``2 * max_iterations``, cropped again
+        around where the first iterations left them."""
         opts = self.opts
         pick = self.order[: opts.refine_points]
         fine = self.tpl[pick]
