@@ -184,8 +184,8 @@ def test_a_short_or_long_search_still_finds_the_object(scene_pair, iterations):
 
 
 def test_the_first_steps_look_up_a_field_and_the_refinement_halves(scene_pair, monkeypatch):
-    """Until the first drop every placement's matches come from the NearestField; after,
-    and with a viewpoint throughout, from the KD-tree. Every candidate takes the first
+    """Before the first drop every placement's matches come from the NearestField; from
+    the drop on, and with a viewpoint throughout, from the KD-tree. Every candidate takes the first
     refinement iterations, a quarter the rest. Without the field (a scene too large for
     its cells) the object is found as well."""
     from masknet.geometry.knn import NearestField

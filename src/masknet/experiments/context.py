@@ -7,6 +7,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -117,3 +118,19 @@ class ExperimentResult:
     rows: list[dict]
     summary: str
     plot: Callable[[Path], None] | None = None
+
+
+def median_time(
+    call: Callable[[], Any], repeats: int, repeat_below_s: float = float("inf")
+) -> tuple[Any, float]:
+    """``call()``'s first result and the median seconds of up to ``repeats`` calls: the
+    first call alone where it takes ``repeat_below_s`` or longer (a long call is timed
+    once; a single call of a fraction of a second moves by a fifth between calls)."""
+    tic = time.perf_counter()
+    result = call()
+    seconds = [time.perf_counter() - tic]
+    while seconds[0] < repeat_below_s and len(seconds) < repeats:
+        tic = time.perf_counter()
+        call()
+        seconds.append(time.perf_counter() - tic)
+    return result, float(np.median(seconds))

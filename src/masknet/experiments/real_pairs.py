@@ -28,15 +28,12 @@ one call.
 from __future__ import annotations
 
 import functools
-import time
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from masknet.evaluation.registration import pose_errors
-from masknet.experiments.context import BenchmarkContext, ExperimentResult
+from masknet.experiments.context import BenchmarkContext, ExperimentResult, median_time
 from masknet.experiments.scans import THREEDMATCH_FILES, load_pair, scans_folder
 from masknet.geometry.open3d_clouds import to_open3d
 from masknet.registration.api import register
@@ -181,14 +178,16 @@ def run(ctx: BenchmarkContext) -> ExperimentResult:
             tpl, src = scale * template, scale * source
             runs = {"default (auto)": {}, "robust": {"method": "robust"}}
             for name, kwargs in runs.items():
-                result, seconds = _timed(functools.partial(register, tpl, src, **kwargs))
+                result, seconds = median_time(
+                    functools.partial(register, tpl, src, **kwargs), REPEATS, REPEAT_BELOW_S
+                )
                 rows.append(_row(title, unit_name, name, result.transform, truth, scale, seconds))
                 if title == ROOMS and unit_name == "m" and name.startswith("default"):
                     room_poses = {"the scans as given": np.eye(4), name: result.transform}
                 rows[-1]["path"] = str(result.info.get("path", ""))
             for voxel in voxels[title] if not ctx.quick else voxels[title][1:2]:
                 tutorial = functools.partial(open3d_tutorial, tpl, src, voxel * scale, 1 / scale)
-                pose, seconds = _timed(tutorial)
+                pose, seconds = median_time(tutorial, REPEATS, REPEAT_BELOW_S)
                 name = f"Open3D tutorial (voxel {voxel} m)"
                 rows.append(_row(title, unit_name, name, pose, truth, scale, seconds))
     summary = (
@@ -237,20 +236,6 @@ def plot_rooms(
     fig.tight_layout()
     fig.savefig(path, dpi=80)
     plt.close(fig)
-
-
-def _timed(call: Callable[[], Any]) -> tuple[Any, float]:
-    """``call()``'s result and its time in seconds: the median of :data:`REPEATS` calls
-    where the first takes under :data:`REPEAT_BELOW_S` (a single call of a fraction of a
-    second moves by a fifth between calls), else the first call's."""
-    tic = time.perf_counter()
-    result = call()
-    seconds = [time.perf_counter() - tic]
-    while seconds[0] < REPEAT_BELOW_S and len(seconds) < REPEATS:
-        tic = time.perf_counter()
-        call()
-        seconds.append(time.perf_counter() - tic)
-    return result, float(np.median(seconds))
 
 
 def _row(

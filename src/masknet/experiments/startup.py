@@ -14,19 +14,13 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
-from masknet.experiments.context import BenchmarkContext, ExperimentResult
+from masknet.experiments.context import BenchmarkContext, ExperimentResult, median_time
 
 
 def _wall(argv: list[str], repeats: int) -> tuple[float, int]:
     """Median seconds from start to exit of ``argv``, and its exit code."""
-    times, code = [], 0
-    for _ in range(repeats):
-        tic = time.perf_counter()
-        code = subprocess.run(argv, capture_output=True).returncode
-        times.append(time.perf_counter() - tic)
-    return float(np.median(times)), code
+    done, seconds = median_time(lambda: subprocess.run(argv, capture_output=True), repeats)
+    return seconds, done.returncode
 
 
 def run(ctx: BenchmarkContext) -> ExperimentResult:
