@@ -117,7 +117,8 @@ def _sets(ctx: BenchmarkContext, modelnet_pairs: int, per_scan: int) -> dict[str
     if scans_folder().is_dir():  # the evaluation scans, where they are (CI has them)
         kinds = ((True, "scans, shared points"), (False, "scans, re-sampled"))
         for shared, name in kinds[:1] if ctx.quick else kinds:  # quick: one kind suffices
-            sets[name] = scan_eval_pairs(per_scan, shared, ctx.seed)
+            pairs = scan_eval_pairs(per_scan, shared, ctx.seed)
+            sets[name] = Pairs(*(x[:2] for x in pairs)) if ctx.quick else pairs
     return sets
 
 
@@ -210,8 +211,9 @@ def masks_per_round(ctx: BenchmarkContext) -> ExperimentResult:
         )
 
     summary = (
-        f"{modelnet_pairs} ModelNet40 test pairs per set (paper protocol) and {per_scan} pairs "
-        "per evaluation scan (70% views of 4,096-point templates, <= 45 degrees, noise 0.2% of "
+        f"{modelnet_pairs} ModelNet40 test pairs per set (paper protocol) and "
+        + ("2 scan pairs (quick)" if ctx.quick else f"{per_scan} pairs per evaluation scan")
+        + " (70% views of 4,096-point templates, <= 45 degrees, noise 0.2% of "
         "the radius). The paper's loop runs its MaskNet in every round, each cloud centred on "
         "its own centroid. 'nearest rule' and 'learned' are register(..., method=X, iterations=3) with "
         "refine_masks set: the two-sided network in round 1, then both masks taken on the pair "
@@ -297,8 +299,9 @@ def refine_masks(ctx: BenchmarkContext) -> ExperimentResult:
     per_scan = 1 if ctx.quick else 15
     rows = refiner_table(ctx, refiners, count, per_scan)
     summary = (
-        f"The same pairs as masks-per-round ({count} per ModelNet40 set, {per_scan} per scan), "
-        "plus sensor-like ModelNet40 views (sampled apart from their 512-point templates, "
+        f"The same pairs as masks-per-round ({count} per ModelNet40 set, "
+        + ("2 scan pairs), " if ctx.quick else f"{per_scan} per scan), ")
+        + "plus sensor-like ModelNet40 views (sampled apart from their 512-point templates, "
         "density falling off with the distance to the viewpoint, noise 0.005); each source moved onto its template by the true pose, then "
         "turned by the residual about its centroid. Template masks: top-k with k = the source "
         "points kept. Precision and recall of the template mask; outliers_removed: share of "
