@@ -19,7 +19,7 @@ def quick_run(tmp_path_factory):
     mp.delenv("MASKNET_DATA", raising=False)  # the bundled sample, as in CI without data
     try:
         # A smoke run: every experiment's code path, on a few pairs.
-        argv = ["benchmark", "all", "--quick", "--pairs", "8", "--out", str(out), "--threads", "1"]
+        argv = ["benchmark", "all", "--quick", "--pairs", "4", "--out", str(out), "--threads", "1"]
         code = main(argv)
     finally:
         mp.undo()
@@ -107,7 +107,8 @@ def test_benchmark_help_names_every_experiment(capsys, monkeypatch):
 
 def test_benchmark_resume_from_the_command_line(tmp_path, monkeypatch, capsys):
     monkeypatch.delenv("MASKNET_DATA", raising=False)
-    argv = ["benchmark", "iterations", "--quick", "--out", str(tmp_path), "--threads", "1"]
+    argv = ["benchmark", "iterations", "--quick", "--pairs", "4", "--out", str(tmp_path)]
+    argv += ["--threads", "1"]
     assert main(argv) == 0
     first = json.loads((tmp_path / "iterations.json").read_text())
     # stderr is not a terminal here: one line per row stands in for the progress bars
