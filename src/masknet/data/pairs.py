@@ -91,6 +91,10 @@ class Pairs(NamedTuple):
     transform: Tensor
     source_mask: Tensor
 
+    def rows(self, rows: slice) -> Pairs:
+        """The pairs ``rows`` selects (a slice of the batch), every field alike."""
+        return Pairs(*(field[rows] for field in self))
+
 
 def derive_seed(*parts: int) -> int:
     """A 63-bit seed from integers (seed, epoch, batch, ...), stable across platforms."""

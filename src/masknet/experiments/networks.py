@@ -34,7 +34,7 @@ def run(ctx: BenchmarkContext) -> ExperimentResult:
     rows = [{"pipeline": "Identity (no motion)", **error_summary(identity, truth)}]
     missing = [name for name, method in LEARNED.items() if not shipped(method)]
     pipelines = x_and_mask_x({n: m for n, m in LEARNED.items() if n not in missing})
-    timing_pairs = Pairs(*(x[:8] for x in pairs))
+    timing_pairs = pairs.rows(slice(8))
     repeats = 3 if ctx.quick else 20
     for name, kwargs in progress_bar(pipelines.items(), desc="networks", disable=not ctx.progress):
         rows.append(ctx.row({"pipeline": name}, _row, pairs, timing_pairs, repeats, kwargs))

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from masknet.data.pairs import PairConfig, Pairs
+from masknet.data.pairs import PairConfig
 from masknet.evaluation.registration import batched_errors
 from masknet.experiments.context import BenchmarkContext, ExperimentResult
 from masknet.experiments.pipelines import PEER_PAIRS, PEERS, sweep_pipelines
@@ -21,7 +21,7 @@ def run(ctx: BenchmarkContext) -> ExperimentResult:
         for name, kwargs in sweep_pipelines().items():
             key = {"sigma": sigma, "pipeline": name}
             rows.append(ctx.row(key, batched_errors, pairs, **kwargs))
-        few = Pairs(*(x[:PEER_PAIRS] for x in pairs))
+        few = pairs.rows(slice(PEER_PAIRS))
         for name, kwargs in PEERS.items():
             label = f"{name}, first {len(few.template)} pairs"
             key = {"sigma": sigma, "pipeline": label}

@@ -63,6 +63,9 @@ PIPELINES = {
     "Mask-PointNetLK, learned": {"method": "pointnetlk", "refine_masks": "learned"},
 }
 SCAN_TEMPLATE_POINTS = 4096
+# --quick (a smoke run): ModelNet40 pairs per set, and the first scan pairs of one kind
+QUICK_MODELNET_PAIRS = 4
+QUICK_SCAN_PAIRS = 2
 
 
 def scan_eval_pairs(count_per_scan: int, shared: bool, seed: int) -> Pairs:
@@ -118,7 +121,7 @@ def _sets(ctx: BenchmarkContext, modelnet_pairs: int, per_scan: int) -> dict[str
         kinds = ((True, "scans, shared points"), (False, "scans, re-sampled"))
         for shared, name in kinds[:1] if ctx.quick else kinds:  # quick: one kind suffices
             pairs = scan_eval_pairs(per_scan, shared, ctx.seed)
-            sets[name] = Pairs(*(x[:2] for x in pairs)) if ctx.quick else pairs
+            sets[name] = pairs.rows(slice(QUICK_SCAN_PAIRS)) if ctx.quick else pairs
     return sets
 
 
@@ -183,7 +186,7 @@ def _pipeline_rows(pairs: Pairs, kwargs: dict) -> dict:
 
 def masks_per_round(ctx: BenchmarkContext) -> ExperimentResult:
     """Mask precision and rotation error per round of Mask-ICP, by refinement mask."""
-    modelnet_pairs = 4 if ctx.quick else min(ctx.pairs, 300)
+    modelnet_pairs = QUICK_MODELNET_PAIRS if ctx.quick else min(ctx.pairs, 300)
     per_scan = 1 if ctx.quick else 15
     rows = []
     for set_name, pairs in _sets(ctx, modelnet_pairs, per_scan).items():
@@ -212,7 +215,11 @@ def masks_per_round(ctx: BenchmarkContext) -> ExperimentResult:
 
     summary = (
         f"{modelnet_pairs} ModelNet40 test pairs per set (paper protocol) and "
-        + ("2 scan pairs (quick)" if ctx.quick else f"{per_scan} pairs per evaluation scan")
+        + (
+            f"{QUICK_SCAN_PAIRS} scan pairs (quick)"
+            if ctx.quick
+            else f"{per_scan} pairs per evaluation scan"
+        )
         + " (70% views of 4,096-point templates, <= 45 degrees, noise 0.2% of "
         "the radius). The paper's loop runs its MaskNet in every round, each cloud centred on "
         "its own centroid. 'nearest rule' and 'learned' are register(..., method=X, iterations=3) with "
@@ -295,12 +302,12 @@ def refine_masks(ctx: BenchmarkContext) -> ExperimentResult:
     from masknet.models.refine import RefineMaskNet
 
     refiners = {"rule": NearestNeighbourMasks(), "learned": RefineMaskNet.pretrained()}
-    count = 4 if ctx.quick else min(ctx.pairs, 300)
+    count = QUICK_MODELNET_PAIRS if ctx.quick else min(ctx.pairs, 300)
     per_scan = 1 if ctx.quick else 15
     rows = refiner_table(ctx, refiners, count, per_scan)
     summary = (
         f"The same pairs as masks-per-round ({count} per ModelNet40 set, "
-        + ("2 scan pairs), " if ctx.quick else f"{per_scan} per scan), ")
+        + (f"{QUICK_SCAN_PAIRS} scan pairs), " if ctx.quick else f"{per_scan} per scan), ")
         + "plus sensor-like ModelNet40 views (sampled apart from their 512-point templates, "
         "density falling off with the distance to the viewpoint, noise 0.005); each source moved onto its template by the true pose, then "
         "turned by the residual about its centroid. Template masks: top-k with k = the source "

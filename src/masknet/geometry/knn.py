@@ -66,6 +66,8 @@ class NearestField:
     def __init__(self, points: np.ndarray, cell: float, margin: float) -> None:
         from scipy.ndimage import distance_transform_edt
 
+        from masknet.geometry.sampling import first_in_cells
+
         self.points = np.asarray(points, dtype=np.float64)
         if self.points.ndim != 2 or self.points.shape[1] != 3 or not len(self.points):
             raise ValueError(f"NearestField needs a cloud (P, 3), P >= 1; got {self.points.shape}")
@@ -74,9 +76,8 @@ class NearestField:
         self.cell = float(cell)
         self.origin = self.points.min(0) - margin
         self.shape = _field_shape(self.points, self.cell, margin)
-        occupied, first = np.unique(
-            np.ravel_multi_index(self.voxels(self.points).T, self.shape), return_index=True
-        )
+        first = first_in_cells(self.points, self.cell, self.origin)  # one point per voxel
+        occupied = np.ravel_multi_index(self.voxels(self.points[first]).T, self.shape)
         empty = np.ones(self.shape, bool)
         empty.flat[occupied] = False
         nearest_cell = np.empty((3, *self.shape), np.int32)  # scipy's indices are int32

@@ -82,9 +82,9 @@ PRUNE_EVERY = 5
 # point is looked up in a NearestField of cells FIELD_CELL template radii wide instead of
 # searched in the KD-tree (a placement starts up to 0.43 radii from the object, so its first
 # steps need no finer match). The drop ranks on the tree: ranked on the field too, the
-# synthetic scenes' full model was found in 9 of 20 instead of 10, 0.1 s sooner. On the carton's scene, alternating in one run, the whole
-# call took 0.73 times as long with the field and the halved refinement below, the same
-# pose (docs/RESULTS.md, the carton). FIELD_MAX_CELLS bounds its memory (4 bytes a cell
+# synthetic scenes' full model was found in 9 of 20 instead of 10, 0.1 s sooner. On the
+# carton's scene, alternating in one run, the whole call took 0.73 times as long with the
+# field and the halved refinement below, the same pose (docs/RESULTS.md, the carton). FIELD_MAX_CELLS bounds its memory (4 bytes a cell
 # kept, about 30 while it is built); a scene too large for it in cells of at most
 # FIELD_CELL_MAX radii searches the tree throughout.
 FIELD_CELL = 0.125
@@ -343,8 +343,8 @@ class _Placement:
     ) -> tuple[np.ndarray, int]:
         """Every rotation at every centre (C, 3): trimmed ICP of the template onto the thinned
         scene (T, 3), all placements at once against one KD-tree (``field``, where given,
-        in the iterations before the first drop). The best ``candidates`` poses (K, 4, 4), template -> scene, best
-        first, and how many placements started."""
+        in the iterations before the first drop). The best ``candidates`` poses (K, 4, 4),
+        template -> scene, best first, and how many placements started."""
         opts, sensor = self.opts, self.sensor
         pick = self.small
         small = self.tpl[pick]

@@ -55,7 +55,7 @@ class PairTask:
             # Validation always uses the full stored resolution, like the test set.
             pairs = make_test_pairs(points, num_pairs, self.pairs, seed=seed + 7919)
             batches = [
-                Pairs(*(x[i : i + batch_size] for x in pairs))
+                pairs.rows(slice(i, i + batch_size))
                 for i in range(0, len(pairs.template), batch_size)
             ]
         if self.mix is not None:
