@@ -184,10 +184,11 @@ def test_a_short_or_long_search_still_finds_the_object(scene_pair, iterations):
 
 
 def test_the_first_steps_look_up_a_field_and_the_refinement_halves(scene_pair, monkeypatch):
-    """Before the first drop every placement's matches come from the NearestField; from
-    the drop on, and with a viewpoint throughout, from the KD-tree. Every candidate takes the first
-    refinement iterations, a quarter the rest. Without the field (a scene too large for
-    its cells) the object is found as well."""
+    """Before the first drop every placement's matches come from the NearestField (where
+    there are FIELD_FROM placements or more); from the drop on, and with a viewpoint
+    throughout, from the KD-tree. Every candidate takes the first refinement iterations, a
+    quarter the rest. Without the field (fewer placements, or a scene too large for its
+    cells) the object is found as well."""
     from masknet.geometry.knn import NearestField
     from masknet.registration import scene
 
@@ -205,6 +206,10 @@ def test_the_first_steps_look_up_a_field_and_the_refinement_halves(scene_pair, m
 
     monkeypatch.setattr(NearestField, "query", counted_query)
     monkeypatch.setattr(scene._Placement, "_refined", counted_refine)
+    few = locate(obj, points)
+    assert not lookups and few.hypotheses < scene.FIELD_FROM  # too few placements for it
+    monkeypatch.setattr(scene, "FIELD_FROM", 0)
+    refined.clear()
     found = locate(obj, points)
     opts = SceneSearch()
     assert len(lookups) == scene.FIELD_UNTIL + 1

@@ -38,16 +38,15 @@ PEERS = ("Open3D RANSAC + ICP", "Open3D FGR + ICP")
 
 DEFAULT = "default (auto)"
 ROBUST = "robust"
-SMALL = "default, small mask network"
-SMALL_WEIGHTS = "modelnet40_small"  # MaskNet.pretrained name of the small fast-path network
+# The default with the paper's MaskNet in its fast path instead of the small one.
+PAPER_NETWORK = "default, the paper's mask network"
 
 
 def pipelines(voxels: tuple[float, ...]) -> dict[str, dict]:
     """Pipeline name -> register() arguments."""
-    out = {DEFAULT: {}}
-    small = _small_network()
-    if small is not None:  # the default with the small fast-path network, beside it
-        out[SMALL] = {"model": small}
+    from masknet.models import MaskNet
+
+    out = {DEFAULT: {}, PAPER_NETWORK: {"model": MaskNet.pretrained()}}
     out |= {
         ROBUST: {"method": "robust"},
         "Mask-ICP (the paper's, one round)": {"method": "icp"},
@@ -67,17 +66,6 @@ def pipelines(voxels: tuple[float, ...]) -> dict[str, dict]:
                 if method == "open3d-ransac":  # its fastest setting: all threads
                     out[name]["repeatable"] = False
     return out
-
-
-def _small_network() -> object | None:
-    """The shipped small MaskNet (``masknet_modelnet40_small``), or None where it is not."""
-    from masknet.errors import MaskNetError
-    from masknet.models import MaskNet
-
-    try:
-        return MaskNet.pretrained(SMALL_WEIGHTS)
-    except MaskNetError:
-        return None
 
 
 def timed_errors(pairs: Pairs, **kwargs: object) -> dict[str, float]:
@@ -216,10 +204,8 @@ def run(ctx: BenchmarkContext) -> ExperimentResult:
         best = min(level, key=lambda r: r["ms_median"])
         peer_name = best["pipeline"].replace("Open3D ", "").replace(" + ICP", "")
         bar = max(best["rot_mean"], 0.5)
-        for name in (DEFAULT, SMALL, ROBUST):
-            r = next((x for x in mine if x["pipeline"] == name), None)
-            if r is None:  # the small network is not shipped
-                continue
+        for name in (DEFAULT, PAPER_NETWORK, ROBUST):
+            r = next(x for x in mine if x["pipeline"] == name)
             # Time: on dense sets half the peer's median where the peer is right (mean <= 5
             # degrees), else the peer's; on sparse sets the peer's.
             half = dense[set_name] and best["rot_mean"] <= 5

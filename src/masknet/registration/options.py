@@ -320,6 +320,9 @@ class SceneSearch:
     scene_ratio: :func:`is_scene` calls a source a scene when it is at least this many times
         as spread out as the template (median distance of the points from their median
         point: outliers, even a third of the points, barely move it).
+    centre_share: the share of candidate centres searched: those whose surroundings look
+        most like the template by FPFH features (at least 16; 1 searches all,
+        :mod:`masknet.registration.scene_centres`). feature_voxel: the features' grid.
     """
 
     voxel: float = 0.05
@@ -337,12 +340,19 @@ class SceneSearch:
     scene_ratio: float = 3.0
     max_placements: int = 50_000
     viewpoint: tuple[float, float, float] | None = None
+    centre_share: float = 0.125
+    feature_voxel: float = 0.2
 
     def __post_init__(self) -> None:
         from masknet.geometry.clouds import MIN_POINTS  # here: the method table needs no torch
 
         for name in ("voxel", "spacing", "crop", "refine_distance", "inlier_distance"):
             _positive(f"scene search: {name}", getattr(self, name), allow_none=False)
+        _positive("scene search: feature_voxel", self.feature_voxel, allow_none=False)
+        if not _number(self.centre_share) or not 0 < self.centre_share <= 1:
+            raise MaskNetError(
+                f"scene search: centre_share must be in (0, 1], got {self.centre_share!r}"
+            )
         _positive("scene search: scene_ratio", self.scene_ratio, allow_none=False)
         if not _number(self.trim) or not 0 < self.trim <= 1:
             raise MaskNetError(f"scene search: trim must be in (0, 1], got {self.trim!r}")

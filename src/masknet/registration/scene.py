@@ -58,16 +58,16 @@ from typing import Any, NamedTuple
 import numpy as np
 import torch
 
-from masknet.errors import MaskNetError
 from masknet.geometry.align import rigid_transforms_numpy
 from masknet.geometry.clouds import MIN_POINTS, median_spacing, median_spread, unit_radius
 from masknet.geometry.knn import NearestField, cloud_tree, nearest_field_cells
 from masknet.geometry.normals import estimate_normals
-from masknet.geometry.sampling import farthest_point_sample, first_in_cells
+from masknet.geometry.sampling import farthest_point_sample
 from masknet.geometry.se3 import hypothesis_rotations, transform_points
 from masknet.geometry.trimmed import trimmed_fit, trimmed_mean, trimmed_order
 from masknet.registration.icp import icp
 from masknet.registration.options import DEFAULT_SPACINGS, SceneSearch
+from masknet.registration.scene_centres import candidate_centres, likely_centres, voxel_thin
 
 __all__ = ["SceneSearch", "SceneMatch", "is_scene", "locate", "polish"]
 
@@ -84,13 +84,16 @@ PRUNE_EVERY = 5
 # steps need no finer match). The drop ranks on the tree: ranked on the field too, the
 # synthetic scenes' full model was found in 9 of 20 instead of 10, 0.1 s sooner. On the
 # carton's scene, alternating in one run, the whole call took 0.73 times as long with the
-# field and the halved refinement below, the same pose (docs/RESULTS.md, the carton). FIELD_MAX_CELLS bounds its memory (4 bytes a cell
-# kept, about 30 while it is built); a scene too large for it in cells of at most
-# FIELD_CELL_MAX radii searches the tree throughout.
+# field and the halved refinement below, the same pose (docs/RESULTS.md, the carton).
+# FIELD_MAX_CELLS bounds its memory (4 bytes a cell kept, about 30 while it is built); a
+# scene too large for it in cells of at most FIELD_CELL_MAX radii searches the tree
+# throughout. Building it costs about what the tree's queries of FIELD_FROM placements'
+# first iterations do (0.1-0.15 s on the carton's scene), so fewer placements skip it.
 FIELD_CELL = 0.125
 FIELD_CELL_MAX = 0.3
 FIELD_MAX_CELLS = 8_000_000
 FIELD_UNTIL = PRUNE_AT[0] - 1  # the last iteration that looks up the field
+FIELD_FROM = 8_000  # placements (centres x rotations) from which the field is built
 # Refinement iterations of every candidate before the best quarter go on: 16 candidates
 # of 30 iterations each took 0.45 s of the carton's search, halved 0.20 s.
 REFINE_FIRST = 5
@@ -126,11 +129,6 @@ def is_scene(template: np.ndarray, source: np.ndarray, options: SceneSearch | No
     ratio = (options or SceneSearch()).scene_ratio
     spread = median_spread(template)
     return spread > 0 and median_spread(source) >= ratio * spread
-
-
-def _voxel_thin(points: np.ndarray, size: float) -> np.ndarray:
-    """One point per occupied voxel of edge ``size`` (the first in input order): (K, 3)."""
-    return points[np.sort(first_in_cells(points, size, origin=np.zeros(3)))]
 
 
 def _inlier_distance(unit_template: np.ndarray, options: SceneSearch) -> float:
@@ -219,17 +217,19 @@ def locate(
     tpl = (template - centre) / radius  # template frame, unit radius
     scn = (scene - centre) / radius
     # 1-2. Thinned scene and candidate centres (those with enough scene around them).
-    thin = _voxel_thin(scn, opts.voxel)
+    thin = voxel_thin(scn, opts.voxel)
     # Nearest neighbours in the hot loop, in float32 (the refinement is float64).
     thin_tree = cloud_tree(thin, np.float32)
-    centres, spacing = _candidate_centres(thin, thin_tree, opts)
+    centres, spacing = candidate_centres(thin, thin_tree, opts)
+    centres = likely_centres(tpl, thin, centres, opts)
     sensor = None if opts.viewpoint is None else (np.asarray(opts.viewpoint) - centre) / radius
     normals = None if sensor is None else _outward_normals(tpl)
     # 3-4. Every rotation at every centre, the best few kept.
     placed = _Placement(tpl, normals, sensor, opts)
     # With a viewpoint the tree serves throughout: the carton, the Kinect's position given,
     # was lost (130 degrees off) when even the first iteration looked up the field.
-    field = _coarse_field(thin) if sensor is None else None
+    many = len(centres) * opts.hypotheses >= FIELD_FROM
+    field = _coarse_field(thin) if sensor is None and many else None
     poses, count = placed.search(centres, thin, thin_tree, field)
     # 5. The best placements at finer resolution against the thinned scene, rescored.
     pose = placed.best_refined(poses, thin)
@@ -288,30 +288,6 @@ def _points_at(iteration: int, points: int) -> int:
     three. At the default 64 points: 16 until the second drop, then 32, then 64."""
     drops = sum(iteration >= at for at in PRUNE_AT)
     return min(points, max(points // (8 >> min(drops, 3)), 16))
-
-
-def _candidate_centres(
-    thin: np.ndarray, thin_tree: Any, opts: SceneSearch
-) -> tuple[np.ndarray, float]:
-    """Centres (C, 3) on a grid over the thinned scene (T, 3) with enough scene around
-    them, and the grid's spacing (coarser than asked for a scene too large for the
-    budget, and then searched less reliably)."""
-    spacing = opts.spacing
-    centres = _voxel_thin(thin, spacing)
-    while len(centres) * opts.hypotheses > opts.max_placements:
-        spacing *= 1.25
-        centres = _voxel_thin(thin, spacing)
-    # A region is large enough when its min_region_points-th nearest point lies within it.
-    need = min(opts.min_region_points, len(thin))
-    kth, _ = thin_tree.query(centres.astype(np.float32), k=need, distance_upper_bound=opts.crop)
-    enough = np.isfinite(np.asarray(kth).reshape(len(centres), need)[:, -1])
-    centres = centres[enough if need >= opts.min_region_points else np.zeros(len(centres), bool)]
-    if not len(centres):
-        raise MaskNetError(
-            f"scene search: no region of the scene holds {opts.min_region_points} points "
-            f"within {opts.crop} template radii"
-        )
-    return centres, spacing
 
 
 class _Placement:
