@@ -34,7 +34,9 @@ def test_the_default_networks_load_once():
     # The fast path's network is the small one: fewer parameters than the paper's.
     small, paper = default_fast_model(), default_model()
     assert FAST_PATH_WEIGHTS == "modelnet40_small"
-    assert sum(p.numel() for p in small.parameters()) < sum(p.numel() for p in paper.parameters()) / 5
+    assert (
+        sum(p.numel() for p in small.parameters()) < sum(p.numel() for p in paper.parameters()) / 5
+    )
 
 
 def test_which_networks_a_plan_gets():
