@@ -158,10 +158,10 @@ def test_placements_are_dropped_early_and_their_points_grow():
 
 
 @pytest.mark.parametrize("points", [40, 64, 500, 1024, 3000])
-def test_both_stages_take_farthest_point_samples(points):
-    """One farthest-point order serves the placements and the refinement: each stage's
-    points are the farthest-point sample of its size."""
-    from masknet.geometry.sampling import farthest_point_sample
+def test_the_placements_take_farthest_points_and_the_refinement_an_even_grid(points):
+    """The placements' few points are the farthest-point sample of their size; the
+    refinement's many an even grid subset of the template (all of a smaller one)."""
+    from masknet.geometry.sampling import farthest_point_sample, grid_subset
     from masknet.registration.scene import _Placement
 
     tpl = np.random.default_rng(1).normal(size=(points, 3))
@@ -169,8 +169,10 @@ def test_both_stages_take_farthest_point_samples(points):
     placed = _Placement(tpl, None, None, opts)
     hypothesis = farthest_point_sample(tpl, opts.hypothesis_points).indices
     np.testing.assert_array_equal(placed.small, hypothesis)
-    refine = farthest_point_sample(tpl, opts.refine_points).indices
-    np.testing.assert_array_equal(placed.order[: opts.refine_points], refine)
+    np.testing.assert_array_equal(placed.fine, grid_subset(tpl, opts.refine_points))
+    assert len(placed.fine) == min(points, len(placed.fine)) <= opts.refine_points
+    if points <= opts.refine_points:
+        np.testing.assert_array_equal(placed.fine, np.arange(points))
 
 
 @pytest.mark.parametrize("iterations", [1, 2, 12])

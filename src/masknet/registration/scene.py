@@ -62,7 +62,7 @@ from masknet.geometry.align import rigid_transforms_numpy
 from masknet.geometry.clouds import MIN_POINTS, median_spacing, median_spread, unit_radius
 from masknet.geometry.knn import NearestField, cloud_tree, nearest_field_cells
 from masknet.geometry.normals import estimate_normals
-from masknet.geometry.sampling import farthest_point_sample
+from masknet.geometry.sampling import farthest_point_sample, grid_subset
 from masknet.geometry.se3 import hypothesis_rotations, transform_points
 from masknet.geometry.trimmed import trimmed_fit, trimmed_mean, trimmed_order
 from masknet.registration.icp import icp
@@ -309,13 +309,11 @@ class _Placement:
         opts: SceneSearch,
     ) -> None:
         self.tpl, self.normals, self.sensor, self.opts = tpl, normals, sensor, opts
-        # One farthest-point order serves both stages where it is one (its first k points
-        # are the k-point sample); a template it keeps whole comes back in input order.
-        most = max(opts.hypothesis_points, opts.refine_points)
-        self.order = farthest_point_sample(tpl, most).indices
-        self.small = self.order[: opts.hypothesis_points]
-        if len(self.order) == len(tpl):
-            self.small = farthest_point_sample(tpl, opts.hypothesis_points).indices
+        # The placements' few points spread by farthest-point sampling; the refinement's
+        # many an even grid subset (farthest points to 1,024 of the carton's 12,575 cost
+        # 50 ms, the grid 6).
+        self.small = farthest_point_sample(tpl, opts.hypothesis_points).indices
+        self.fine = grid_subset(tpl, opts.refine_points)
 
     def search(
         self,
@@ -370,7 +368,7 @@ class _Placement:
         and the best quarter by fit the rest of ``2 * max_iterations``, cropped again
         around where the first iterations left them."""
         opts = self.opts
-        pick = self.order[: opts.refine_points]
+        pick = self.fine
         fine = self.tpl[pick]
         fine_normals = None if self.normals is None else self.normals[pick]
         total = 2 * opts.max_iterations
