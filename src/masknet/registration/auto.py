@@ -194,21 +194,31 @@ def _fast_path(
     kept = fine[surface]
     # The check's points among those kept (a two-sided network's mask narrows both).
     checked = fine[check_points(surface, prepared.strict, prepared.attached)]
-    sol = icp(
-        fine_template,
-        kept,
-        fast.transform[0],
-        options.inlier_iterations,
-        REFINE_TOLERANCE,
-        max_correspondence_distance=options.cut(spacing),
-        template_tree=tree,
-    )
-    transform = sol.transform[0]
-    fit = pose_fit(tree, kept, transform, FIT_SPACINGS * spacing)
-    if len(checked) >= 3:  # the verdict counts only points with neighbours enough
-        right = pose_fit(tree, checked, transform, FIT_SPACINGS * spacing).fitness
-    else:
+
+    def refined(start: np.ndarray) -> tuple[np.ndarray, PoseFit, float, bool]:
+        """ICP with the pair cut-off from ``start``: the pose, its fit, the check's
+        fitness, and whether ICP converged within its iterations."""
+        sol = icp(
+            fine_template,
+            kept,
+            start,
+            options.inlier_iterations,
+            REFINE_TOLERANCE,
+            max_correspondence_distance=options.cut(spacing),
+            template_tree=tree,
+        )
+        pose, converged = sol.transform[0], bool(sol.converged[0])
+        fit = pose_fit(tree, kept, pose, FIT_SPACINGS * spacing)
         right = fit.fitness
+        if len(checked) >= 3:  # the verdict counts only points with neighbours enough
+            right = pose_fit(tree, checked, pose, FIT_SPACINGS * spacing).fitness
+        return pose, fit, right, converged
+
+    transform, fit, right, converged = refined(fast.transform[0])
+    if right >= options.accept_fitness and not converged:
+        # Still moving when its iterations ran out, from a start far off: a pose that fits
+        # is let settle (on a copy pair it stopped 0.23 degrees short, one step from exact).
+        transform, fit, right, converged = refined(transform)
     times["fast"] = times.get("fast", 0.0) + time.perf_counter() - tic
     accepted = None
     if right >= options.accept_fitness:

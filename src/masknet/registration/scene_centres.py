@@ -6,7 +6,7 @@ share of them whose surroundings look most like the template: FPFH features
 (:func:`masknet.registration.correspondences.feature_cloud`, on a grid of
 ``feature_voxel`` template radii) of the scene and the template; the scene points whose
 nearest template feature is among the closest quarter (``LIKE_SHARE``) look like the
-object, and a centre scores the fraction of such points within one template radius. The
+object, and a centre scores the fraction of such points within about one template radius. The
 features do not depend on the rotation, so one ranking serves all of a centre's
 rotations, and every stage after it runs on fewer placements.
 
@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from masknet.errors import MaskNetError
+from masknet.geometry.knn import cloud_tree
 from masknet.geometry.sampling import first_in_cells
 from masknet.io import has_open3d
 from masknet.registration.options import SceneSearch
@@ -30,6 +31,7 @@ __all__ = ["candidate_centres", "likely_centres", "voxel_thin"]
 LIKE_SHARE = 0.1  # scene points whose features are among this share closest to the template's
 FEATURE_REACH = 1.0  # radius around a centre whose points score it: the object's own
 MIN_CENTRES = 128  # at least this many centres are kept (a small scene is searched whole)
+NEIGHBOUR_CENTRES = 64  # centres within FEATURE_REACH summed (about 33 on the default grid)
 
 
 def voxel_thin(points: np.ndarray, size: float) -> np.ndarray:
@@ -65,23 +67,29 @@ def centre_scores(
     tpl: np.ndarray, thin: np.ndarray, centres: np.ndarray, voxel: float
 ) -> np.ndarray:
     """(C,) for ``centres`` (C, 3): the fraction of the thinned scene's (T, 3) feature points
-    within ``FEATURE_REACH`` whose FPFH lies among the ``LIKE_SHARE`` closest to the
-    template's (N, 3) (module docstring); 0 where none is near."""
-    from scipy.spatial import cKDTree
-
+    around each whose FPFH lies among the ``LIKE_SHARE`` closest to the template's (N, 3)
+    (module docstring); 0 where none is near. Each feature point counts for its nearest
+    centre, and a centre sums the counts of the centres within ``FEATURE_REACH`` of it
+    (its own included, at most ``NEIGHBOUR_CENTRES``): the points within about that reach."""
     from masknet.registration.correspondences import feature_cloud
 
     template, scene = feature_cloud(tpl, voxel), feature_cloud(thin, voxel)
     if not len(template.points) or not len(scene.points):
         return np.zeros(len(centres))
-    gap, _ = cKDTree(template.features).query(scene.features, k=1)
+    gap, _ = cloud_tree(template.features).query(scene.features, k=1)
     alike = gap <= np.quantile(gap, LIKE_SHARE)
-    near = cKDTree(centres).sparse_distance_matrix(
-        cKDTree(scene.points), FEATURE_REACH, output_type="coo_matrix"
-    )
-    hits = np.bincount(near.row, weights=alike[near.col], minlength=len(centres))
-    total = np.bincount(near.row, minlength=len(centres))
-    return hits / np.maximum(total, 1)
+    centre_tree = cloud_tree(centres)
+    _, owner = centre_tree.query(scene.points, k=1)
+    hits = np.bincount(owner, weights=alike, minlength=len(centres))
+    total = np.bincount(owner, minlength=len(centres)).astype(np.float64)
+    k = min(len(centres), NEIGHBOUR_CENTRES)
+    _, around = centre_tree.query(centres, k=k, distance_upper_bound=FEATURE_REACH)
+    around = np.asarray(around).reshape(len(centres), k)
+    inside = around < len(centres)  # a missing neighbour has index len(centres)
+    index = np.where(inside, around, 0)
+    near_hits = np.where(inside, hits[index], 0.0).sum(1)
+    near_total = np.where(inside, total[index], 0.0).sum(1)
+    return near_hits / np.maximum(near_total, 1)
 
 
 def likely_centres(
