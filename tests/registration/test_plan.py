@@ -3,8 +3,6 @@ default networks it loads once."""
 
 from __future__ import annotations
 
-import dataclasses
-
 import pytest
 
 from masknet import MaskNetError
@@ -44,11 +42,6 @@ def test_which_networks_a_plan_gets():
     assert one_round.model is default_model() and one_round.refiner is None
     auto = with_networks(plan_call("auto", RobustOptions(), None, **ARGUMENTS))
     assert auto.model is default_fast_model() and auto.search_model is default_two_sided()
-    # After a scene search "auto" runs the paper's Mask-ICP from the found pose, with the
-    # paper's network.
-    found = plan_call("icp", ICPCriteria(), None, **ARGUMENTS)
-    found = with_networks(dataclasses.replace(found, scene_for_auto=True))
-    assert found.model is default_model()
     given = MaskNet.pretrained()
     assert with_networks(plan_call("auto", RobustOptions(), given, **ARGUMENTS)).model is given
     loop = with_networks(plan_call("icp", ICPCriteria(), None, **{**ARGUMENTS, "iterations": 3}))

@@ -9,6 +9,7 @@ from scipy.spatial.transform import Rotation
 from masknet import MaskNetError, register
 from masknet.data import bundled_sample_path, load_modelnet40
 from masknet.evaluation.registration import pose_errors
+from masknet.geometry.clouds import unit_radius
 from masknet.registration.scene import SceneSearch, is_scene, locate, polish
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -170,7 +171,7 @@ def test_the_placements_take_farthest_points_and_the_refinement_an_even_grid(poi
     hypothesis = farthest_point_sample(tpl, opts.hypothesis_points).indices
     np.testing.assert_array_equal(placed.small, hypothesis)
     np.testing.assert_array_equal(placed.fine, grid_subset(tpl, opts.refine_points))
-    assert len(placed.fine) == min(points, len(placed.fine)) <= opts.refine_points
+    assert len(placed.fine) <= opts.refine_points
     if points <= opts.refine_points:
         np.testing.assert_array_equal(placed.fine, np.arange(points))
 
@@ -228,4 +229,38 @@ def test_the_first_steps_look_up_a_field_and_the_refinement_halves(scene_pair, m
     without = locate(obj, points)
     assert not lookups
     rot, trans = pose_errors(without.transform[None], truth[None])
+    assert rot[0] < 1.0 and trans[0] < 0.02
+
+
+def test_the_fit_and_mask_near_the_object_are_the_whole_scenes(scene_pair):
+    """locate measures its coverage and source mask on the scene points within the
+    template's reach of the pose: the same as on the whole scene."""
+    from masknet.geometry.knn import cloud_tree
+    from masknet.geometry.se3 import transform_points
+    from masknet.registration.scene import _inlier_distance
+
+    obj, points, _, _ = scene_pair
+    found = locate(obj, points)
+    radius = float(unit_radius(obj))
+    tolerance = radius * _inlier_distance((obj - obj.mean(0)) / radius, SceneSearch())
+    moved = transform_points(np.linalg.inv(found.transform), obj)  # template in the scene
+    dist, _ = cloud_tree(points).query(moved, k=1)
+    assert found.coverage == pytest.approx(float((dist <= tolerance).mean()), abs=1e-9)
+    near = cloud_tree(moved).query(points, k=1, distance_upper_bound=tolerance)[0]
+    np.testing.assert_array_equal(found.source_mask, np.isfinite(near))
+
+
+def test_after_a_scene_search_the_default_masks_with_the_papers_network(scene_pair, monkeypatch):
+    """The fast path's small network is not the one of the Mask-ICP after a scene search."""
+    from masknet.registration import plan
+
+    obj, points, truth, _ = scene_pair
+
+    def refused():
+        raise AssertionError("the small network ran after a scene search")
+
+    monkeypatch.setattr(plan, "default_fast_model", refused)
+    result = register(obj, points)
+    assert result.info["path"] == "scene search"
+    rot, trans = pose_errors(result.transform[None], truth[None])
     assert rot[0] < 1.0 and trans[0] < 0.02

@@ -139,8 +139,9 @@ def register(
         refine_iterations: after the rounds, this many iterations of plain ICP
             against the whole template (0: none).
         model: the MaskNet of the first round; None loads shipped weights once: the
-            paper's ``masknet_modelnet40`` for one round (and ``"auto"``'s fast path;
-            its escalation uses ``masknet2_scans``), the two-sided ``masknet2_scans`` for
+            paper's ``masknet_modelnet40`` for one round (``"auto"``'s fast path the
+            smaller ``masknet_modelnet40_small``; its escalation uses ``masknet2_scans``),
+            the two-sided ``masknet2_scans`` for
             ``iterations`` > 1 and ``"robust"``. A
             :class:`~masknet.models.two_sided.TwoSidedMaskNet` masks both clouds: the
             method then sees only the source points it keeps. Any object with

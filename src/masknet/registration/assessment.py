@@ -161,7 +161,7 @@ def prepare_check(
     from masknet.geometry.knn import cloud_tree
 
     if nearest_fit not in NEAREST_FITS:
-        raise ValueError(f"nearest_fit must be one of {NEAREST_FITS}, got {nearest_fit!r}")
+        raise MaskNetError(f"nearest_fit must be one of {NEAREST_FITS}, got {nearest_fit!r}")
 
     even_template, even_source = (
         _subset(template, CLOUD_POINTS, 0),
@@ -188,8 +188,10 @@ def prepare_check(
 
 
 def _nearest_fit(prepared: PreparedCheck, transform: np.ndarray) -> np.ndarray:
-    """The pose (4, 4) that a short point-to-point ICP reaches from ``transform``: at most
-    ``NEAR_ITERATIONS``, pairs cut at ``NEAR`` inlier distances. Open3D's ICP where the
+    """The pose (4, 4) that a short ICP reaches from ``transform``: at most
+    ``NEAR_ITERATIONS``, pairs cut at ``NEAR`` inlier distances. Open3D's generalized ICP
+    where the pair was prepared with ``nearest_fit="plane"`` (scans). Otherwise
+    point-to-point: Open3D's ICP where the
     pair was prepared for it (on a few hundred points, half the verdict's time), the
     project's numpy ICP otherwise, so that a verdict never pays for importing Open3D: the
     same algorithm (on 600 poses of sparse pairs, right and 2-45 degrees off, the two gave

@@ -1,9 +1,11 @@
 """``method="auto"``, the default: a fast path, checked, escalated to ``robust`` when needed.
 
-1. **Fast path.** One round of the paper's Mask-ICP (MaskNet's template mask, the source
-   centroid onto the masked template's centroid, 10 iterations of ICP), then ICP with
-   pairs cut at ``max_correspondence_distance`` (1.5 template spacings): a geometric inlier mask, once the
-   clouds are close (the nearest-neighbour refinement rule).
+1. **Fast path.** One round of the paper's Mask-ICP (MaskNet's template mask, by default
+   the small ``masknet_modelnet40_small``; the source centroid onto the masked template's
+   centroid, 10 iterations of ICP), then ICP with pairs cut at
+   ``max_correspondence_distance`` (1.5 template spacings): a geometric inlier mask, once
+   the clouds are close (the nearest-neighbour refinement rule). A pose that fits but is
+   still moving when ICP's iterations run out gets them once more.
 2. **Check.** On even subsets of the clouds
    (:func:`masknet.registration.prepared.prepare_pair`), the fit of the result: the share of
    the source's surface points within 1.5 template spacings of the template
@@ -215,10 +217,13 @@ def _fast_path(
         return pose, fit, right, converged
 
     transform, fit, right, converged = refined(fast.transform[0])
-    if right >= options.accept_fitness and not converged:
+    if right >= options.accept_fitness and not converged and options.inlier_iterations:
         # Still moving when its iterations ran out, from a start far off: a pose that fits
-        # is let settle (on a copy pair it stopped 0.23 degrees short, one step from exact).
-        transform, fit, right, converged = refined(transform)
+        # is let settle (on a copy pair it stopped 0.23 degrees short, one step from exact),
+        # and kept where it still fits.
+        settled = refined(transform)
+        if settled[2] >= options.accept_fitness:
+            transform, fit, right, converged = settled
     times["fast"] = times.get("fast", 0.0) + time.perf_counter() - tic
     accepted = None
     if right >= options.accept_fitness:

@@ -321,7 +321,7 @@ class SceneSearch:
         as spread out as the template (median distance of the points from their median
         point: outliers, even a third of the points, barely move it).
     centre_share: the share of candidate centres searched: those whose surroundings look
-        most like the template by FPFH features (at least 16; 1 searches all,
+        most like the template by FPFH features (at least 128; 1 searches all,
         :mod:`masknet.registration.scene_centres`). feature_voxel: the features' grid.
     """
 

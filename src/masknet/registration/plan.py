@@ -38,7 +38,7 @@ def default_model() -> MaskNet:
 # result's mask is the template points the moved source covers), and there the small
 # network registers as well as the paper's: on the robust benchmark's sets, seed 0, means
 # within 0.2 degrees but for one symmetric shape at rotations to 180 degrees (148 degrees
-# off, accepted at a fit of 0.990), and on seeds 1-3 as well or better, in 2.2-2.7 times
+# off, accepted at a fit of 0.990), and on seeds 1-3 as well or better, in 1.6-2.9 times
 # less time a call in fp32 (docs/RESULTS.md, robust). Not after a scene search: there the
 # object is cut from a scene, and on the synthetic scenes the small network's Mask-ICP
 # found 38 of 60 objects against the paper's 40.
@@ -127,7 +127,7 @@ def with_networks(plan: CallPlan) -> CallPlan:
         # is recovered by the refined rounds (docs/RESULTS.md, masks per round).
         if two_sided:
             model = default_two_sided()
-        elif plan.method == "auto":  # not after a scene search (plan.scene_for_auto)
+        elif plan.method == "auto":  # after a scene search the method is "icp" by now
             model = default_fast_model()
         else:
             model = default_model()

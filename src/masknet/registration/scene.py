@@ -10,19 +10,22 @@ clutter. :func:`locate` searches instead:
    ``voxel`` radii.
 2. Candidate centres: one scene point per occupied cell of a grid of ``spacing`` radii
    (every scene point lies within ``1.73 * spacing`` of one), kept where the scene holds
-   ``min_region_points`` points within ``crop`` radii of it.
-3. Hypotheses: the template, thinned to ``hypothesis_points``, is placed at every centre
-   in each of the 24 rotations of the cube, and every placement runs trimmed ICP *of the
+   ``min_region_points`` points within ``crop`` radii of it; of those, the
+   ``centre_share`` whose surroundings look most like the template by FPFH features (at
+   least 128; :mod:`masknet.registration.scene_centres`).
+3. Hypotheses: the template, thinned to ``hypothesis_points``, is placed at every kept
+   centre in each of the 24 rotations of the cube, and every placement runs trimmed ICP *of the
    template onto the thinned scene* (each template point finds its nearest scene point,
    and the best ``trim`` of the pairs move it: the object explains itself, the clutter
    need not be explained), all placements at once. After 2, 5 and 10 iterations (and
    every 5 after) the worst three quarters are dropped, and (without a viewpoint) the
    points used grow as the placements shrink: at the default 64, 16 until the second
-   drop, 32 until the third, then all. In the two iterations before the first drop, when
-   every placement runs, each template point's scene point is looked up (without a
-   viewpoint) in a voxel field of the scene's nearest points
-   (:class:`~masknet.geometry.knn.NearestField`, cells of 0.125 radii) instead of searched
-   in the KD-tree; the drop itself ranks the placements on the tree's exact matches.
+   drop, 32 until the third, then all. Where there are ``FIELD_FROM`` placements or more
+   (every centre searched), in the two iterations before the first drop each template
+   point's scene point is looked up (without a viewpoint) in a voxel field of the scene's
+   nearest points (:class:`~masknet.geometry.knn.NearestField`, cells of 0.125 radii)
+   instead of searched in the KD-tree; the drop itself ranks the placements on the tree's
+   exact matches.
 4. Scoring: the trimmed mean squared distance of the moved template points to the
    scene (the best ``trim`` fraction): low where the object lies on scene points.
 5. Refinement: the ``candidates`` best placements run ICP again at ``refine_points``
@@ -39,9 +42,10 @@ The template should be the object as the scan sees it (a view captured by a sens
 a scanned model is): the score asks every template point to lie on the scan, so a full
 360-degree model against a one-sided view is found less often.
 
-Cost, 2 CPU threads: about 1.5-2 s for a 12,000-point object in a 240,000-point scene
-ten times its size; it grows with the scene's area in template radii, up to
-``max_placements`` (then the centre grid is made coarser).
+Cost, 2 CPU threads: about 0.7 s of a 0.9-1.2 s call for a 12,000-point object in a
+240,000-point scene ten times its size; it grows with the centres kept (an eighth of the
+scene's area in template radii, at least 128), up to ``max_placements`` (then the centre
+grid is made coarser).
 
 Example::
 

@@ -5,7 +5,7 @@ scene, where the scene holds enough points around it. :func:`likely_centres` kee
 share of them whose surroundings look most like the template: FPFH features
 (:func:`masknet.registration.correspondences.feature_cloud`, on a grid of
 ``feature_voxel`` template radii) of the scene and the template; the scene points whose
-nearest template feature is among the closest quarter (``LIKE_SHARE``) look like the
+nearest template feature is among the closest tenth (``LIKE_SHARE``) look like the
 object, and a centre scores the fraction of such points within about one template radius. The
 features do not depend on the rotation, so one ranking serves all of a centre's
 rotations, and every stage after it runs on fewer placements.

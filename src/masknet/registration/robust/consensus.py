@@ -74,9 +74,10 @@ CHECK_GRID = 2
 CUTS = (1.5, 0.4)  # the refinement's pair cut-offs, in voxels: on the first grid, on the finer
 # Scans (templates of consensus_from points or more) go on to a third cut on the finer grid,
 # judged by the plane-to-plane nearest fit: on 3DMatch draws of 5,000 and 20,000 source
-# points the mean error fell from 1.16 and 1.02 degrees to 0.88 and 0.61 (10.1 and 8.6 cm to
-# 8.9 and 7.4); the room draws of 5,000 stayed within 1 degree and 2 cm (0.40 to 0.72
-# degrees). The point-to-point nearest fit had turned such poses `uncertain`.
+# points the mean error fell from 1.40 and 1.02 degrees to 0.88 and 0.61 (11.5 and 8.6 cm to
+# 8.9 and 7.0); seven room draws of eight at 5,000 points stayed within 1 degree and 2 cm
+# (0.40 to 0.72 degrees on average). The point-to-point nearest fit had turned such poses
+# `uncertain`.
 SCAN_CUTS = (*CUTS, 0.2)
 ICP_ITERATIONS = 30
 START_ITERATIONS = 10  # point-to-point ICP from the pose as given, every pair (sparse clouds)
