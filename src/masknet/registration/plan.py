@@ -38,7 +38,7 @@ def default_model() -> MaskNet:
 # result's mask is the template points the moved source covers), and there the small
 # network registers as well as the paper's: on the robust benchmark's sets, seed 0, means
 # within 0.2 degrees but for one symmetric shape at rotations to 180 degrees (148 degrees
-# off, accepted at a fit of 0.990), and on seeds 1-3 as well or better, in 1.6-2.9 times
+# off, accepted at a fit of 0.990), and on seeds 1-3 as well or better, in 1.5-2.6 times
 # less time a call in fp32 (docs/RESULTS.md, robust). Not after a scene search: there the
 # object is cut from a scene, and on the synthetic scenes the small network's Mask-ICP
 # found 38 of 60 objects against the paper's 40.
