@@ -199,8 +199,6 @@ def _nearest_fit(prepared: PreparedCheck, transform: np.ndarray) -> np.ndarray:
     along the symmetry at no cost, and the truth read `likely wrong` (docs/RESULTS.md,
     "Sparse clouds: the consensus front end first")."""
     cut = NEAR * prepared.limit
-    if prepared.nearest_fit == "plane":
-        return _generalized_icp(prepared, transform, cut)
     if prepared.open3d:
         from masknet.registration.open3d_icp import open3d_icp
 
@@ -213,6 +211,7 @@ def _nearest_fit(prepared: PreparedCheck, transform: np.ndarray) -> np.ndarray:
             NEAR_ITERATIONS,
             cut,
             relative_rmse=1e-6 * prepared.limit,
+            generalized=prepared.nearest_fit == "plane",
         )
         return found.transform[0].numpy()
     from masknet.registration.icp import icp
@@ -225,28 +224,6 @@ def _nearest_fit(prepared: PreparedCheck, transform: np.ndarray) -> np.ndarray:
         max_correspondence_distance=cut,
         template_tree=prepared.tree,
     ).transform[0]
-
-
-def _generalized_icp(prepared: PreparedCheck, transform: np.ndarray, cut: float) -> np.ndarray:
-    """The pose (4, 4) Open3D's generalized ICP (plane-to-plane) reaches from ``transform``
-    with the point-to-point fit's cut-off, iterations and unit-free stopping rule."""
-    from masknet.geometry.open3d_clouds import to_open3d
-    from masknet.io import require_open3d
-
-    reg = require_open3d("the verdict's plane-to-plane nearest fit").pipelines.registration
-    found = reg.registration_generalized_icp(
-        to_open3d(np.asarray(prepared.source_points, np.float64)),
-        to_open3d(np.asarray(prepared.template, np.float64)),
-        cut,
-        np.asarray(transform, np.float64),
-        reg.TransformationEstimationForGeneralizedICP(),
-        reg.ICPConvergenceCriteria(
-            relative_fitness=1e-6,
-            relative_rmse=1e-6 * prepared.limit,
-            max_iteration=NEAR_ITERATIONS,
-        ),
-    )
-    return np.asarray(found.transformation)
 
 
 def assess_registration(

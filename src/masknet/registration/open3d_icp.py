@@ -28,6 +28,7 @@ def open3d_icp(
     max_correspondence_distance: float | None = None,
     relative_fitness: float = 1e-6,
     relative_rmse: float = 1e-6,
+    generalized: bool = False,
 ) -> ICPSolution:
     """Register one pair with Open3D's ICP: moves ``source`` onto ``template``.
 
@@ -41,6 +42,8 @@ def open3d_icp(
         max_correspondence_distance: Open3D's threshold; None uses 1e3, so that every
             pair counts (for unit-scale shapes).
         relative_fitness, relative_rmse: Open3D's convergence criteria (its defaults).
+        generalized: Open3D's generalized ICP (plane-to-plane,
+            ``registration_generalized_icp``) instead of point-to-point.
 
     Returns:
         ICPSolution with a batch of one: transform (1, 4, 4) float64, fitness and
@@ -59,12 +62,19 @@ def open3d_icp(
     if len(tpl) == 0 or len(src) == 0:
         transform, fitness, rmse = init, 0.0, 0.0
     else:
-        result = reg.registration_icp(
+        if generalized:
+            run, estimation = (
+                reg.registration_generalized_icp,
+                reg.TransformationEstimationForGeneralizedICP(),
+            )
+        else:
+            run, estimation = reg.registration_icp, reg.TransformationEstimationPointToPoint()
+        result = run(
             to_open3d(src),
             to_open3d(tpl),
             threshold,
             init,
-            reg.TransformationEstimationPointToPoint(),
+            estimation,
             reg.ICPConvergenceCriteria(
                 relative_fitness=relative_fitness,
                 relative_rmse=relative_rmse,

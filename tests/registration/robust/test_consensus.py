@@ -271,23 +271,24 @@ def test_scans_take_a_third_cut_and_a_plane_to_plane_verdict(threedmatch, monkey
     judged with the generalized ICP; a sparse cloud at CUTS, point-to-point. Without the
     third cut and the plane-to-plane fit the pair lands 1.02 degrees and 9.2 cm off; with
     them 0.55 degrees and 7.4 cm."""
-    from masknet.registration import assessment
+    from masknet.registration import open3d_icp
     from masknet.registration.robust import consensus
 
     template, source, truth = threedmatch
     cuts, fits = [], []
-    at_cuts, nearest = consensus.point_to_plane_at_cuts, assessment._generalized_icp
+    at_cuts, nearest = consensus.point_to_plane_at_cuts, open3d_icp.open3d_icp
 
     def recorded_cuts(*args):
         cuts.append(len(args[3]))
         return at_cuts(*args)
 
-    def recorded_fit(*args):
-        fits.append("plane")
-        return nearest(*args)
+    def recorded_fit(*args, **kwargs):
+        if kwargs.get("generalized"):
+            fits.append("plane")
+        return nearest(*args, **kwargs)
 
     monkeypatch.setattr(consensus, "point_to_plane_at_cuts", recorded_cuts)
-    monkeypatch.setattr(assessment, "_generalized_icp", recorded_fit)
+    monkeypatch.setattr(open3d_icp, "open3d_icp", recorded_fit)
     found = consensus_register(template, source, RobustOptions(), {})
     assert found.check.verdict == "likely correct" and fits
     assert sum(cuts[:2]) == len(consensus.SCAN_CUTS) == 3  # one coarse cut, two fine
