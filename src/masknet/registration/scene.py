@@ -255,14 +255,14 @@ def locate(
     reach = float(np.linalg.norm(tpl, axis=1).max()) + tolerance
     nearby = np.flatnonzero(np.linalg.norm(scn - pose[:3, 3], axis=1) <= reach)
     dist = np.full(len(moved_tpl), np.inf)
+    source_mask = np.zeros(len(scn), bool)  # (P,) bool: scene points on the moved template
     if len(nearby):
         dist, _ = cloud_tree(scn[nearby]).query(moved_tpl, k=1)
+        near = cloud_tree(moved_tpl).query(scn[nearby], k=1, distance_upper_bound=tolerance)
+        source_mask[nearby] = np.isfinite(near[0])
     close = dist <= tolerance
     coverage = float(close.mean())
     rmse = float(np.sqrt(np.square(dist[close]).mean())) * radius if close.any() else 0.0
-    near = cloud_tree(moved_tpl).query(scn[nearby], k=1, distance_upper_bound=tolerance)[0]
-    source_mask = np.zeros(len(scn), bool)  # (P,) bool: scene points on the moved template
-    source_mask[nearby] = np.isfinite(near)
     # pose maps unit-frame template -> unit-frame scene; invert and leave the unit frame:
     # template = centre + radius * tpl, scene = centre + radius * scn.
     inverse = np.linalg.inv(pose)
