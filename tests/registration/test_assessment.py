@@ -152,3 +152,25 @@ def test_a_verdict_does_not_import_open3d():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def test_uneven_clouds_are_judged_on_even_halves():
+    """A plane sampled evenly keeps every point; the same plane with most of its points
+    crowded in one corner (a laser scan at its scanner's feet) is halved, evenly; clouds of
+    fewer than MIN_HALVED points keep theirs."""
+    from masknet.registration.assessment import MIN_HALVED, even_pair
+
+    rng = np.random.default_rng(0)
+    even = np.c_[rng.uniform(0, 10, (6000, 2)), np.zeros(6000)]
+    crowded = np.c_[
+        np.r_[rng.uniform(0, 10, (2000, 2)), rng.uniform(0, 1, (4000, 2))], np.zeros(6000)
+    ]
+    template, source = even_pair(even, even[::-1])
+    assert len(template) == len(source) == 6000
+    template, source = even_pair(even, crowded)
+    assert len(template) < 3001 and len(source) < 3001
+    assert (source[:, :2] > 1).all(1).mean() > 0.5  # the crowd no longer outnumbers the rest
+    small = np.r_[crowded[:600], crowded[2000 : 1999 + MIN_HALVED - 600]]  # crowded too
+    assert len(even_pair(small, small)[0]) == MIN_HALVED - 1
+    assert len(even_pair(np.r_[small, crowded[-1:]], np.r_[small, crowded[-1:]])[0]) < 1100
+    assert len(even_pair(even, crowded, halve_uneven=False)[1]) == 6000

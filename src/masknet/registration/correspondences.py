@@ -128,8 +128,8 @@ def mutual_matches(source: np.ndarray, template: np.ndarray) -> np.ndarray:
 
 
 def _tree_matches(source: np.ndarray, template: np.ndarray) -> np.ndarray:
-    """:func:`mutual_matches` through Open3D's feature KD-trees (its
-    ``correspondences_from_features``), for feature sets too large for one matrix."""
+    """:func:`mutual_matches` through Open3D's feature KD-trees, for feature sets too large
+    for one matrix."""
     reg = require_open3d("FPFH features").pipelines.registration
 
     def feature(rows: np.ndarray):
@@ -137,11 +137,17 @@ def _tree_matches(source: np.ndarray, template: np.ndarray) -> np.ndarray:
         out.data = np.ascontiguousarray(rows.T, dtype=np.float64)
         return out
 
-    found = np.asarray(reg.correspondences_from_features(feature(source), feature(template), True))
+    return feature_matches(feature(source), feature(template))
+
+
+def feature_matches(source: Any, template: Any) -> np.ndarray:
+    """:func:`mutual_matches` of two Open3D ``Feature`` objects (FPFH, as
+    :func:`fpfh_features` gives them), through Open3D's ``correspondences_from_features``
+    (the matches of its feature-matching RANSAC with the mutual filter). (K, 2) int64."""
+    reg = require_open3d("FPFH features").pipelines.registration
+    found = np.asarray(reg.correspondences_from_features(source, template, True))
     if len(found) < MIN_POINTS:
-        found = np.asarray(
-            reg.correspondences_from_features(feature(source), feature(template), False)
-        )
+        found = np.asarray(reg.correspondences_from_features(source, template, False))
     return found.astype(np.int64).reshape(-1, 2)
 
 

@@ -17,7 +17,13 @@ from masknet.geometry.open3d_clouds import to_open3d
 from masknet.io import require_open3d
 from masknet.registration.correspondences import fpfh_features
 
-__all__ = ["TUTORIAL_NEIGHBOURS", "open3d_fgr", "open3d_fpfh_ransac", "ransac_on_features"]
+__all__ = [
+    "TUTORIAL_NEIGHBOURS",
+    "open3d_fgr",
+    "open3d_fpfh_ransac",
+    "ransac_on_features",
+    "ransac_on_matches",
+]
 
 TUTORIAL_NEIGHBOURS = 100  # FPFH neighbours within 5 voxels, as the tutorial takes them
 
@@ -106,22 +112,43 @@ def ransac_on_features(
     masknet's order) with the tutorial's settings: inlier distance 1.5 voxels, edge-length
     and distance checkers. Returns Open3D's ``RegistrationResult`` (source -> template)."""
     reg = o3d.pipelines.registration
-    distance = 1.5 * voxel_size
+    distance, settings = _tutorial_settings(reg, voxel_size, max_iterations, confidence)
     return reg.registration_ransac_based_on_feature_matching(
-        source,
-        template,
-        source_features,
-        template_features,
-        True,
-        distance,
-        reg.TransformationEstimationPointToPoint(False),
-        3,
-        [
-            reg.CorrespondenceCheckerBasedOnEdgeLength(0.9),
-            reg.CorrespondenceCheckerBasedOnDistance(distance),
-        ],
-        reg.RANSACConvergenceCriteria(max_iterations, confidence),
+        source, template, source_features, template_features, True, distance, *settings
     )
+
+
+def ransac_on_matches(
+    o3d: Any,
+    template: Any,
+    source: Any,
+    matches: np.ndarray,
+    voxel_size: float,
+    max_iterations: int = 100_000,
+    confidence: float = 0.999,
+) -> Any:
+    """:func:`ransac_on_features` on given matches (K, 2) int: (source index, template
+    index) pairs, as :func:`~masknet.registration.correspondences.feature_matches` gives
+    them. The same settings; the same pose for the same matches and seed."""
+    reg = o3d.pipelines.registration
+    distance, settings = _tutorial_settings(reg, voxel_size, max_iterations, confidence)
+    pairs = o3d.utility.Vector2iVector(np.ascontiguousarray(matches, dtype=np.int32))
+    return reg.registration_ransac_based_on_correspondence(
+        source, template, pairs, distance, *settings
+    )
+
+
+def _tutorial_settings(reg: Any, voxel_size: float, max_iterations: int, confidence: float):
+    """The tutorial's inlier distance (1.5 voxels) and RANSAC's other arguments after it:
+    point-to-point estimation, 3 matches a draw, edge-length and distance checkers, and
+    the convergence criteria."""
+    distance = 1.5 * voxel_size
+    checkers = [
+        reg.CorrespondenceCheckerBasedOnEdgeLength(0.9),
+        reg.CorrespondenceCheckerBasedOnDistance(distance),
+    ]
+    criteria = reg.RANSACConvergenceCriteria(max_iterations, confidence)
+    return distance, (reg.TransformationEstimationPointToPoint(False), 3, checkers, criteria)
 
 
 def open3d_fgr(

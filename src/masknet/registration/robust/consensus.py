@@ -13,13 +13,17 @@ that agree with each other do not slide, and they cost little on a coarse grid:
 2. **Consensus.** FPFH on the grid and Open3D's RANSAC on mutual matches (edge-length and
    distance checks, 1.5 voxels), the settings of Open3D's global-registration tutorial,
    seeded and on one thread so that a call repeats; a feature's neighbours are at most a
-   quarter of the smaller grid (on a sparse cloud's grid, 100 are half the shape).
+   quarter of the smaller grid (on a sparse cloud's grid, 100 are half the shape). On
+   scans, where too few matches agree with RANSAC's pose for RANSAC to be sure of it, two
+   more poses compete: RANSAC's on the matches that pose leaves out, and the pose slid to
+   the translation that most of them vote for under its rotation (a room's repeated
+   structure fits a slide of metres on more points than the right pose).
 3. **Refinement without sliding.** Point-to-plane ICP (Open3D), pairs cut at 1.5 voxels on
    the grid, then at 0.4 voxels on a grid three times finer: the planes' normals hold the
    pose against the slide that point-to-point pairs allow.
 4. **The verdict** (:func:`~masknet.registration.assess_registration`, on a grid twice as
-   fine as the first: half the cost of the refinement's grid, and as discerning there):
-   ``likely correct`` ends the call; anything else leaves the call to the other stages,
+   fine as the first: half the cost of the refinement's grid, and as discerning there),
+   which also picks among the competing poses: ``likely correct`` ends the call; anything else leaves the call to the other stages,
    and an ``uncertain`` consensus still competes with their answer on the verdict.
 
 The pose as given can take part (``start``): refined the same way (from the clouds'
@@ -42,6 +46,7 @@ import numpy as np
 from masknet.geometry.clouds import median_spacing, rms_radius
 from masknet.geometry.open3d_clouds import to_open3d
 from masknet.geometry.sampling import random_subset
+from masknet.geometry.se3 import transform_points
 from masknet.io import has_open3d
 from masknet.registration.assessment import (
     VERDICTS,
@@ -50,9 +55,9 @@ from masknet.registration.assessment import (
     judge,
     prepare_check,
 )
-from masknet.registration.correspondences import fpfh_features, voxel_for
+from masknet.registration.correspondences import feature_matches, fpfh_features, voxel_for
 from masknet.registration.hypotheses import rotation_between_deg
-from masknet.registration.open3d_global import TUTORIAL_NEIGHBOURS, ransac_on_features
+from masknet.registration.open3d_global import TUTORIAL_NEIGHBOURS, ransac_on_matches
 from masknet.registration.open3d_icp import point_to_plane_at_cuts
 from masknet.registration.options import RobustOptions
 
@@ -96,6 +101,8 @@ SEED = 0
 # poses as 20,000 on those draws and on the 3DMatch pair at 2,000; at 5,000, two room
 # draws of four ended 1.6 and 2.2 m off.
 RANSAC_ITERATIONS = 20_000
+RANSAC_CONFIDENCE = 0.999  # ... or fewer, once this sure (the tutorial's)
+MAX_VOTES = 4096  # matches voting for a slid pose, at most (a vote matrix of 128 MiB)
 
 
 class ConsensusRun(NamedTuple):
@@ -120,8 +127,9 @@ def verdict_rank(check: Assessment) -> tuple[int, float]:
 class _Grids(NamedTuple):
     """One pair on the front end's grids: Open3D clouds (template, source) on the first
     grid (``coarse``) and on the refinement's (``fine``, the template with normals), the
-    first grid's edge, the check's grids made ready for the verdict, and the refinement's
-    cut-offs in voxels (:data:`SCAN_CUTS` for scans, else :data:`CUTS`)."""
+    first grid's edge, the check's grids made ready for the verdict, the refinement's
+    cut-offs in voxels (:data:`SCAN_CUTS` for scans, else :data:`CUTS`), and whether the
+    pair is a scan's (a template of ``consensus_from`` points or more)."""
 
     coarse: list
     fine: list
@@ -130,6 +138,7 @@ class _Grids(NamedTuple):
     source_grid: np.ndarray
     prepared: PreparedCheck
     cuts: tuple[float, ...] = CUTS
+    scan: bool = False
 
 
 START_POLICIES = ("never", "first", "gated")  # consensus_register's ``start``
@@ -197,9 +206,11 @@ def _grids(
     # refined the pose on the planes); sparse objects with point-to-point.
     scan = len(template) >= options.consensus_from
     nearest = "plane" if scan else "point"
-    prepared = prepare_check(template_grid, source_grid, open3d=True, nearest_fit=nearest)
+    prepared = prepare_check(
+        template_grid, source_grid, open3d=True, nearest_fit=nearest, even=False
+    )
     cuts = SCAN_CUTS if scan else CUTS
-    return _Grids(coarse, fine, voxel, template_grid, source_grid, prepared, cuts)
+    return _Grids(coarse, fine, voxel, template_grid, source_grid, prepared, cuts, scan)
 
 
 def _consensus(o3d: Any, grids: _Grids, options: RobustOptions, start: str) -> ConsensusRun:
@@ -218,8 +229,7 @@ def _consensus(o3d: Any, grids: _Grids, options: RobustOptions, start: str) -> C
         near_check = judge(grids.prepared, near)
         if near_check.verdict == "likely correct":
             return run(near, near_check)
-    pose, fitness = _ransac_pose(o3d, grids)
-    check = judge(grids.prepared, pose)
+    pose, fitness, check = _best_judged(grids, _ransac_poses(o3d, grids), options)
     if start == "gated":
         near, near_fitness = _point_to_plane(grids, _centroids_matched(o3d, *grids.coarse))
         if near_fitness < fitness - options.ambiguity_margin:
@@ -229,21 +239,96 @@ def _consensus(o3d: Any, grids: _Grids, options: RobustOptions, start: str) -> C
     return run(pose, check)
 
 
-def _ransac_pose(o3d: Any, grids: _Grids) -> tuple[np.ndarray, float]:
-    """Step 2 and 3: RANSAC on FPFH matches of the first grid, refined; the pose (4, 4) and
-    Open3D's fitness at the refinement's last cut."""
+def _ransac_poses(o3d: Any, grids: _Grids) -> list[tuple[np.ndarray, float]]:
+    """Steps 2 and 3: RANSAC on FPFH matches of the first grid, refined: the pose (4, 4) and
+    Open3D's fitness at the refinement's last cut. On scans where RANSAC could not be sure
+    of its pose (:func:`_sure`), a second one too, from RANSAC on the matches the first
+    pose leaves out (sequential RANSAC): RANSAC keeps the pose that lays the most points
+    on the other cloud, and a room thinned to 5,000 points fits a pose slid 2.2 m along
+    it on more points than the right one (which the verdict then ranks higher)."""
     coarse, voxel = grids.coarse, grids.voxel
     # At most a quarter of the smaller grid (see FEATURE_SHARE).
     neighbours = min(FEATURE_NEIGHBOURS, min(len(c.points) for c in coarse) // FEATURE_SHARE)
     features = [fpfh_features(o3d, c, voxel, neighbours, orient=False) for c in coarse]
+    matches = feature_matches(features[1], features[0])
+    poses = [_seeded_ransac(o3d, grids, matches)]
+    if grids.scan:
+        source, template = (np.asarray(c.points) for c in (coarse[1], coarse[0]))
+        moved = transform_points(poses[0], source[matches[:, 0]])
+        agree = np.linalg.norm(moved - template[matches[:, 1]], axis=1) <= 1.5 * voxel
+        if not _sure(float(agree.mean())) and (~agree).sum() >= 3:
+            poses.append(_seeded_ransac(o3d, grids, matches[~agree]))
+            slid = _slid_pose(source[matches[:, 0]], template[matches[:, 1]], poses[0], voxel)
+            if slid is not None:
+                poses.append(slid)
+    return [_point_to_plane(grids, pose) for pose in poses]
+
+
+def _slid_pose(
+    source: np.ndarray, template: np.ndarray, pose: np.ndarray, voxel: float
+) -> np.ndarray | None:
+    """``pose`` (4, 4) slid to where most matched points (K, 3) and (K, 3) agree that lies
+    elsewhere: under its rotation each match votes for a translation, and the densest vote
+    (most votes within 1.5 voxels) farther than 3 voxels from the pose's own is taken
+    (their mean). On a room a pose slid along its walls keeps the right rotation and
+    takes the translation of a repeated structure; the right translation is then a mode
+    of the rest. None where no three votes agree elsewhere."""
+    reach = 1.5 * voxel
+    votes = template - source @ pose[:3, :3].T
+    votes = votes[np.linalg.norm(votes - pose[:3, 3], axis=1) > 2 * reach][:MAX_VOTES]
+    if len(votes) < 3:
+        return None
+    squared = (votes**2).sum(1)
+    close = squared[:, None] - 2 * votes @ votes.T + squared[None] <= reach**2
+    counts = close.sum(1)
+    best = int(counts.argmax())
+    if counts[best] < 3:
+        return None
+    slid = pose.copy()
+    slid[:3, 3] = votes[close[best]].mean(0)
+    return slid
+
+
+def _seeded_ransac(o3d: Any, grids: _Grids, matches: np.ndarray) -> np.ndarray:
+    """Open3D's RANSAC (the tutorial's settings) on ``matches`` (K, 2) of the first grid,
+    seeded and on one thread: (4, 4) source -> template."""
     before = o3d.utility.get_max_threads()
     o3d.utility.random.seed(SEED)
     o3d.utility.set_max_threads(1)  # Open3D's parallel RANSAC does not repeat
     try:
-        found = ransac_on_features(o3d, *coarse, *features, voxel, RANSAC_ITERATIONS)
+        found = ransac_on_matches(
+            o3d, *grids.coarse, matches, grids.voxel, RANSAC_ITERATIONS, RANSAC_CONFIDENCE
+        )
     finally:
         o3d.utility.set_max_threads(before)
-    return _point_to_plane(grids, np.asarray(found.transformation))
+    return np.asarray(found.transformation)
+
+
+def _sure(agreeing: float) -> bool:
+    """RANSAC's own stopping rule: whether, with this share of matches agreeing with its
+    pose, ``RANSAC_ITERATIONS`` draws of three held an agreeing three with odds of
+    ``RANSAC_CONFIDENCE``. (On the 3DMatch pair 12-16% agree and RANSAC stops early; on a
+    room thinned to 5,000 points 3% agree, and it uses every draw.)"""
+    return 1.0 - (1.0 - agreeing**3) ** RANSAC_ITERATIONS >= RANSAC_CONFIDENCE
+
+
+def _best_judged(
+    grids: _Grids, found: list[tuple[np.ndarray, float]], options: RobustOptions
+) -> tuple[np.ndarray, float, Assessment]:
+    """The pose of ``found`` (pose (4, 4), fitness) that the verdict ranks highest, with
+    its fitness and check; a pose within ``distinct_deg`` and one voxel of the first is
+    not judged again."""
+    pose, fitness = found[0]
+    check = judge(grids.prepared, pose)
+    centre = grids.source_grid.mean(0)
+    for other, other_fitness in found[1:]:
+        shift = np.linalg.norm(transform_points(other, centre) - transform_points(pose, centre))
+        if rotation_between_deg(other, pose) < options.distinct_deg and shift < grids.voxel:
+            continue
+        other_check = judge(grids.prepared, other)
+        if verdict_rank(other_check) > verdict_rank(check):
+            pose, fitness, check = other, other_fitness, other_check
+    return pose, fitness, check
 
 
 def _point_to_plane(grids: _Grids, start: np.ndarray) -> tuple[np.ndarray, float]:
