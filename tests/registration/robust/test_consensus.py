@@ -343,3 +343,22 @@ def test_a_nearest_fit_must_be_known(threedmatch):
     with pytest.raises(MaskNetError, match="nearest_fit"):
         prepare_check(template[:500], source[:500], nearest_fit="planes")
     assert prepare_check(template[:500], source[:500], nearest_fit="plane").open3d
+
+
+def test_scans_take_the_finer_grids_normals_within_two_voxels(threedmatch, monkeypatch):
+    """The 3DMatch pair at 2,000 source points, eight draws: the front end's mean error
+    was 0.83 degrees with the finer grid's normals from within two voxels, 1.04 within
+    one, where a sparse scan's planes tilt."""
+    import masknet.registration.robust.consensus as consensus
+
+    def mean_error() -> float:
+        errors = []
+        for draw in range(8):
+            template, source, truth = _draw(threedmatch, draw)
+            found = consensus_register(template, source, RobustOptions(), {})
+            errors.append(pose_errors(found.transform[None], truth[None])[0][0])
+        return float(np.mean(errors))
+
+    assert mean_error() < 0.95
+    monkeypatch.setattr(consensus, "SCAN_FINE_NORMALS", 1.0)
+    assert mean_error() > 0.95
