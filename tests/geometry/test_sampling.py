@@ -15,14 +15,14 @@ def test_small_clouds_are_kept_whole():
 
 
 def test_keeps_max_points_and_covers_the_cloud():
-    points = np.random.default_rng(1).uniform(size=(5000, 3))
+    points = np.random.default_rng(1).uniform(size=(800, 3))  # FPS of every point
     result = farthest_point_sample(points, 200)
     assert len(result.indices) == 200 == len(set(result.indices.tolist()))
     kept = points[result.indices]
     nearest = np.sqrt(((points[:, None] - kept[None]) ** 2).sum(-1)).min(1)
     np.testing.assert_allclose(nearest.max(), result.radius, rtol=1e-5)
     # Evenly spread: the covering radius beats a random subset's by a clear margin.
-    random = points[np.random.default_rng(2).choice(5000, 200, replace=False)]
+    random = points[np.random.default_rng(2).choice(800, 200, replace=False)]
     random_radius = np.sqrt(((points[:, None] - random[None]) ** 2).sum(-1)).min(1).max()
     assert result.radius < 0.8 * random_radius
 
@@ -51,10 +51,11 @@ def _reference_fps(points: np.ndarray, k: int) -> list[int]:
 
 def test_matches_exact_fps_order_and_reports_the_kept_set_radius_when_stopping_early():
     points = np.random.default_rng(5).normal(size=(2000, 3))
-    result = farthest_point_sample(points, 100)
-    assert result.indices.tolist() == _reference_fps(points, 100)
+    result = farthest_point_sample(points, 500)  # 4 x 500 points: exact FPS of every point
+    assert result.indices.tolist() == _reference_fps(points, 500)
     early = farthest_point_sample(points, 1000, min_spacing=0.5)
-    assert result.indices.tolist() == early.indices[:100].tolist() and len(early.indices) < 1000
+    assert early.indices.tolist() == result.indices[: len(early.indices)].tolist()
+    assert len(early.indices) < 500
     kept = points[early.indices]
     covering = np.sqrt(((points[:, None] - kept[None]) ** 2).sum(-1)).min(1).max()
     np.testing.assert_allclose(early.radius, covering, rtol=1e-5)
@@ -126,3 +127,37 @@ def test_first_in_cells_matches_a_sort_of_rows():
     # A grid too large for one int64 key falls back to the rows.
     far = np.array([[0.0, 0.0, 0.0], [1e7, 1e7, 1e7], [1e7, 1e7, 1e7 + 1e-5]])
     np.testing.assert_array_equal(np.sort(first_in_cells(far, 1e-6)), [0, 1, 2])
+
+
+def test_an_early_stop_keeps_the_fewest_points_that_cover_within_the_spacing():
+    """The stop is found by bisection on the gaps in FPS order: the kept points cover the
+    cloud within ``min_spacing``, and one point fewer would not."""
+    points = np.random.default_rng(6).uniform(-1, 1, size=(3000, 3))
+
+    def covering(indices: np.ndarray) -> float:
+        return float(np.sqrt(((points[:, None] - points[indices][None]) ** 2).sum(-1)).min(1).max())
+
+    for spacing in (0.6, 0.35, 0.2):
+        early = farthest_point_sample(points, 1000, min_spacing=spacing)
+        assert covering(early.indices) <= spacing < covering(early.indices[:-1])
+    unreached = farthest_point_sample(points, 1000, min_spacing=0.12)  # 1,000 cover 0.14
+    assert len(unreached.indices) == 1000 and unreached.radius > 0.12
+
+
+def test_a_large_cloud_is_sampled_from_a_random_pool_and_still_covers_it():
+    """Over FPS_POOL times the points kept, FPS runs on a seeded random subset of that
+    many: its points cover the whole cloud nearly as well as exact FPS, the same each call."""
+    from masknet.geometry.sampling import FPS_POOL
+
+    points = np.random.default_rng(7).uniform(-1, 1, size=(20000, 3))
+    pooled = farthest_point_sample(points, 100)
+    assert len(pooled.indices) == 100 and 20000 > FPS_POOL * 100
+    assert not set(pooled.indices.tolist()) <= set(range(FPS_POOL * 100))  # from the whole cloud
+    np.testing.assert_array_equal(pooled.indices, farthest_point_sample(points, 100).indices)
+
+    def covering(indices: np.ndarray) -> float:
+        return float(np.sqrt(((points[:, None] - points[indices][None]) ** 2).sum(-1)).min(1).max())
+
+    exact = points[_reference_fps(points, 100)]
+    exact_radius = float(np.sqrt(((points[:, None] - exact[None]) ** 2).sum(-1)).min(1).max())
+    assert covering(pooled.indices) < 1.3 * exact_radius

@@ -36,7 +36,7 @@ def test_small_pairs_are_left_as_they_are():
 
 @pytest.mark.parametrize("cut", [-0.3, 0.0, 0.3])
 def test_a_large_pair_keeps_its_overlap_share(cut):
-    """A 6,000-point template and the part of it beyond x = cut as the source, moved: the
+    """A 4,000-point template and the part of it beyond x = cut as the source, moved: the
     template is sampled to max_points and the source at the template's spacing, so that the
     source keeps about its share of the template's surface.
 
@@ -45,7 +45,7 @@ def test_a_large_pair_keeps_its_overlap_share(cut):
     sampled at one spacing on one surface number in proportion to its area. Measured
     (sampled source / max_points) / share: 1.018, 1.009, 0.949 for cut -0.3, 0, 0.3
     (shares 0.66, 0.50, 0.36); bound: within 12%."""
-    template = _ellipsoid(6000, 2)
+    template = _ellipsoid(4000, 2)  # 4 x 1024 or fewer: FPS over every point
     part = template[:, 0] > cut
     share = part.mean()
     rotation = Rotation.from_rotvec([0.3, -0.2, 0.5]).as_matrix()
@@ -71,8 +71,8 @@ def test_a_large_template_with_a_small_source_samples_both():
     """The source is sampled at the template's spacing even when it is under max_points:
     900 random points over the whole surface hold close neighbours that the template's
     spacing (1,024 even samples of the same surface) does not need, so they thin out
-    (measured 530 kept; bound 800)."""
-    template = _ellipsoid(6000, 3)
+    (bound 800 kept)."""
+    template = _ellipsoid(4000, 3)
     source = _ellipsoid(900, 4)
     _, s, t_idx, s_idx = fit_to_network(template[None], source[None], True, 1024)
     assert s_idx is not None and len(s_idx) < 800
@@ -91,3 +91,15 @@ def test_a_large_batch_is_refused():
     # a large source alone is refused too
     with pytest.raises(MaskNetError, match=r"got template 500, source 1500"):
         fit_to_network(source, template, False, 1024)
+
+
+@pytest.mark.parametrize("cut", [-0.3, 0.0, 0.3])
+def test_a_pair_sampled_from_random_pools_keeps_its_overlap_share(cut):
+    """Clouds of over 4 x 1,024 points are sampled from a random pool of 4,096: a 20,000-
+    point template and its part beyond x = cut still keep points in proportion to their
+    surfaces (bound: within 15%)."""
+    template = _ellipsoid(20000, 5)
+    part = template[:, 0] > cut
+    _, _, _, s_idx = fit_to_network(template[None], template[part][None], True, 1024)
+    ratio = len(s_idx) / 1024 / part.mean()
+    assert abs(ratio - 1) < 0.15, (ratio, part.mean())
