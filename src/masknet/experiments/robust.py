@@ -172,16 +172,7 @@ def run(ctx: BenchmarkContext) -> ExperimentResult:
     """Every pipeline on every set; the best voxel of each peer per set in the summary."""
     count = ctx.pairs if not ctx.quick else min(ctx.pairs, 4)
     voxels = VOXELS if not ctx.quick else (0.05,)
-    sets: dict[str, Pairs | None] = {
-        "clean": ctx.test_pairs(PairConfig(), count),
-        "noise 0.01": ctx.test_pairs(PairConfig(noise_sigma=0.01), count),
-        "noise 0.02": ctx.test_pairs(PairConfig(noise_sigma=0.02), count),
-        "outliers 10%": ctx.test_pairs(PairConfig(outlier_ratio=0.1), count),
-        "resampled": _resampled(ctx, count),
-        "rotation <= 180": ctx.test_pairs(PairConfig(max_angle_deg=180.0), count),
-        "scans, re-sampled": None if ctx.quick else _scan_pairs(ctx, count),
-        "scans, shared points": None if ctx.quick else _scan_pairs(ctx, count, shared=True),
-    }
+    sets = _sets(ctx, count)
     rows = []
     dense = {name: p.template.shape[1] >= DENSE_POINTS for name, p in sets.items() if p is not None}
     for set_name, pairs in sets.items():
@@ -192,47 +183,85 @@ def run(ctx: BenchmarkContext) -> ExperimentResult:
         for v in voxels if _has_small_gicp() else ():
             key = {"set": set_name, "pipeline": f"{LOCAL_PEER} (voxel {v})"}
             rows.append(ctx.row(key, timed_small_gicp, pairs, voxel=v))
+    summary = _summary(count, voxels, *_comparison_lines(rows, dense), _local_lines(rows))
 
+    def plot(path: Path) -> None:
+        _plot(rows, path)
+
+    # The stage times are in the summary's second table; the row table keeps one line each.
+    shown_rows = [{k: v for k, v in r.items() if k != "stage_ms"} for r in rows]
+    return ExperimentResult(shown_rows, summary, plot)
+
+
+def _sets(ctx: BenchmarkContext, count: int) -> dict[str, Pairs | None]:
+    """The benchmark's sets of ``count`` pairs each (None: a set the run leaves out)."""
+    return {
+        "clean": ctx.test_pairs(PairConfig(), count),
+        "noise 0.01": ctx.test_pairs(PairConfig(noise_sigma=0.01), count),
+        "noise 0.02": ctx.test_pairs(PairConfig(noise_sigma=0.02), count),
+        "outliers 10%": ctx.test_pairs(PairConfig(outlier_ratio=0.1), count),
+        "resampled": _resampled(ctx, count),
+        "rotation <= 180": ctx.test_pairs(PairConfig(max_angle_deg=180.0), count),
+        "scans, re-sampled": None if ctx.quick else _scan_pairs(ctx, count),
+        "scans, shared points": None if ctx.quick else _scan_pairs(ctx, count, shared=True),
+    }
+
+
+def _best_peer(rows: list[dict]) -> dict:
+    """The peer as a user would tune it, among one set's ``rows``: the lowest mean error,
+    and among settings as accurate (within 1% or 0.01 degrees of it) the fastest."""
+    peers = [r for r in rows if r["pipeline"].startswith(PEERS)]
+    lowest = min(r["rot_mean"] for r in peers)
+    level = [r for r in peers if r["rot_mean"] <= max(1.01 * lowest, lowest + 0.01)]
+    return min(level, key=lambda r: r["ms_median"])
+
+
+def _verdict(set_name: str, row: dict, best: dict, dense: bool) -> str:
+    """The verdict "accuracy / time", each "met" or "missed", by the rule the summary states."""
+    # Time: on dense sets half the peer's median where the peer is right (mean <= 5
+    # degrees), else the peer's; on sparse sets the peer's.
+    half = dense and best["rot_mean"] <= 5
+    limit = best["ms_median"] * (0.5 if half else 1.0)
+    # Accuracy: the mean, and on clean pairs the 90th percentile (<= 1 degree).
+    tail = set_name != "clean" or row["rot_p90"] <= CLEAN_P90
+    accurate = row["rot_mean"] <= max(best["rot_mean"], 0.5) and tail
+    return f"{'met' if accurate else 'missed'} / {'met' if row['ms_median'] <= limit else 'missed'}"
+
+
+STAGES = ("sample", "mask", "register", "fast", "consensus", "features", "ransac")
+STAGES += ("hypotheses", "refine", "total")
+
+
+def _comparison_lines(rows: list[dict], dense: dict[str, bool]) -> tuple[list[str], list[str]]:
+    """The comparison table's lines (each of the default's pipelines against its set's best
+    peer) and the stage table's."""
     lines, stage_lines = [], []
     for set_name in dict.fromkeys(r["set"] for r in rows):
         mine = [r for r in rows if r["set"] == set_name]
-        peers = [r for r in mine if r["pipeline"].startswith(PEERS)]
-        # The peer as a user would tune it: the lowest mean error, and among settings as
-        # accurate (within 1% or 0.01 degrees of it) the fastest.
-        lowest = min(r["rot_mean"] for r in peers)
-        level = [r for r in peers if r["rot_mean"] <= max(1.01 * lowest, lowest + 0.01)]
-        best = min(level, key=lambda r: r["ms_median"])
+        best = _best_peer(mine)
         peer_name = best["pipeline"].replace("Open3D ", "").replace(" + ICP", "")
-        bar = max(best["rot_mean"], 0.5)
         for name in (DEFAULT, PAPER_NETWORK, ROBUST):
             r = next(x for x in mine if x["pipeline"] == name)
-            # Time: on dense sets half the peer's median where the peer is right (mean <= 5
-            # degrees), else the peer's; on sparse sets the peer's.
-            half = dense[set_name] and best["rot_mean"] <= 5
-            limit = best["ms_median"] * (0.5 if half else 1.0)
-            # Accuracy: the mean, and on clean pairs the 90th percentile (<= 1 degree).
-            tail = set_name != "clean" or r["rot_p90"] <= CLEAN_P90
-            verdict = (
-                ("met" if r["rot_mean"] <= bar and tail else "missed")
-                + " / "
-                + ("met" if r["ms_median"] <= limit else "missed")
-            )
             fast = f"{100 * r['fast_share']:.0f}%" if name != ROBUST else "-"
             lines.append(
                 f"| {set_name} | {name} | {r['rot_mean']:.3g} | {r['rot_median']:.3g} | "
                 f"{r['rot_p90']:.3g} | {r['ms_median']:.3g} | {fast} | {r['ambiguous']} | "
                 f"{peer_name} | {best['rot_mean']:.3g} | {best['rot_median']:.3g} | "
                 f"{best['rot_p90']:.3g} | {best['ms_median']:.3g} | "
-                f"{r['ms_median'] / best['ms_median']:.2f} | {verdict} |"
+                f"{r['ms_median'] / best['ms_median']:.2f} | "
+                f"{_verdict(set_name, r, best, dense[set_name])} |"
             )
             stage = r.get("stage_ms", {})
-            shown = ("sample", "mask", "register", "fast", "consensus", "features", "ransac")
-            shown += ("hypotheses", "refine", "total")
             stage_lines.append(
                 f"| {set_name} | {name} | "
-                + " | ".join(f"{stage.get(k, 0.0):.1f}" for k in shown)
+                + " | ".join(f"{stage.get(k, 0.0):.1f}" for k in STAGES)
                 + " |"
             )
+    return lines, stage_lines
+
+
+def _local_lines(rows: list[dict]) -> list[str]:
+    """The local methods' table: Open3D's ICP and small_gicp's best voxel per set."""
     local_lines = []
     for set_name in dict.fromkeys(r["set"] for r in rows):
         mine = [r for r in rows if r["set"] == set_name]
@@ -248,7 +277,18 @@ def run(ctx: BenchmarkContext) -> ExperimentResult:
         else:
             cells += " - | - | - | - |"
         local_lines.append(cells)
-    summary = (
+    return local_lines
+
+
+def _summary(
+    count: int,
+    voxels: tuple[float, ...],
+    lines: list[str],
+    stage_lines: list[str],
+    local_lines: list[str],
+) -> str:
+    """The benchmark's Markdown: its rule, the comparison, the local methods, the stages."""
+    return (
         f"{count} pairs per set (scans: an equal share per evaluation scan), single-pair calls; "
         "rotation errors in degrees, times in ms (median). Each peer's voxel size was swept over "
         f"{', '.join(str(v) for v in voxels)} of the template radius, with the normals as "
@@ -272,38 +312,34 @@ def run(ctx: BenchmarkContext) -> ExperimentResult:
         "not installed).\n\n| set | Open3D ICP mean | ms | small_gicp voxel | mean | median "
         "| ms |\n|---|---|---|---|---|---|---|\n"
         + "\n".join(local_lines)
-        + "\n\nWhere the time goes: mean ms of each stage of register's `result.times`, over the pairs where the stage ran (so a row need not add up to its total)."
+        + "\n\nWhere the time goes: mean ms of each stage of register's `result.times`, over "
+        "the pairs where the stage ran (so a row need not add up to its total)."
         "\n\n| set | pipeline | sample | mask | Mask-ICP | fast check | consensus | features | "
         "ransac | hypotheses | refine | total |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n"
         + "\n".join(stage_lines)
     )
 
-    def plot(path: Path) -> None:
-        plt = pyplot()
 
-        names = list(dict.fromkeys(r["set"] for r in rows))
-        fig, ax = plt.subplots(figsize=(9, 4))
-        shown = [DEFAULT, ROBUST, "Mask-ICP", *PEERS]
-        width = 0.8 / len(shown)
-        for j, prefix in enumerate(shown):
-            means = []
-            for set_name in names:
-                cand = [
-                    r for r in rows if r["set"] == set_name and r["pipeline"].startswith(prefix)
-                ]
-                means.append(min(r["rot_mean"] for r in cand))
-            label = prefix + (" (best voxel)" if prefix in PEERS else "")
-            means = [max(m, 1e-3) for m in means]
-            ax.bar(np.arange(len(names)) + j * width, means, width, label=label)
-        ax.set_xticks(np.arange(len(names)) + 0.4 - width / 2, names)
-        ax.set_ylabel("mean rotation error (degrees)")
-        ax.set_yscale("symlog", linthresh=0.1)
-        ax.legend(fontsize=8)
-        ax.set_title("The default and robust against tuned global pipelines")
-        fig.tight_layout()
-        fig.savefig(path, dpi=120)
-        plt.close(fig)
-
-    # The stage times are in the summary's second table; the row table keeps one line each.
-    shown_rows = [{k: v for k, v in r.items() if k != "stage_ms"} for r in rows]
-    return ExperimentResult(shown_rows, summary, plot)
+def _plot(rows: list[dict], path: Path) -> None:
+    """Mean rotation error per set: the default, robust, Mask-ICP and each peer's best voxel."""
+    plt = pyplot()
+    names = list(dict.fromkeys(r["set"] for r in rows))
+    fig, ax = plt.subplots(figsize=(9, 4))
+    shown = [DEFAULT, ROBUST, "Mask-ICP", *PEERS]
+    width = 0.8 / len(shown)
+    for j, prefix in enumerate(shown):
+        means = []
+        for set_name in names:
+            cand = [r for r in rows if r["set"] == set_name and r["pipeline"].startswith(prefix)]
+            means.append(min(r["rot_mean"] for r in cand))
+        label = prefix + (" (best voxel)" if prefix in PEERS else "")
+        means = [max(m, 1e-3) for m in means]
+        ax.bar(np.arange(len(names)) + j * width, means, width, label=label)
+    ax.set_xticks(np.arange(len(names)) + 0.4 - width / 2, names)
+    ax.set_ylabel("mean rotation error (degrees)")
+    ax.set_yscale("symlog", linthresh=0.1)
+    ax.legend(fontsize=8)
+    ax.set_title("The default and robust against tuned global pipelines")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)

@@ -119,7 +119,7 @@ def _one(
     """One pair: template (N, 3), source (M, 3); ``nets`` the clouds the networks see."""
     consensus = None
     on = options.consensus_points > 0
-    scan = on and len(template) >= options.consensus_from
+    scan = on and options.is_scan(len(template))
     sparse = on and len(template) < options.consensus_below
     if sparse or (scan and len(template) >= CONSENSUS_FIRST * options.consensus_from):
         start = "first" if sparse else "never"

@@ -287,6 +287,12 @@ class RobustOptions:
         stopped short of its basin."""
         return max(self.hypothesis_points, source_points // HYPOTHESIS_SHARE)
 
+    def is_scan(self, template_points: int) -> bool:
+        """Whether a pair whose template has ``template_points`` points is a scan's, for
+        ``"auto"``: ``consensus_from`` points or more. A scan's consensus front end refines
+        at a third cut, judges plane to plane, and questions an unsure RANSAC."""
+        return template_points >= self.consensus_from
+
     def cut(self, spacing: float) -> float:
         """The pair cut-off in the clouds' units, for a template of this point spacing."""
         if self.max_correspondence_distance is not None:

@@ -199,7 +199,7 @@ def _grids(
         return None
     if len(coarse[1].points) > MAX_SOURCE_SHARE * len(coarse[0].points):
         return None  # an object in a scene: the scene search's work, not this one's
-    scan = len(template) >= options.consensus_from
+    scan = options.is_scan(len(template))
     # The template's normals on both grids, for point-to-plane ICP: the 30 nearest points
     # within 2 voxels on the first (as the features take them), FINE_NORMALS on the finer.
     search = o3d.geometry.KDTreeSearchParamHybrid
