@@ -362,3 +362,71 @@ def test_scans_take_the_finer_grids_normals_within_two_voxels(threedmatch, monke
     assert mean_error() < 0.95
     monkeypatch.setattr(consensus, "SCAN_FINE_NORMALS", 1.0)
     assert mean_error() > 0.95
+
+
+def test_another_candidate_wins_only_by_a_clear_margin(monkeypatch):
+    """A second candidate pose replaces RANSAC's only with a better verdict or, with the same
+    verdict, an overlap fit more than ambiguity_margin higher: a tie would go either way
+    with the last bits of Open3D's parallel sums."""
+    import masknet.registration.robust.consensus as consensus
+
+    fits = {
+        0.0: ("likely correct", 0.80),
+        1.0: ("likely correct", 0.81),
+        2.0: ("likely correct", 0.85),
+    }
+    fits[3.0] = ("uncertain", 0.95)
+
+    def judged(prepared, pose):
+        verdict, fit = fits[float(pose[0, 3])]
+        return Assessment(verdict, "", fit, 0.5, 0.5, 0.0, 0.0, 0.01)
+
+    monkeypatch.setattr(consensus, "judge", judged)
+
+    def pose(shift: float) -> np.ndarray:
+        out = np.eye(4)
+        out[0, 3] = shift
+        return out
+
+    grids = consensus._Grids([], [], 0.1, np.zeros((4, 3)), np.zeros((4, 3)), None)
+    options = RobustOptions()  # ambiguity_margin 0.02
+
+    def best(*shifts: float) -> float:
+        found = [(pose(s), 0.5) for s in shifts]
+        return float(consensus._best_judged(grids, found, options)[0][0, 3])
+
+    assert best(0.0, 1.0) == 0.0  # 0.81 against 0.80: within the margin, RANSAC's stays
+    assert best(0.0, 2.0) == 2.0  # 0.85: clearly better
+    assert best(0.0, 3.0) == 0.0  # a worse verdict never wins on its fit
+    assert best(3.0, 1.0) == 1.0  # a better verdict wins at any fit
+
+
+def test_small_pairs_are_refined_on_one_thread(threedmatch, monkeypatch):
+    """Pairs whose finer grid holds at most ONE_THREAD_POINTS source points are refined with
+    Open3D on one thread (there its parallel sums made repeated calls differ by degrees);
+    larger ones keep Open3D's threads."""
+    import open3d as o3d
+
+    import masknet.registration.robust.consensus as consensus
+
+    seen = []
+    refine = consensus.point_to_plane_at_cuts
+
+    def spied(*args, **kwargs):
+        seen.append(o3d.utility.get_max_threads())
+        return refine(*args, **kwargs)
+
+    monkeypatch.setattr(consensus, "point_to_plane_at_cuts", spied)
+    template, source, _ = _draw(threedmatch, 1)  # a finer grid of about 2,000 source points
+    before = o3d.utility.get_max_threads()
+    o3d.utility.set_max_threads(2)
+    try:
+        consensus_register(template, source, RobustOptions(), {})
+        assert seen and set(seen) == {1}
+        monkeypatch.setattr(consensus, "ONE_THREAD_POINTS", 100)
+        seen.clear()
+        consensus_register(template, source, RobustOptions(), {})
+        assert seen and set(seen) == {2}
+        assert o3d.utility.get_max_threads() == 2  # restored
+    finally:
+        o3d.utility.set_max_threads(before)

@@ -39,6 +39,8 @@ Example::
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -47,7 +49,7 @@ from masknet.geometry.clouds import median_spacing, rms_radius
 from masknet.geometry.open3d_clouds import to_open3d
 from masknet.geometry.sampling import random_subset
 from masknet.geometry.se3 import transform_points
-from masknet.io import has_open3d
+from masknet.io import has_open3d, require_open3d
 from masknet.registration.assessment import (
     VERDICTS,
     Assessment,
@@ -107,6 +109,15 @@ SEED = 0
 # poses as 20,000 on those draws and on the 3DMatch pair at 2,000; at 5,000, two room
 # draws of four ended 1.6 and 2.2 m off.
 RANSAC_ITERATIONS = 20_000
+# Pairs whose finer grid holds at most this many source points are refined with Open3D's
+# point-to-plane ICP on one thread. On views of a box, whose faces leave the fit flat along them, the
+# last bits of Open3D's parallel sums moved the last cut's pose by up to 2 degrees from one
+# call to the next (2 of 200 scan-view pairs of 2,048 points). One thread costs 2-3% of a
+# call on the 3DMatch pair at 2,000-5,000 points, 10% on the rooms at 5,000 (three
+# candidates refined). On larger scans (the 3DMatch pair and the rooms at 20,000 points and
+# whole, 16 draws called twice) every call repeated, and one thread would cost 0.08 s of
+# the 3DMatch pair's third cut.
+ONE_THREAD_POINTS = 4096
 RANSAC_CONFIDENCE = 0.999  # ... or fewer, once this sure (the tutorial's)
 MAX_VOTES = 4096  # matches voting for a slid pose, at most (a vote matrix of 128 MiB)
 
@@ -299,16 +310,24 @@ def _slid_pose(
 def _seeded_ransac(o3d: Any, grids: _Grids, matches: np.ndarray) -> np.ndarray:
     """Open3D's RANSAC (the tutorial's settings) on ``matches`` (K, 2) of the first grid,
     seeded and on one thread: (4, 4) source -> template."""
-    before = o3d.utility.get_max_threads()
     o3d.utility.random.seed(SEED)
-    o3d.utility.set_max_threads(1)  # Open3D's parallel RANSAC does not repeat
-    try:
+    with _open3d_threads(o3d, 1):  # Open3D's parallel RANSAC does not repeat
         found = ransac_on_matches(
             o3d, *grids.coarse, matches, grids.voxel, RANSAC_ITERATIONS, RANSAC_CONFIDENCE
         )
+    return np.asarray(found.transformation)
+
+
+@contextmanager
+def _open3d_threads(o3d: Any, threads: int | None) -> Iterator[None]:
+    """Open3D on ``threads`` threads within the block (None: as it is)."""
+    before = o3d.utility.get_max_threads()
+    if threads is not None:
+        o3d.utility.set_max_threads(threads)
+    try:
+        yield
     finally:
         o3d.utility.set_max_threads(before)
-    return np.asarray(found.transformation)
 
 
 def _sure(agreeing: float) -> bool:
@@ -324,7 +343,10 @@ def _best_judged(
 ) -> tuple[np.ndarray, float, Assessment]:
     """The pose of ``found`` (pose (4, 4), fitness) that the verdict ranks highest, with
     its fitness and check; a pose within ``distinct_deg`` and one voxel of the first is
-    not judged again."""
+    not judged again. Another pose replaces the first only with a better verdict, or the
+    same verdict and an overlap fit more than ``ambiguity_margin`` higher: a tie would
+    otherwise go either way with the last bits of Open3D's parallel sums (two calls on
+    one scan-view pair ended 0.2 degrees apart)."""
     pose, fitness = found[0]
     check = judge(grids.prepared, pose)
     centre = grids.source_grid.mean(0)
@@ -333,7 +355,8 @@ def _best_judged(
         if rotation_between_deg(other, pose) < options.distinct_deg and shift < grids.voxel:
             continue
         other_check = judge(grids.prepared, other)
-        if verdict_rank(other_check) > verdict_rank(check):
+        margin = 0.0 if other_check.verdict != check.verdict else options.ambiguity_margin
+        if verdict_rank(other_check) > (verdict_rank(check)[0], check.overlap_fit + margin):
             pose, fitness, check = other, other_fitness, other_check
     return pose, fitness, check
 
@@ -345,10 +368,12 @@ def _point_to_plane(grids: _Grids, start: np.ndarray) -> tuple[np.ndarray, float
     cut."""
     voxel = grids.voxel
     first, *finer = grids.cuts
-    pose, _ = point_to_plane_at_cuts(*grids.coarse, start, (first * voxel,), ICP_ITERATIONS)
-    return point_to_plane_at_cuts(
-        *grids.fine, pose, tuple(c * voxel for c in finer), ICP_ITERATIONS
-    )
+    small = len(grids.fine[1].points) <= ONE_THREAD_POINTS
+    with _open3d_threads(require_open3d("point-to-plane ICP"), 1 if small else None):
+        pose, _ = point_to_plane_at_cuts(*grids.coarse, start, (first * voxel,), ICP_ITERATIONS)
+        return point_to_plane_at_cuts(
+            *grids.fine, pose, tuple(c * voxel for c in finer), ICP_ITERATIONS
+        )
 
 
 def _centroids_matched(o3d: Any, template: Any, source: Any) -> np.ndarray:
