@@ -66,8 +66,9 @@ def farthest_point_sample(
 ) -> FPSResult:
     """Keep at most ``max_points`` points of ``points`` (N, 3) by farthest point sampling.
 
-    Sampling starts at point 0 and stops early once the covering radius is at most
-    ``min_spacing``: every input point then lies within ``min_spacing`` of a kept one.
+    Sampling starts at point 0 (the pool's first point, where one is drawn: below) and
+    stops early once the covering radius is at most ``min_spacing``: every input point
+    (every pool point) then lies within ``min_spacing`` of a kept one.
     With N <= max_points and ``min_spacing=0`` every point is kept (in input order,
     radius 0). The sampling itself is exact FPS in compiled code (``fpsample``), over the
     whole cloud or, for clouds of over ``FPS_POOL`` times ``max_points`` points, over a
@@ -220,7 +221,7 @@ def fit_to_network(
     # The source at the template's spacing, so its size still reflects the overlap
     # (top-k selection uses it): from a pool as dense as the template's, whose radius
     # that spacing is.
-    share = min(1.0, FPS_POOL * max_points / n)
+    share = min(1.0, min(PRESAMPLE, FPS_POOL * max_points) / n)
     src_idx = farthest_point_sample(
         source[0], max_points, min_spacing=kept.radius, pool=int(np.ceil(share * m))
     ).indices

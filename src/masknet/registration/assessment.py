@@ -22,8 +22,8 @@ and 45 degrees off (docs/RESULTS.md, "Did it work?", ``masknet benchmark success
 Clouds of over 32,768 points are judged on even subsets (one point per voxel,
 :func:`masknet.geometry.sampling.grid_subset`): a laser scan's crowd at the scanner's feet
 would otherwise set the spacing and the fit, and the verdict would favour any pose that
-keeps two scanners together. Smaller clouds of 2,048 points or more are judged on even
-halves where one of the two is uneven (a random subset of a laser scan):
+keeps two scanners together. Then, where both clouds hold 2,048 points or more and one
+of them is uneven (a random subset of a laser scan), both are judged on even halves:
 :func:`even_pair`.
 
 A result that is the right fit of an ambiguous shape (a flip of a symmetric object) is
@@ -78,8 +78,8 @@ CLOUD_POINTS = 32768
 # doubles when an even grid keeps half their points: a random subset of a laser scan,
 # whose points crowd at the scanner's feet (an even surface: 1.2-1.7 times; room scans
 # thinned at random to 5,000-24,000 points: 1.9-2.7). On such room draws the right pose
-# read `likely wrong` (42-46% of the overlap fitting) and a pose 2.2 m off, which keeps
-# the two scanners together, `likely correct`.
+# read `uncertain` at 5,000 points and `likely wrong` at 20,000 (42-46% of the overlap
+# fitting), and a pose 2.2 m off `likely correct`.
 UNEVEN_SPREAD = 2.0
 MIN_HALVED = 2048  # ... for clouds of this many points or more: sparse objects keep theirs
 VERDICTS = ("likely correct", "uncertain", "likely wrong")
@@ -143,9 +143,9 @@ def even_pair(
     template: np.ndarray, source: np.ndarray, halve_uneven: bool = True
 ) -> tuple[np.ndarray, np.ndarray]:
     """The clouds the verdict judges, template (N, 3) and source (M, 3): even subsets of
-    ``CLOUD_POINTS`` of larger clouds; for smaller ones both clouds as given, or (with
-    ``halve_uneven``) an even half of each where both hold ``MIN_HALVED`` points or more
-    and either is uneven (:data:`UNEVEN_SPREAD`)."""
+    ``CLOUD_POINTS`` of larger clouds, the others as given; then (with ``halve_uneven``)
+    an even half of each where both hold ``MIN_HALVED`` points or more and either is
+    uneven (:data:`UNEVEN_SPREAD`)."""
     template, source = _subset(template, CLOUD_POINTS, 0), _subset(source, CLOUD_POINTS, 1)
     if not halve_uneven or min(len(template), len(source)) < MIN_HALVED:
         return template, source

@@ -289,8 +289,9 @@ class RobustOptions:
 
     def is_scan(self, template_points: int) -> bool:
         """Whether a pair whose template has ``template_points`` points is a scan's, for
-        ``"auto"``: ``consensus_from`` points or more. A scan's consensus front end refines
-        at a third cut, judges plane to plane, and questions an unsure RANSAC."""
+        ``"auto"``: ``consensus_from`` points or more. A scan's consensus front end takes
+        the finer grid's normals from within two voxels, refines at a third cut, judges
+        plane to plane, and questions an unsure RANSAC."""
         return template_points >= self.consensus_from
 
     def cut(self, spacing: float) -> float:

@@ -16,8 +16,8 @@ that agree with each other do not slide, and they cost little on a coarse grid:
    quarter of the smaller grid (on a sparse cloud's grid, 100 are half the shape). On
    scans, where too few matches agree with RANSAC's pose for RANSAC to be sure of it, two
    more poses compete: RANSAC's on the matches that pose leaves out, and the pose slid to
-   the translation that most of them vote for under its rotation (a room's repeated
-   structure fits a slide of metres on more points than the right pose).
+   the translation that most matches vote for under its rotation, away from its own (a
+   room's repeated structure fits a slide of metres on more points than the right pose).
 3. **Refinement without sliding.** Point-to-plane ICP (Open3D), pairs cut at 1.5 voxels on
    the grid, then at 0.4 voxels on a grid three times finer: the planes' normals hold the
    pose against the slide that point-to-point pairs allow.
@@ -57,7 +57,12 @@ from masknet.registration.assessment import (
     judge,
     prepare_check,
 )
-from masknet.registration.correspondences import feature_matches, fpfh_features, voxel_for
+from masknet.registration.correspondences import (
+    feature_matches,
+    fpfh_features,
+    matches_within,
+    voxel_for,
+)
 from masknet.registration.hypotheses import rotation_between_deg
 from masknet.registration.open3d_global import TUTORIAL_NEIGHBOURS, ransac_on_matches
 from masknet.registration.open3d_icp import point_to_plane_at_cuts
@@ -109,6 +114,7 @@ SEED = 0
 # poses as 20,000 on those draws and on the 3DMatch pair at 2,000; at 5,000, two room
 # draws of four ended 1.6 and 2.2 m off.
 RANSAC_ITERATIONS = 20_000
+RANSAC_CONFIDENCE = 0.999  # ... or fewer, once this sure (the tutorial's)
 # Pairs whose finer grid holds at most this many source points are refined with Open3D's
 # point-to-plane ICP on one thread. On views of a box, whose faces leave the fit flat along them, the
 # last bits of Open3D's parallel sums moved the last cut's pose by up to 2 degrees from one
@@ -118,8 +124,7 @@ RANSAC_ITERATIONS = 20_000
 # whole, 16 draws called twice) every call repeated, and one thread would cost 0.08 s of
 # the 3DMatch pair's third cut.
 ONE_THREAD_POINTS = 4096
-RANSAC_CONFIDENCE = 0.999  # ... or fewer, once this sure (the tutorial's)
-MAX_VOTES = 4096  # matches voting for a slid pose, at most (a vote matrix of 128 MiB)
+MAX_VOTES = 2048  # candidate slid poses, at most (with 2,048 matches: 100 MB of distances)
 
 
 class ConsensusRun(NamedTuple):
@@ -260,10 +265,11 @@ def _consensus(o3d: Any, grids: _Grids, options: RobustOptions, start: str) -> C
 def _ransac_poses(o3d: Any, grids: _Grids) -> list[tuple[np.ndarray, float]]:
     """Steps 2 and 3: RANSAC on FPFH matches of the first grid, refined: the pose (4, 4) and
     Open3D's fitness at the refinement's last cut. On scans where RANSAC could not be sure
-    of its pose (:func:`_sure`), a second one too, from RANSAC on the matches the first
-    pose leaves out (sequential RANSAC): RANSAC keeps the pose that lays the most points
-    on the other cloud, and a room thinned to 5,000 points fits a pose slid 2.2 m along
-    it on more points than the right one (which the verdict then ranks higher)."""
+    of its pose (:func:`_sure`), two more: RANSAC's on the matches the first pose leaves
+    out (sequential RANSAC), and the first pose slid where the matches vote
+    (:func:`_slid_pose`). RANSAC keeps the pose that lays the most points on the other
+    cloud, and a room thinned to 5,000 points fits a pose slid 2.2 m along it on more
+    points than the right one (which the verdict then ranks higher)."""
     coarse, voxel = grids.coarse, grids.voxel
     # At most a quarter of the smaller grid (see FEATURE_SHARE).
     neighbours = min(FEATURE_NEIGHBOURS, min(len(c.points) for c in coarse) // FEATURE_SHARE)
@@ -272,11 +278,11 @@ def _ransac_poses(o3d: Any, grids: _Grids) -> list[tuple[np.ndarray, float]]:
     poses = [_seeded_ransac(o3d, grids, matches)]
     if grids.scan:
         source, template = (np.asarray(c.points) for c in (coarse[1], coarse[0]))
-        moved = transform_points(poses[0], source[matches[:, 0]])
-        agree = np.linalg.norm(moved - template[matches[:, 1]], axis=1) <= 1.5 * voxel
-        if not _sure(float(agree.mean())) and (~agree).sum() >= 3:
+        pairs = source[matches[:, 0]], template[matches[:, 1]]
+        agree = matches_within(poses[0][None], *pairs, 1.5 * voxel)[0]
+        if len(matches) and not _sure(float(agree.mean())) and (~agree).sum() >= 3:
             poses.append(_seeded_ransac(o3d, grids, matches[~agree]))
-            slid = _slid_pose(source[matches[:, 0]], template[matches[:, 1]], poses[0], voxel)
+            slid = _slid_pose(*pairs, poses[0], voxel)
             if slid is not None:
                 poses.append(slid)
     return [_point_to_plane(grids, pose) for pose in poses]
@@ -286,24 +292,28 @@ def _slid_pose(
     source: np.ndarray, template: np.ndarray, pose: np.ndarray, voxel: float
 ) -> np.ndarray | None:
     """``pose`` (4, 4) slid to where most matched points (K, 3) and (K, 3) agree that lies
-    elsewhere: under its rotation each match votes for a translation, and the densest vote
-    (most votes within 1.5 voxels) farther than 3 voxels from the pose's own is taken
-    (their mean). On a room a pose slid along its walls keeps the right rotation and
-    takes the translation of a repeated structure; the right translation is then a mode
-    of the rest. None where no three votes agree elsewhere."""
+    elsewhere: under its rotation each match votes for a translation, and of the votes
+    farther than 3 voxels from the pose's own, the one with the most matches within 1.5
+    voxels of it (:func:`~masknet.registration.correspondences.matches_within`, the
+    consensus RANSAC counts) wins; the slid pose takes the mean of those matches' votes. On
+    a room a pose slid along its walls keeps the right rotation and takes the translation of
+    a repeated structure; the right translation is then a mode of the rest. None where no
+    three matches agree elsewhere."""
     reach = 1.5 * voxel
     votes = template - source @ pose[:3, :3].T
-    votes = votes[np.linalg.norm(votes - pose[:3, 3], axis=1) > 2 * reach][:MAX_VOTES]
-    if len(votes) < 3:
+    away = np.flatnonzero(np.linalg.norm(votes - pose[:3, 3], axis=1) > 2 * reach)
+    if len(away) > MAX_VOTES:  # a seeded random share: matches come in the grid's order
+        away = np.random.default_rng(SEED).choice(away, MAX_VOTES, replace=False)
+    if len(away) < 3:
         return None
-    squared = (votes**2).sum(1)
-    close = squared[:, None] - 2 * votes @ votes.T + squared[None] <= reach**2
-    counts = close.sum(1)
-    best = int(counts.argmax())
-    if counts[best] < 3:
+    candidates = np.repeat(pose[None], len(away), axis=0)
+    candidates[:, :3, 3] = votes[away]
+    agree = matches_within(candidates, source, template, reach)  # (V, K)
+    best = int(agree.sum(1).argmax())
+    if agree[best].sum() < 3:
         return None
     slid = pose.copy()
-    slid[:3, 3] = votes[close[best]].mean(0)
+    slid[:3, 3] = votes[agree[best]].mean(0)
     return slid
 
 
@@ -342,8 +352,8 @@ def _best_judged(
     grids: _Grids, found: list[tuple[np.ndarray, float]], options: RobustOptions
 ) -> tuple[np.ndarray, float, Assessment]:
     """The pose of ``found`` (pose (4, 4), fitness) that the verdict ranks highest, with
-    its fitness and check; a pose within ``distinct_deg`` and one voxel of the first is
-    not judged again. Another pose replaces the first only with a better verdict, or the
+    its fitness and check; a pose within ``distinct_deg`` and one voxel of the best so far
+    is not judged. Another pose replaces the best so far only with a better verdict, or the
     same verdict and an overlap fit more than ``ambiguity_margin`` higher: a tie would
     otherwise go either way with the last bits of Open3D's parallel sums (two calls on
     one scan-view pair ended 0.2 degrees apart)."""
