@@ -23,7 +23,7 @@ from types import ModuleType
 
 from masknet.errors import MaskNetError, first_line
 
-__all__ = ["captured_output", "has_open3d", "open3d_failure", "require_open3d"]
+__all__ = ["captured_output", "has_open3d", "open3d_failure", "open3d_threads", "require_open3d"]
 
 _ANSI = re.compile(r"\x1b\[[0-9;]*m")
 _FAILURE = re.compile(r"fail|error", re.IGNORECASE)
@@ -128,3 +128,17 @@ def open3d_failure(captured: str) -> str | None:
             line = re.sub(r"^\[Open3D [A-Z]+\]\s*", "", line.strip())
             return line.rstrip(".")
     return None
+
+
+@contextlib.contextmanager
+def open3d_threads(threads: int | None) -> Iterator[None]:
+    """Open3D on ``threads`` threads within the block (None: as it is), its former count
+    restored after. One thread makes Open3D's RANSAC and its parallel sums repeat."""
+    o3d = require_open3d("Open3D's thread count")
+    before = o3d.utility.get_max_threads()
+    if threads is not None:
+        o3d.utility.set_max_threads(threads)
+    try:
+        yield
+    finally:
+        o3d.utility.set_max_threads(before)

@@ -13,11 +13,13 @@ from typing import Any
 
 import numpy as np
 
+from masknet._open3d import open3d_threads
 from masknet.geometry.open3d_clouds import to_open3d
 from masknet.io import require_open3d
 from masknet.registration.correspondences import fpfh_features
 
 __all__ = [
+    "RANSAC_INLIER_VOXELS",
     "TUTORIAL_NEIGHBOURS",
     "open3d_fgr",
     "open3d_fpfh_ransac",
@@ -26,6 +28,7 @@ __all__ = [
 ]
 
 TUTORIAL_NEIGHBOURS = 100  # FPFH neighbours within 5 voxels, as the tutorial takes them
+RANSAC_INLIER_VOXELS = 1.5  # RANSAC's inlier distance, in voxels, as the tutorial sets it
 
 
 def _cloud_and_features(
@@ -61,25 +64,17 @@ def open3d_fpfh_ransac(
     """
     o3d = require_open3d("Open3D RANSAC registration")
     o3d.utility.random.seed(seed)
-    if repeatable:
-        before = o3d.utility.get_max_threads()
-        o3d.utility.set_max_threads(1)
-        try:
-            return _ransac(
-                o3d,
-                template,
-                source,
-                voxel_size,
-                max_iterations,
-                confidence,
-                downsample,
-                orient_normals,
-            )
-        finally:
-            o3d.utility.set_max_threads(before)
-    return _ransac(
-        o3d, template, source, voxel_size, max_iterations, confidence, downsample, orient_normals
-    )
+    with open3d_threads(1 if repeatable else None):
+        return _ransac(
+            o3d,
+            template,
+            source,
+            voxel_size,
+            max_iterations,
+            confidence,
+            downsample,
+            orient_normals,
+        )
 
 
 def _ransac(
@@ -142,7 +137,7 @@ def _tutorial_settings(reg: Any, voxel_size: float, max_iterations: int, confide
     """The tutorial's inlier distance (1.5 voxels) and RANSAC's other arguments after it:
     point-to-point estimation, 3 matches a draw, edge-length and distance checkers, and
     the convergence criteria."""
-    distance = 1.5 * voxel_size
+    distance = RANSAC_INLIER_VOXELS * voxel_size
     checkers = [
         reg.CorrespondenceCheckerBasedOnEdgeLength(0.9),
         reg.CorrespondenceCheckerBasedOnDistance(distance),

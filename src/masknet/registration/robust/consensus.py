@@ -39,17 +39,16 @@ Example::
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from typing import Any, NamedTuple
 
 import numpy as np
 
+from masknet._open3d import open3d_threads
 from masknet.geometry.clouds import median_spacing, rms_radius
 from masknet.geometry.open3d_clouds import to_open3d
 from masknet.geometry.sampling import random_subset
 from masknet.geometry.se3 import transform_points
-from masknet.io import has_open3d, require_open3d
+from masknet.io import has_open3d
 from masknet.registration.assessment import (
     VERDICTS,
     Assessment,
@@ -64,7 +63,11 @@ from masknet.registration.correspondences import (
     voxel_for,
 )
 from masknet.registration.hypotheses import rotation_between_deg
-from masknet.registration.open3d_global import TUTORIAL_NEIGHBOURS, ransac_on_matches
+from masknet.registration.open3d_global import (
+    RANSAC_INLIER_VOXELS,
+    TUTORIAL_NEIGHBOURS,
+    ransac_on_matches,
+)
 from masknet.registration.open3d_icp import point_to_plane_at_cuts
 from masknet.registration.options import RobustOptions
 
@@ -279,7 +282,7 @@ def _ransac_poses(o3d: Any, grids: _Grids) -> list[tuple[np.ndarray, float]]:
     if grids.scan:
         source, template = (np.asarray(c.points) for c in (coarse[1], coarse[0]))
         pairs = source[matches[:, 0]], template[matches[:, 1]]
-        agree = matches_within(poses[0][None], *pairs, 1.5 * voxel)[0]
+        agree = matches_within(poses[0][None], *pairs, RANSAC_INLIER_VOXELS * voxel)[0]
         if len(matches) and not _sure(float(agree.mean())) and (~agree).sum() >= 3:
             poses.append(_seeded_ransac(o3d, grids, matches[~agree]))
             slid = _slid_pose(*pairs, poses[0], voxel)
@@ -299,7 +302,7 @@ def _slid_pose(
     a room a pose slid along its walls keeps the right rotation and takes the translation of
     a repeated structure; the right translation is then a mode of the rest. None where no
     three matches agree elsewhere."""
-    reach = 1.5 * voxel
+    reach = RANSAC_INLIER_VOXELS * voxel
     votes = template - source @ pose[:3, :3].T
     away = np.flatnonzero(np.linalg.norm(votes - pose[:3, 3], axis=1) > 2 * reach)
     if len(away) > MAX_VOTES:  # a seeded random share: matches come in the grid's order
@@ -321,23 +324,11 @@ def _seeded_ransac(o3d: Any, grids: _Grids, matches: np.ndarray) -> np.ndarray:
     """Open3D's RANSAC (the tutorial's settings) on ``matches`` (K, 2) of the first grid,
     seeded and on one thread: (4, 4) source -> template."""
     o3d.utility.random.seed(SEED)
-    with _open3d_threads(o3d, 1):  # Open3D's parallel RANSAC does not repeat
+    with open3d_threads(1):  # Open3D's parallel RANSAC does not repeat
         found = ransac_on_matches(
             o3d, *grids.coarse, matches, grids.voxel, RANSAC_ITERATIONS, RANSAC_CONFIDENCE
         )
     return np.asarray(found.transformation)
-
-
-@contextmanager
-def _open3d_threads(o3d: Any, threads: int | None) -> Iterator[None]:
-    """Open3D on ``threads`` threads within the block (None: as it is)."""
-    before = o3d.utility.get_max_threads()
-    if threads is not None:
-        o3d.utility.set_max_threads(threads)
-    try:
-        yield
-    finally:
-        o3d.utility.set_max_threads(before)
 
 
 def _sure(agreeing: float) -> bool:
@@ -379,7 +370,7 @@ def _point_to_plane(grids: _Grids, start: np.ndarray) -> tuple[np.ndarray, float
     voxel = grids.voxel
     first, *finer = grids.cuts
     small = len(grids.fine[1].points) <= ONE_THREAD_POINTS
-    with _open3d_threads(require_open3d("point-to-plane ICP"), 1 if small else None):
+    with open3d_threads(1 if small else None):
         pose, _ = point_to_plane_at_cuts(*grids.coarse, start, (first * voxel,), ICP_ITERATIONS)
         return point_to_plane_at_cuts(
             *grids.fine, pose, tuple(c * voxel for c in finer), ICP_ITERATIONS
