@@ -102,7 +102,11 @@ RIGID_SOLVES = {"rigid_align", "rigid_transforms_numpy", "_point_to_plane_step"}
 # Each detector: the idea's rows of the table, and what marks a definition of it.
 DETECTORS = {
     "rotation angle": (
-        {"rotation angle (atan2, numpy or torch)", "turn about the vertical, in a report"},
+        {
+            "rotation angle (atan2, numpy or torch)",
+            "turn about the vertical, in a report",
+            "turn of the principal axes (a lower bound of a pair's rotation)",
+        },
         lambda fn: bool(called_names(fn) & {"arccos", "acos", "arctan2", "atan2"}),
     ),
     "rigid solve": (

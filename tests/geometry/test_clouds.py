@@ -8,6 +8,7 @@ import torch
 
 from masknet.errors import MaskNetError
 from masknet.geometry import MIN_POINTS, as_cloud_batch, median_spacing, unit_radius
+from masknet.geometry.clouds import principal_turn_deg
 
 
 def test_unit_radius():
@@ -69,3 +70,25 @@ def test_spacing_is_the_median_distance_to_the_three_nearest_points():
     plane = np.concatenate([rng.random((2000, 2)), np.zeros((2000, 1))], 1)
     nearest = np.median(np.sort(np.linalg.norm(plane[:, None] - plane[None], axis=-1), 1)[:, 1])
     assert 1.3 < median_spacing(plane) / nearest < 1.6  # not the nearest neighbour's distance
+
+
+def _about_z(degrees: float) -> np.ndarray:
+    c, s = np.cos(np.radians(degrees)), np.sin(np.radians(degrees))
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def test_principal_turn_reads_a_turn_of_distinct_axes_and_nothing_of_a_round_cloud():
+    """Variances 9, 3 and 1 (every axis defined): a turn of 70 degrees about z moves the x
+    and y axes by 70; 150 degrees reads 30 (axes have no sign); a round cloud reads 0, as
+    does a turn about the one defined axis of an elongated cloud."""
+    rng = np.random.default_rng(0)
+    cloud = rng.normal(size=(4000, 3)) * [3.0, np.sqrt(3.0), 1.0]
+    assert principal_turn_deg(cloud, cloud @ _about_z(70).T) == pytest.approx(70, abs=2)
+    assert principal_turn_deg(cloud, cloud @ _about_z(150).T) == pytest.approx(30, abs=2)
+    assert principal_turn_deg(cloud, cloud + 5.0) == pytest.approx(0, abs=1e-6)
+    round_cloud = rng.normal(size=(4000, 3))
+    assert principal_turn_deg(round_cloud, round_cloud @ _about_z(70).T) == 0.0
+    rod = rng.normal(size=(4000, 3)) * [3.0, 1.0, 1.0]  # only x is defined
+    assert principal_turn_deg(rod, rod @ _about_z(60).T) == pytest.approx(60, abs=3)
+    rolled = rod @ np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]]).T  # 90 deg about x
+    assert principal_turn_deg(rod, rolled) == pytest.approx(0, abs=3)

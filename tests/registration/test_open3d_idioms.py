@@ -20,8 +20,10 @@ from masknet.registration.methods import METHOD_TABLE, PIPELINES
 o3d = pytest.importorskip("open3d")
 
 # Open3D's RANSAC is not repeatable between calls (RESULTS, "Repeatability of Open3D's
-# RANSAC"): its rows compare within a tolerance that still tells a wrong start apart.
-TOLERANCE = {"open3d-ransac": 1e-3, "open3d-fgr": 1e-6}
+# RANSAC"), and FGR's features round differently on the moved coordinates on some CPUs
+# (3e-4 with AVX-512, 1e-7 without): both compare within a tolerance that still tells a
+# wrong start apart.
+TOLERANCE = {"open3d-ransac": 1e-3, "open3d-fgr": 1e-3}
 
 
 @pytest.fixture(scope="module")

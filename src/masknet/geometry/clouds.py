@@ -22,6 +22,7 @@ __all__ = [
     "median_spacing",
     "median_spread",
     "points_of",
+    "principal_turn_deg",
     "rms_radius",
     "unit_radius",
 ]
@@ -75,6 +76,41 @@ def rms_radius(points: np.ndarray) -> np.ndarray:
     points = np.asarray(points, dtype=np.float64)
     centre = points.mean(-2, keepdims=True)
     return np.sqrt(((points - centre) ** 2).sum(-1).mean(-1))
+
+
+# A principal axis is defined where its variance is at least this many times that of each
+# neighbour in rank, in both clouds: between two close variances a partial view swaps them.
+AXIS_GAP = 2.0
+
+
+def principal_turn_deg(
+    template: np.ndarray, source: np.ndarray, min_gap: float = AXIS_GAP
+) -> float:
+    """A lower bound, in degrees, of the rotation between two clouds of one shape: the
+    largest angle between a principal axis of ``template`` (N, 3) and the source's (M, 3)
+    of the same rank, over the axes defined in both (``min_gap``); 0 where none is. Axes
+    have no sign, so it is at most 90 degrees, and it is blind to turns about an axis.
+
+    A partial source moves its axes: on ModelNet40 pairs keeping 70% of the points and
+    turned at most 45 degrees, 1 pair in 100 read 50 degrees or more; turned up to 180
+    degrees, half of them did."""
+
+    def axes(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        centred = np.asarray(points, dtype=np.float64)
+        centred = centred - centred.mean(0)
+        variances, vectors = np.linalg.eigh(centred.T @ centred / max(len(centred), 1))
+        variances = np.maximum(variances[::-1], 1e-300)  # descending, never 0
+        gaps = variances[:-1] / variances[1:]  # rank i against rank i + 1
+        defined = np.minimum(np.append(gaps, np.inf), np.insert(gaps, 0, np.inf))
+        return defined >= min_gap, vectors[:, ::-1]
+
+    defined_t, axes_t = axes(template)
+    defined_s, axes_s = axes(source)
+    both = defined_t & defined_s
+    if not both.any():
+        return 0.0
+    cosines = np.abs(np.sum(axes_t[:, both] * axes_s[:, both], axis=0))
+    return float(np.degrees(np.arccos(np.clip(cosines.min(), 0.0, 1.0))))
 
 
 def points_of(cloud: Any) -> Any:

@@ -219,6 +219,15 @@ class RobustOptions:
     consensus_below: ``"auto"`` only: sparse templates, of fewer points than this, try the
         consensus front end before the fast path (0: never). There the fast path holds on
         a fifth to a third of the pairs and the search costs 4-6 times the front end.
+    search_first_turn_deg: ``"auto"`` only: templates between ``consensus_below`` and
+        ``consensus_from`` points whose source's principal axes are turned at least this
+        far from the template's (:func:`masknet.geometry.clouds.principal_turn_deg`) go to
+        the search first; the fast path, which starts from the pose as given, seldom holds
+        there. None: never.
+    object_accept_fitness: ``"auto"`` only: the fit at which the fast path's pose ends the
+        call on templates between ``consensus_below`` and ``consensus_from`` points
+        (``accept_fitness`` elsewhere). There a near-symmetric shape's flip fitted 0.990-0.992
+        and right poses seldom fit under 0.993.
     """
 
     feature_points: tuple[int, ...] = (300, 1000)
@@ -238,6 +247,8 @@ class RobustOptions:
     consensus_points: int = 1500
     consensus_from: int = 2048
     consensus_below: int = 1024
+    search_first_turn_deg: float | None = 50.0
+    object_accept_fitness: float = 0.993
 
     def __post_init__(self) -> None:
         grids = tuple(self.feature_points)
@@ -271,13 +282,20 @@ class RobustOptions:
             raise MaskNetError(
                 "robust: candidates >= 1, max_iterations >= 1 and inlier_iterations >= 0"
             )
-        if not 0 <= self.accept_fitness <= 1.01 or not 0 <= self.ambiguity_margin <= 1:
-            raise MaskNetError("robust: accept_fitness in [0, 1.01], ambiguity_margin in [0, 1]")
+        accepts = (self.accept_fitness, self.object_accept_fitness)
+        if not all(0 <= a <= 1.01 for a in accepts) or not 0 <= self.ambiguity_margin <= 1:
+            raise MaskNetError(
+                "robust: accept_fitness and object_accept_fitness in [0, 1.01], "
+                "ambiguity_margin in [0, 1]"
+            )
         if 0 < self.consensus_points < 16:
             raise MaskNetError("robust: consensus_points must be 0 (off) or >= 16")
         if not 0 < self.distinct_deg <= 180:
             raise MaskNetError("robust: distinct_deg in (0, 180]")
         _positive("max_correspondence_distance", self.max_correspondence_distance)
+        turn = self.search_first_turn_deg
+        if turn is not None and (not _number(turn) or not 0 < turn <= 90):
+            raise MaskNetError("robust: search_first_turn_deg in (0, 90], or None")
 
     def hypothesis_size(self, source_points: int) -> int:
         """Points per cloud in the hypotheses' short ICP for a source of ``source_points``:
@@ -293,6 +311,19 @@ class RobustOptions:
         the finer grid's normals from within two voxels, refines at a third cut, judges
         plane to plane, and questions an unsure RANSAC."""
         return template_points >= self.consensus_from
+
+    def is_object(self, template_points: int) -> bool:
+        """Whether a template of ``template_points`` points is neither sparse
+        (``consensus_below``) nor a scan's (:meth:`is_scan`), for ``"auto"``: the size of
+        ModelNet40's shapes, where the fast path's accept level and the principal axes'
+        gate were measured."""
+        return self.consensus_below <= template_points < self.consensus_from
+
+    def fast_accept(self, template_points: int) -> float:
+        """The fit at which ``"auto"``'s fast path ends the call for a template of this size."""
+        if self.is_object(template_points):
+            return self.object_accept_fitness
+        return self.accept_fitness
 
     def cut(self, spacing: float) -> float:
         """The pair cut-off in the clouds' units, for a template of this point spacing."""
