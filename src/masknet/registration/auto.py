@@ -16,32 +16,33 @@
    A correct result fits at least ``accept_fitness`` (``object_accept_fitness`` on
    templates between the sparse and the scans' sizes, where a near-symmetric shape's flip
    fits 0.990); a result stopped at a wrong pose fits less.
-3. **Escalation.** Below that, for templates of ``consensus_from`` points or more, the
-   consensus front end (:mod:`masknet.registration.robust.consensus`: a voxel budget,
-   RANSAC on FPFH matches, point-to-plane ICP, the verdict); a ``likely correct`` pose
-   ends the call. Otherwise the coarse-to-fine pipeline of ``method="robust"``
+3. **Escalation.** Below that, the coarse-to-fine pipeline of ``method="robust"``
    (:mod:`masknet.registration.robust.search`) runs, and the fast path's result takes
-   part as one more hypothesis (it wins if it fits best); an ``uncertain`` consensus
-   replaces the search's answer where the verdict ranks it higher (the search's one-way
-   score can prefer a pose slid along a wall on sparse scans).
+   part as one more hypothesis (it wins if it fits best); on scans an ``uncertain``
+   consensus (below) replaces the search's answer where the verdict ranks it higher (the
+   search's one-way score can prefer a pose slid along a wall on sparse scans).
+
+Scans (templates of ``consensus_from`` points or more) and sparse clouds (fewer than
+``consensus_below``) try the consensus front end
+(:mod:`masknet.registration.robust.consensus`: a voxel budget, RANSAC on FPFH matches,
+point-to-plane ICP, the verdict) before the fast path, and its ``likely correct`` pose ends
+the call; the networks' clouds are sampled only when a network runs. There the pose as
+given is refined and judged first (``start="first"``: `likely correct` ends the call before
+the features and RANSAC) and else competes with RANSAC's (a symmetric shape fits a flip as
+well); scans of ``CONSENSUS_FIRST`` times ``consensus_from`` points or more skip it. On
+sparse clouds the fast path holds on a fifth to a third of the pairs and the search costs
+4-6 times the front end; on views of objects in real scans the pose as given, refined,
+ends most calls at a third of the fast path's cost. On sparse clouds an ``uncertain``
+consensus does not compete with the search's answer (the verdict rated right search
+answers below consensus poses 60-180 degrees off).
 
 Between those sizes (objects), a source whose principal axes are turned
 ``search_first_turn_deg`` or more from the template's goes to the search first: the fast
 path starts from the pose as given and seldom holds that far off.
 
-Scans of ``CONSENSUS_FIRST`` times ``consensus_from`` points or more, and sparse clouds
-(templates of fewer than ``consensus_below`` points), try the consensus front end before
-the fast path; the networks' clouds are sampled only when a network runs. On sparse clouds
-the fast path holds on a fifth to a third of the pairs and the search costs 4-6 times the
-front end; there the pose as given is judged first (``start="first"``: `likely correct`
-ends the call before the features and RANSAC) and else competes with RANSAC's (a symmetric
-shape fits a flip as well), and an ``uncertain`` consensus does not compete with the search's answer (the
-verdict rated right search answers below consensus poses 60-180 degrees off). After the
-fast path the pose as given competes too, where its ICP fits about as many points as
-RANSAC's pose (``start="gated"``: the verdict's cost is spared elsewhere). ``info["path"]`` says which ran
-(``"fast"``, ``"consensus"``, ``"robust/consensus"``, ``"robust/correspondences"`` and
-``"robust/search"``), and
-``info["escalated_fitness"]`` the fast path's fit that sent it on (NaN when it did not).
+``info["path"]`` says which ran (``"fast"``, ``"consensus"``, ``"robust/consensus"``,
+``"robust/correspondences"`` and ``"robust/search"``), and ``info["escalated_fitness"]``
+the fast path's fit that sent it on (NaN when it did not).
 """
 
 from __future__ import annotations
@@ -71,9 +72,8 @@ from masknet.registration.rounds import mask_and_register
 
 __all__ = ["auto_register"]
 
-# Templates of this many times ``consensus_from`` points try the consensus front end
-# before the fast path: on scans that large the fast path seldom holds, and the networks'
-# sampling alone costs a tenth of a second.
+# Scans of this many times ``consensus_from`` points skip the pose as given in the consensus
+# front end: that large, it is seldom right, and its refinement costs what RANSAC does.
 CONSENSUS_FIRST = 8
 
 
@@ -126,8 +126,11 @@ def _one(
     on = options.consensus_points > 0
     scan = on and options.is_scan(len(template))
     sparse = on and len(template) < options.consensus_below
-    if sparse or (scan and len(template) >= CONSENSUS_FIRST * options.consensus_from):
-        start = "first" if sparse else "never"
+    if sparse or scan:
+        # The pose as given is judged first, except on scans so large that it seldom is
+        # right and its ICP costs what RANSAC does.
+        large = len(template) >= CONSENSUS_FIRST * options.consensus_from
+        start = "never" if large else "first"
         consensus = consensus_register(template, source, options, times, start)
         if consensus is not None and consensus.check.verdict == "likely correct":
             return _consensus_run(consensus, template, source, model, "consensus")
@@ -138,10 +141,6 @@ def _one(
     fast = _fast_path(template, source, nets, model, options, times, precision)
     if fast.accepted is not None:
         return fast.accepted
-    if scan and consensus is None:
-        consensus = consensus_register(template, source, options, times, "gated")
-        if consensus is not None and consensus.check.verdict == "likely correct":
-            return _consensus_run(consensus, template, source, model, "robust/consensus")
     run = _escalate(template, source, nets, fast, model, search_model, options, times, precision)
     if scan and consensus is not None and consensus.check.verdict == "uncertain":
         # The search's one-way score can prefer a pose slid along a wall that the verdict

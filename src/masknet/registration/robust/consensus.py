@@ -166,7 +166,7 @@ class _Grids(NamedTuple):
     scan: bool = False
 
 
-START_POLICIES = ("never", "first", "gated")  # consensus_register's ``start``
+START_POLICIES = ("never", "first")  # consensus_register's ``start``
 
 
 def consensus_register(
@@ -182,10 +182,8 @@ def consensus_register(
 
     ``start``, what the pose as given does (:func:`_start_competes`): with ``"never"`` it
     takes no part; ``"first"`` is refined and judged first, ends the call where it is ``likely
-    correct`` and else competes with RANSAC's pose; ``"gated"`` competes only where its ICP
-    fits about as many source points as RANSAC's pose did (Open3D's fitness within
-    ``ambiguity_margin``), which spares the verdict of poses that landed elsewhere. Stage
-    times go to ``times`` (``consensus``)."""
+    correct`` and else competes with RANSAC's pose. Stage times go to ``times``
+    (``consensus``)."""
     if start not in START_POLICIES:
         raise ValueError(f"start must be one of {START_POLICIES}, got {start!r}")
     if not has_open3d():
@@ -255,11 +253,7 @@ def _consensus(o3d: Any, grids: _Grids, options: RobustOptions, start: str) -> C
         near_check = judge(grids.prepared, near)
         if near_check.verdict == "likely correct":
             return run(near, near_check)
-    pose, fitness, check = _best_judged(grids, _ransac_poses(o3d, grids), options)
-    if start == "gated":
-        near, near_fitness = _point_to_plane(grids, _centroids_matched(o3d, *grids.coarse))
-        if near_fitness < fitness - options.ambiguity_margin:
-            near = None
+    pose, check = _best_judged(grids, _ransac_poses(o3d, grids), options)
     if near is not None:
         pose, check = _start_competes(pose, check, near, grids.prepared, options, near_check)
     return run(pose, check)
@@ -341,25 +335,25 @@ def _sure(agreeing: float) -> bool:
 
 def _best_judged(
     grids: _Grids, found: list[tuple[np.ndarray, float]], options: RobustOptions
-) -> tuple[np.ndarray, float, Assessment]:
+) -> tuple[np.ndarray, Assessment]:
     """The pose of ``found`` (pose (4, 4), fitness) that the verdict ranks highest, with
-    its fitness and check; a pose within ``distinct_deg`` and one voxel of the best so far
+    its check; a pose within ``distinct_deg`` and one voxel of the best so far
     is not judged. Another pose replaces the best so far only with a better verdict, or the
     same verdict and an overlap fit more than ``ambiguity_margin`` higher: a tie would
     otherwise go either way with the last bits of Open3D's parallel sums (two calls on
     one scan-view pair ended 0.2 degrees apart)."""
-    pose, fitness = found[0]
+    pose = found[0][0]
     check = judge(grids.prepared, pose)
     centre = grids.source_grid.mean(0)
-    for other, other_fitness in found[1:]:
+    for other, _ in found[1:]:
         shift = np.linalg.norm(transform_points(other, centre) - transform_points(pose, centre))
         if rotation_between_deg(other, pose) < options.distinct_deg and shift < grids.voxel:
             continue
         other_check = judge(grids.prepared, other)
         margin = 0.0 if other_check.verdict != check.verdict else options.ambiguity_margin
         if verdict_rank(other_check) > (verdict_rank(check)[0], check.overlap_fit + margin):
-            pose, fitness, check = other, other_fitness, other_check
-    return pose, fitness, check
+            pose, check = other, other_check
+    return pose, check
 
 
 def _point_to_plane(grids: _Grids, start: np.ndarray) -> tuple[np.ndarray, float]:
