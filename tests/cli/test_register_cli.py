@@ -223,3 +223,21 @@ def test_register_says_how_many_rows_it_dropped(tmp_path, pair_files, capsys):
     args = ["register", str(template), str(tmp_path / "s.xyz"), "-o", str(tmp_path / "r.xyz")]
     assert main([*args, "--drop-nonfinite"]) == 0
     assert "3 non-finite rows dropped" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("path", "escalated", "says"),
+    [
+        ("fast", np.nan, "the fast path's fit passed"),
+        ("robust/search", 0.8, "escalated: the fast path's fit was 0.800"),
+        ("consensus", np.nan, "the consensus front end"),
+        ("robust/correspondences", np.nan, "the search first: the source's principal axes"),
+        ("correspondences", np.nan, "method robust"),
+    ],
+)
+def test_the_report_says_why_each_path_ran(path, escalated, says, capsys):
+    from masknet.cli._report import report_path
+
+    info = {"path": path, "escalated_fitness": escalated, "source": "x"}
+    report_path(info, np.eye(3))
+    assert says in capsys.readouterr().out

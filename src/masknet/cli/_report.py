@@ -51,6 +51,10 @@ def report_path(info: dict, rotation: np.ndarray) -> None:
         why = f"escalated (fit {escalated:.3f}), but the fast path's pose fitted best"
     elif np.isfinite(escalated):
         why = f"escalated: the fast path's fit was {escalated:.3f}"
+    elif path == "consensus":
+        why = "the consensus front end, first for scans and sparse clouds, judged it likely correct"
+    elif path.startswith("robust/"):
+        why = "the search first: the source's principal axes are turned far from the template's"
     else:
         why = "method robust"
     print(f"path: {path} ({why}); best hypothesis from {info['source']}")
