@@ -230,6 +230,7 @@ def test_register_says_how_many_rows_it_dropped(tmp_path, pair_files, capsys):
     [
         ("fast", np.nan, "the fast path's fit passed"),
         ("robust/search", 0.8, "escalated: the fast path's fit was 0.800"),
+        ("robust/consensus", 0.8, "the front end's uncertain pose ranked above the search's"),
         ("consensus", np.nan, "the consensus front end"),
         ("robust/correspondences", np.nan, "the search first: the source's principal axes"),
         ("correspondences", np.nan, "method robust"),

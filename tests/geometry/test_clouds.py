@@ -92,3 +92,9 @@ def test_principal_turn_reads_a_turn_of_distinct_axes_and_nothing_of_a_round_clo
     assert principal_turn_deg(rod, rod @ _about_z(60).T) == pytest.approx(60, abs=3)
     rolled = rod @ np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]]).T  # 90 deg about x
     assert principal_turn_deg(rod, rolled) == pytest.approx(0, abs=3)
+    # A line's two zero variances are rounding noise: their axes stay undefined, so a
+    # line against itself reshuffled reads 0 (with an absolute floor it read 11-79).
+    line = np.outer(rng.normal(size=500), [1.0, 2.0, 3.0])
+    for seed in range(5):
+        shuffled = line[np.random.default_rng(seed).permutation(len(line))]
+        assert principal_turn_deg(line, shuffled) == pytest.approx(0, abs=1e-3)

@@ -75,6 +75,7 @@ def test_an_object_and_its_keywords_cannot_both_be_given(pair):
         (lambda: RobustOptions(search_first_turn_deg=120), r"search_first_turn_deg in \(0, 90\]"),
         (lambda: RobustOptions(search_first_turn_deg="50"), "search_first_turn_deg"),
         (lambda: RobustOptions(object_accept_fitness=1.5), "object_accept_fitness"),
+        (lambda: RobustOptions(object_accept_fitness="0.9"), "object_accept_fitness"),
     ],
 )
 def test_options_are_checked_when_made(make, message):

@@ -49,6 +49,11 @@ def report_path(info: dict, rotation: np.ndarray) -> None:
         why = "the fast path's fit passed"
     elif path == "fast":
         why = f"escalated (fit {escalated:.3f}), but the fast path's pose fitted best"
+    elif path == "robust/consensus" and np.isfinite(escalated):
+        why = (
+            f"escalated (the fast path's fit was {escalated:.3f}); the front end's uncertain "
+            "pose ranked above the search's answer"
+        )
     elif np.isfinite(escalated):
         why = f"escalated: the fast path's fit was {escalated:.3f}"
     elif path == "consensus":

@@ -99,7 +99,10 @@ def principal_turn_deg(
         centred = np.asarray(points, dtype=np.float64)
         centred = centred - centred.mean(0)
         variances, vectors = np.linalg.eigh(centred.T @ centred / max(len(centred), 1))
-        variances = np.maximum(variances[::-1], 1e-300)  # descending, never 0
+        # Descending; variances at rounding level (a line's, a plane's) tie at a floor
+        # relative to the largest, so that their axes stay undefined.
+        variances = variances[::-1]
+        variances = np.maximum(variances, variances[0] * 1e-12 + 1e-300)
         gaps = variances[:-1] / variances[1:]  # rank i against rank i + 1
         defined = np.minimum(np.append(gaps, np.inf), np.insert(gaps, 0, np.inf))
         return defined >= min_gap, vectors[:, ::-1]

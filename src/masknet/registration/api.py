@@ -109,8 +109,9 @@ def register(
             None (default) runs ``"auto"``, the method of a typed ``options`` object, or
             ``"icp"`` when an argument only Mask-ICP's rounds take is given
             (``k``, ``threshold``, ``refine_iterations``,
-            ``init="identity"``, ICP's options). ``"auto"``: one round of Mask-ICP, its
-            fit checked, and ``"robust"`` where the fit says it may be wrong
+            ``init="identity"``, ICP's options). ``"auto"``: on objects one round of
+            Mask-ICP, its fit checked; on scans and sparse clouds the consensus front end
+            first; ``"robust"`` where these do not settle the pair
             (:mod:`masknet.registration.auto`; ``info["path"]`` says which ran).
             ``"robust"``: the coarse-to-fine search, FPFH correspondence hypotheses, then
             the two-sided mask and rotation hypotheses, one score, refinement

@@ -1,4 +1,5 @@
-"""``method="auto"``, the default: a fast path, checked, escalated to ``robust`` when needed.
+"""``method="auto"``, the default: a checked fast path for objects, the consensus front end
+first for scans and sparse clouds, and ``robust`` where they do not settle the pair.
 
 1. **Fast path.** One round of the paper's Mask-ICP (MaskNet's template mask, by default
    the small ``masknet_modelnet40_small``; the source centroid onto the masked template's
@@ -148,7 +149,9 @@ def _one(
         # worse than consensus poses 60-180 degrees off.
         searched = judge(consensus.prepared, run.transform[0])
         if verdict_rank(consensus.check) > verdict_rank(searched):
-            return _consensus_run(consensus, template, source, model, "robust/consensus")
+            found = _consensus_run(consensus, template, source, model, "robust/consensus")
+            found.info["escalated_fitness"] = run.info["escalated_fitness"]
+            return found
     return run
 
 

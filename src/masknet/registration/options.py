@@ -213,9 +213,9 @@ class RobustOptions:
         the result ``ambiguous``.
     consensus_points: ``"auto"`` only: template points on the grid of the consensus front
         end (:mod:`masknet.registration.robust.consensus`); 0 skips it.
-    consensus_from: ``"auto"`` only: templates of at least this many points try the
-        consensus front end: before the fast path from 8 times as many points (large
-        scans, where the fast path seldom holds), else when the fast path escalates.
+    consensus_from: ``"auto"`` only: templates of at least this many points (scans) try
+        the consensus front end before the fast path, the pose as given judged first below
+        8 times as many points (:mod:`masknet.registration.auto`).
     consensus_below: ``"auto"`` only: sparse templates, of fewer points than this, try the
         consensus front end before the fast path (0: never). There the fast path holds on
         a fifth to a third of the pairs and the search costs 4-6 times the front end.
@@ -283,7 +283,8 @@ class RobustOptions:
                 "robust: candidates >= 1, max_iterations >= 1 and inlier_iterations >= 0"
             )
         accepts = (self.accept_fitness, self.object_accept_fitness)
-        if not all(0 <= a <= 1.01 for a in accepts) or not 0 <= self.ambiguity_margin <= 1:
+        accepted = all(_number(a) and 0 <= a <= 1.01 for a in accepts)
+        if not accepted or not 0 <= self.ambiguity_margin <= 1:
             raise MaskNetError(
                 "robust: accept_fitness and object_accept_fitness in [0, 1.01], "
                 "ambiguity_margin in [0, 1]"

@@ -43,7 +43,8 @@ class RegistrationResult:
             hypothesis), ``fitness`` and ``inlier_rmse`` (of the kept source points within
             1.5 template spacings), ``score``, ``ambiguous``, ``runner_up`` ((4, 4), NaN
             where none), ``runner_up_fitness``, ``runner_up_score``, ``hypotheses``, and for
-            ``"auto"`` ``escalated_fitness`` (NaN where the fast path sufficed). ICP methods: ``converged``, ``iterations`` (-1 where not reported),
+            ``"auto"`` ``escalated_fitness`` (the fast path's fit that sent it on; NaN where the fast path did
+            not run or sufficed). ICP methods: ``converged``, ``iterations`` (-1 where not reported),
             ``fitness`` and ``inlier_rmse`` (Open3D's definitions). PointNetLK:
             ``converged``, ``iterations``, ``feature_residual``.
         rounds: the cumulative transform after each round, (4, 4) or (B, 4, 4) each.

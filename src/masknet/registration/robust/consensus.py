@@ -27,8 +27,10 @@ that agree with each other do not slide, and they cost little on a coarse grid:
    and an ``uncertain`` consensus still competes with their answer on the verdict.
 
 The pose as given can take part (``start``): refined the same way (from the clouds'
-centroids matched) and judged first on sparse clouds, where it is right about as often
-as RANSAC's and costs a third as much; competing with RANSAC's pose after it elsewhere.
+centroids matched), judged first, and else competing with RANSAC's pose. ``"auto"`` asks for
+it on sparse clouds, where it is right about as often as RANSAC's and costs a third as
+much, and on scans under 16,384 points, where it ends most calls on views of objects; on
+larger scans it takes no part.
 
 Example::
 
@@ -248,7 +250,8 @@ def _consensus(o3d: Any, grids: _Grids, options: RobustOptions, start: str) -> C
     near = near_check = None
     if start == "first":
         # On sparse clouds the pose as given is right about as often as RANSAC's, at a
-        # third of the cost (docs/RESULTS.md, "Sparse clouds: the consensus front end first").
+        # third of the cost, and it ends most calls on scan views (docs/RESULTS.md, "Sparse
+        # clouds: the consensus front end first", "Scans start with the front end").
         near = _point_to_plane(grids, _centroids_matched(o3d, *grids.coarse))[0]
         near_check = judge(grids.prepared, near)
         if near_check.verdict == "likely correct":
@@ -259,12 +262,11 @@ def _consensus(o3d: Any, grids: _Grids, options: RobustOptions, start: str) -> C
     return run(pose, check)
 
 
-def _ransac_poses(o3d: Any, grids: _Grids) -> list[tuple[np.ndarray, float]]:
-    """Steps 2 and 3: RANSAC on FPFH matches of the first grid, refined: the pose (4, 4) and
-    Open3D's fitness at the refinement's last cut. On scans where RANSAC could not be sure
-    of its pose (:func:`_sure`), two more: RANSAC's on the matches the first pose leaves
-    out (sequential RANSAC), and the first pose slid where the matches vote
-    (:func:`_slid_pose`). RANSAC keeps the pose that lays the most points on the other
+def _ransac_poses(o3d: Any, grids: _Grids) -> list[np.ndarray]:
+    """Steps 2 and 3: RANSAC on FPFH matches of the first grid, refined: poses (4, 4). On
+    scans where RANSAC could not be sure of its pose (:func:`_sure`), two more: RANSAC's
+    on the matches the first pose leaves out (sequential RANSAC), and the first pose slid
+    where the matches vote (:func:`_slid_pose`). RANSAC keeps the pose that lays the most points on the other
     cloud, and a room thinned to 5,000 points fits a pose slid 2.2 m along it on more
     points than the right one (which the verdict then ranks higher)."""
     coarse, voxel = grids.coarse, grids.voxel
@@ -282,7 +284,7 @@ def _ransac_poses(o3d: Any, grids: _Grids) -> list[tuple[np.ndarray, float]]:
             slid = _slid_pose(*pairs, poses[0], voxel)
             if slid is not None:
                 poses.append(slid)
-    return [_point_to_plane(grids, pose) for pose in poses]
+    return [_point_to_plane(grids, pose)[0] for pose in poses]
 
 
 def _slid_pose(
@@ -334,18 +336,18 @@ def _sure(agreeing: float) -> bool:
 
 
 def _best_judged(
-    grids: _Grids, found: list[tuple[np.ndarray, float]], options: RobustOptions
+    grids: _Grids, found: list[np.ndarray], options: RobustOptions
 ) -> tuple[np.ndarray, Assessment]:
-    """The pose of ``found`` (pose (4, 4), fitness) that the verdict ranks highest, with
+    """The pose of ``found`` (each (4, 4)) that the verdict ranks highest, with
     its check; a pose within ``distinct_deg`` and one voxel of the best so far
     is not judged. Another pose replaces the best so far only with a better verdict, or the
     same verdict and an overlap fit more than ``ambiguity_margin`` higher: a tie would
     otherwise go either way with the last bits of Open3D's parallel sums (two calls on
     one scan-view pair ended 0.2 degrees apart)."""
-    pose = found[0][0]
+    pose = found[0]
     check = judge(grids.prepared, pose)
     centre = grids.source_grid.mean(0)
-    for other, _ in found[1:]:
+    for other in found[1:]:
         shift = np.linalg.norm(transform_points(other, centre) - transform_points(pose, centre))
         if rotation_between_deg(other, pose) < options.distinct_deg and shift < grids.voxel:
             continue
