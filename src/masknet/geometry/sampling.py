@@ -49,6 +49,11 @@ PRESAMPLE = 100_000
 FPS_POOL = 4
 
 
+def _pool_size(max_points: int) -> int:
+    """The random pool FPS runs on for ``max_points`` kept points, at most."""
+    return min(PRESAMPLE, FPS_POOL * max_points)
+
+
 class FPSResult(NamedTuple):
     """indices: (K,) int64 into the input cloud, in sampling order.
     radius: the covering radius after the last kept point, in the cloud's units."""
@@ -83,7 +88,7 @@ def farthest_point_sample(
     n = len(points)
     if n <= max_points and min_spacing <= 0:
         return FPSResult(np.arange(n), 0.0)
-    size = min(PRESAMPLE, FPS_POOL * max_points if pool is None else max(pool, 1))
+    size = _pool_size(max_points) if pool is None else min(PRESAMPLE, max(pool, 1))
     kept = np.arange(n)
     if n > size:
         kept = np.sort(np.random.default_rng(seed).choice(n, size, replace=False))
@@ -221,7 +226,7 @@ def fit_to_network(
     # The source at the template's spacing, so its size still reflects the overlap
     # (top-k selection uses it): from a pool as dense as the template's, whose radius
     # that spacing is.
-    share = min(1.0, min(PRESAMPLE, FPS_POOL * max_points) / n)
+    share = min(1.0, _pool_size(max_points) / n)
     src_idx = farthest_point_sample(
         source[0], max_points, min_spacing=kept.radius, pool=int(np.ceil(share * m))
     ).indices

@@ -126,7 +126,7 @@ def _one(
     consensus = None
     on = options.consensus_points > 0
     scan = on and options.is_scan(len(template))
-    sparse = on and len(template) < options.consensus_below
+    sparse = on and options.is_sparse(len(template))
     if sparse or scan:
         # The pose as given is judged first, except on scans so large that it seldom is
         # right and its ICP costs what RANSAC does.
@@ -149,9 +149,9 @@ def _one(
         # worse than consensus poses 60-180 degrees off.
         searched = judge(consensus.prepared, run.transform[0])
         if verdict_rank(consensus.check) > verdict_rank(searched):
-            found = _consensus_run(consensus, template, source, model, "robust/consensus")
-            found.info["escalated_fitness"] = run.info["escalated_fitness"]
-            return found
+            escalated = float(run.info["escalated_fitness"][0])
+            path = "robust/consensus"
+            return _consensus_run(consensus, template, source, model, path, escalated)
     return run
 
 
@@ -324,8 +324,10 @@ def _consensus_run(
     source: np.ndarray,
     model: MaskNet | TwoSidedMaskNet | None,
     path: str,
+    escalated: float = np.nan,
 ) -> PipelineRun:
-    """The consensus front end's answer as the pipeline's result: its fit on the check's
+    """The consensus front end's answer as the pipeline's result (``escalated``: the fast
+    path's fit where it ran before): its fit on the check's
     grid; with a network, the template points the moved source covers (measured on that
     grid: over the full clouds it cost more than the whole front end on 1M points), and
     with a two-sided one (a source mask asked for) the source points the pose lays on the
@@ -341,7 +343,7 @@ def _consensus_run(
         if isinstance(model, TwoSidedMaskNet):
             on_template = covered_points(moved, grid_template, limit)
             source_mask = spread_labels(source, grid_source, on_template)[None]
-    info = _info(path, fit, np.nan)
+    info = _info(path, fit, escalated)
     info["source"] = np.array(["consensus"])
     return PipelineRun(found.transform[None], mask, source_mask, info)
 

@@ -313,12 +313,16 @@ class RobustOptions:
         plane to plane, and questions an unsure RANSAC."""
         return template_points >= self.consensus_from
 
+    def is_sparse(self, template_points: int) -> bool:
+        """Whether a template of ``template_points`` points is sparse, for ``"auto"``:
+        fewer than ``consensus_below``."""
+        return template_points < self.consensus_below
+
     def is_object(self, template_points: int) -> bool:
-        """Whether a template of ``template_points`` points is neither sparse
-        (``consensus_below``) nor a scan's (:meth:`is_scan`), for ``"auto"``: the size of
-        ModelNet40's shapes, where the fast path's accept level and the principal axes'
-        gate were measured."""
-        return self.consensus_below <= template_points < self.consensus_from
+        """Whether a template of ``template_points`` points is neither sparse nor a scan's,
+        for ``"auto"``: the size of ModelNet40's shapes, where the fast path's accept level
+        and the principal axes' gate were measured."""
+        return not self.is_sparse(template_points) and not self.is_scan(template_points)
 
     def fast_accept(self, template_points: int) -> float:
         """The fit at which ``"auto"``'s fast path ends the call for a template of this size."""

@@ -151,6 +151,15 @@ def verdict_rank(check: Assessment) -> tuple[int, float]:
     return -VERDICTS.index(check.verdict), check.overlap_fit
 
 
+def _beats(check: Assessment, held: Assessment, margin: float) -> bool:
+    """Whether a pose judged ``check`` displaces one judged ``held``: a better verdict, or
+    the same verdict and an overlap fit more than ``margin`` higher. The head start keeps
+    a tie from going either way with the last bits of Open3D's parallel sums (two calls on
+    one scan-view pair ended 0.2 degrees apart), and keeps the pose nearer the start where
+    a symmetric shape fits a flip as well."""
+    return verdict_rank(check) > (verdict_rank(held)[0], held.overlap_fit + margin)
+
+
 class _Grids(NamedTuple):
     """One pair on the front end's grids: Open3D clouds (template, source) on the first
     grid (``coarse``) and on the refinement's (``fine``, the template with normals), the
@@ -252,7 +261,7 @@ def _consensus(o3d: Any, grids: _Grids, options: RobustOptions, start: str) -> C
         # On sparse clouds the pose as given is right about as often as RANSAC's, at a
         # third of the cost, and it ends most calls on scan views (docs/RESULTS.md, "Sparse
         # clouds: the consensus front end first", "Scans start with the front end").
-        near = _point_to_plane(grids, _centroids_matched(o3d, *grids.coarse))[0]
+        near = _point_to_plane(grids, _centroids_matched(o3d, *grids.coarse))
         near_check = judge(grids.prepared, near)
         if near_check.verdict == "likely correct":
             return run(near, near_check)
@@ -266,9 +275,9 @@ def _ransac_poses(o3d: Any, grids: _Grids) -> list[np.ndarray]:
     """Steps 2 and 3: RANSAC on FPFH matches of the first grid, refined: poses (4, 4). On
     scans where RANSAC could not be sure of its pose (:func:`_sure`), two more: RANSAC's
     on the matches the first pose leaves out (sequential RANSAC), and the first pose slid
-    where the matches vote (:func:`_slid_pose`). RANSAC keeps the pose that lays the most points on the other
-    cloud, and a room thinned to 5,000 points fits a pose slid 2.2 m along it on more
-    points than the right one (which the verdict then ranks higher)."""
+    where the matches vote (:func:`_slid_pose`). RANSAC keeps the pose that lays the most
+    points on the other cloud, and a room thinned to 5,000 points fits a pose slid 2.2 m
+    along it on more points than the right one (which the verdict then ranks higher)."""
     coarse, voxel = grids.coarse, grids.voxel
     # At most a quarter of the smaller grid (see FEATURE_SHARE).
     neighbours = min(FEATURE_NEIGHBOURS, min(len(c.points) for c in coarse) // FEATURE_SHARE)
@@ -284,7 +293,7 @@ def _ransac_poses(o3d: Any, grids: _Grids) -> list[np.ndarray]:
             slid = _slid_pose(*pairs, poses[0], voxel)
             if slid is not None:
                 poses.append(slid)
-    return [_point_to_plane(grids, pose)[0] for pose in poses]
+    return [_point_to_plane(grids, pose) for pose in poses]
 
 
 def _slid_pose(
@@ -338,12 +347,10 @@ def _sure(agreeing: float) -> bool:
 def _best_judged(
     grids: _Grids, found: list[np.ndarray], options: RobustOptions
 ) -> tuple[np.ndarray, Assessment]:
-    """The pose of ``found`` (each (4, 4)) that the verdict ranks highest, with
-    its check; a pose within ``distinct_deg`` and one voxel of the best so far
-    is not judged. Another pose replaces the best so far only with a better verdict, or the
-    same verdict and an overlap fit more than ``ambiguity_margin`` higher: a tie would
-    otherwise go either way with the last bits of Open3D's parallel sums (two calls on
-    one scan-view pair ended 0.2 degrees apart)."""
+    """The pose of ``found`` (each (4, 4)) that the verdict ranks highest, with its check;
+    a pose within ``distinct_deg`` and one voxel of the best so far is not judged, and
+    another replaces the best so far only where it :func:`_beats` it by
+    ``ambiguity_margin``."""
     pose = found[0]
     check = judge(grids.prepared, pose)
     centre = grids.source_grid.mean(0)
@@ -352,17 +359,15 @@ def _best_judged(
         if rotation_between_deg(other, pose) < options.distinct_deg and shift < grids.voxel:
             continue
         other_check = judge(grids.prepared, other)
-        margin = 0.0 if other_check.verdict != check.verdict else options.ambiguity_margin
-        if verdict_rank(other_check) > (verdict_rank(check)[0], check.overlap_fit + margin):
+        if _beats(other_check, check, options.ambiguity_margin):
             pose, check = other, other_check
     return pose, check
 
 
-def _point_to_plane(grids: _Grids, start: np.ndarray) -> tuple[np.ndarray, float]:
+def _point_to_plane(grids: _Grids, start: np.ndarray) -> np.ndarray:
     """Point-to-plane ICP from ``start`` (4, 4): on the first grid's clouds at the first of
     ``grids.cuts``, then on the finer grid's at each of the others (both templates have
-    their normals from :func:`_grids`). The pose (4, 4) and Open3D's fitness at the last
-    cut."""
+    their normals from :func:`_grids`): the pose (4, 4)."""
     voxel = grids.voxel
     first, *finer = grids.cuts
     small = len(grids.fine[1].points) <= ONE_THREAD_POINTS
@@ -370,7 +375,7 @@ def _point_to_plane(grids: _Grids, start: np.ndarray) -> tuple[np.ndarray, float
         pose, _ = point_to_plane_at_cuts(*grids.coarse, start, (first * voxel,), ICP_ITERATIONS)
         return point_to_plane_at_cuts(
             *grids.fine, pose, tuple(c * voxel for c in finer), ICP_ITERATIONS
-        )
+        )[0]
 
 
 def _centroids_matched(o3d: Any, template: Any, source: Any) -> np.ndarray:
@@ -404,14 +409,12 @@ def _start_competes(
     given. On sparse clouds a symmetric shape fits a pose 180 degrees off as well as the
     right one, and the verdict cannot part them; the pose nearer the start wins where the
     verdict rates it as high (overlap fit within ``ambiguity_margin``), as the fast path's
-    pose does in the search. On 60 re-sampled ModelNet40 pairs this turned five poses
-    30-180 degrees off into right ones, and on 98 views of real scans (4,096 points) three
-    flips and a pose 55 degrees off."""
+    pose does in the search: RANSAC's pose must :func:`_beats` it. On 60 re-sampled
+    ModelNet40 pairs this turned five poses 30-180 degrees off into right ones, and on 98
+    views of real scans (4,096 points) three flips and a pose 55 degrees off."""
     if rotation_between_deg(near, pose) < options.distinct_deg:
         return pose, check
     near_check = judge(prepared, near) if near_check is None else near_check
-    if near_check.verdict == check.verdict:
-        if near_check.overlap_fit >= check.overlap_fit - options.ambiguity_margin:
-            return near, near_check
+    if _beats(check, near_check, options.ambiguity_margin):
         return pose, check
-    return max((pose, check), (near, near_check), key=lambda c: verdict_rank(c[1]))
+    return near, near_check
