@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed
 SHARED_DATA := ../shared/data/modelnet40/modelnet40_1024_int16.npz
 export MASKNET_DATA ?= $(if $(wildcard $(SHARED_DATA)),$(abspath $(SHARED_DATA)),)
 
-.PHONY: install demo test lint format sample clean
+.PHONY: install demo test lint format sample clean relay
 
 $(STAMP): pyproject.toml constraints.txt
 	@echo "Installing masknet and its dependencies into $(VENV) (a few minutes the first time)..."
@@ -34,6 +34,10 @@ lint: install
 format: install
 	$(BIN)/ruff check --fix src tests
 	$(BIN)/ruff format src tests
+
+# Resume the relay training run of CrossMaskNet in the background (relay/crossmasknet_modelnet40).
+relay: install
+	bash scripts/relay.sh start
 
 # Rebuild the bundled sample from the ModelNet40 test split.
 sample: install

@@ -17,6 +17,7 @@ __all__ = [
     "display_points",
     "distance_colours",
     "plot_clouds",
+    "plot_learning_curve",
     "plot_mask",
     "plot_registration",
 ]
@@ -237,3 +238,24 @@ def _save(fig, path: str | os.PathLike) -> Path:
     finally:
         plt.close(fig)
     return path
+
+
+def plot_learning_curve(history: list[dict], path: str | os.PathLike, metric: str) -> Path:
+    """A training run's curve: loss (left) and ``metric`` (right) per epoch, training and
+    validation, from the loop's log rows (``train_loss``, ``val_<metric>``, ...)."""
+    plt = pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.4))
+    epochs = [row["epoch"] for row in history]
+    for ax, key in zip(axes, ("loss", metric), strict=True):
+        for split, style in (("train", "-"), ("val", "--")):
+            values = [row.get(f"{split}_{key}") for row in history]
+            if any(v is not None for v in values):
+                ax.plot(epochs, values, style, marker="o", markersize=3, label=split)
+        ax.set_xlabel("epoch")
+        ax.set_title(key)
+        ax.grid(alpha=0.3)
+        ax.legend()
+    if history:
+        hours = history[-1].get("elapsed_min", 0.0) / 60
+        fig.suptitle(f"{len(history)} epochs, {hours:.1f} h of training", fontsize=10)
+    return _save(fig, path)

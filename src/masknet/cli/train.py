@@ -31,7 +31,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "--model",
         choices=list(MODELS),
         default="masknet",
-        help="masknet (partial pairs), masknet2 (the two-sided MaskNet: template and "
+        help="masknet (partial pairs), crossmasknet (a stronger template mask: local "
+        "geometry and attention between the clouds; --loss bce suits it), masknet2 (the two-sided MaskNet: template and "
         "source masks, trained with outliers and clutter in the source; --init names the "
         "MaskNet it starts from, default modelnet40), refine (the refinement mask of rounds >= 2: "
         "both masks of a pair already brought close, trained with residual poses, outliers and "
@@ -110,6 +111,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         type=float,
         help="minutes for this invocation: no epoch starts that would end past it",
     )
+    p.add_argument(
+        "--checkpoint-minutes",
+        type=float,
+        help="also checkpoint within an epoch this often (SIGTERM always saves where the "
+        "run stands and exits; --resume goes on from there)",
+    )
     p.add_argument("--resume", action="store_true", help="continue the checkpoint in --out")
     p.add_argument(
         "--init",
@@ -160,7 +167,7 @@ def build_task(args: argparse.Namespace) -> TrainSetup:
         raise MaskNetError(
             f"--template-mask trains a registration network, not --model {args.model}"
         )
-    if args.distill and args.model != "masknet":
+    if args.distill and args.model not in ("masknet", "crossmasknet"):
         raise MaskNetError(f"--distill trains a MaskNet (--model masknet), not {args.model}")
     if args.scans and args.model in NETWORK_METHODS:
         raise MaskNetError(f"--scans trains MaskNet (--model masknet), not {args.model}")
@@ -173,10 +180,16 @@ def _encoder(args: argparse.Namespace) -> dict:
 
 
 def _masknet(args: argparse.Namespace) -> TrainSetup:
-    from masknet.models import MaskNet
     from masknet.training import MaskNetTask
+    from masknet.training.masknet_task import MASK_NETWORKS
 
+    MaskNet = MASK_NETWORKS[args.model]  # noqa: N806 (the network class of --model)
+    if args.model != "masknet" and args.feature_size:
+        raise MaskNetError(
+            f"--feature-size is MaskNet's; set {args.model}'s sizes with --model-config"
+        )
     settings = {
+        "network": args.model,
         "pairs": pair_config(args),
         "num_points": args.num_points,
         "loss": args.loss,
@@ -275,6 +288,7 @@ def _registration_network(args: argparse.Namespace) -> TrainSetup:
 # --model -> the builder of its task, as the method table maps a method to its adapter.
 TASK_BUILDERS = {
     "masknet": _masknet,
+    "crossmasknet": _masknet,
     "masknet2": _two_sided,
     "refine": _refine,
     "denoise": _denoise,
@@ -306,6 +320,7 @@ def run(args: argparse.Namespace) -> None:
         device=args.device,
         threads=args.threads,
         max_minutes=args.max_minutes,
+        checkpoint_minutes=args.checkpoint_minutes,
         extra={"categories": args.categories},
     )
     init = _init_weights(model_class, args.init) if args.init else None
@@ -341,6 +356,8 @@ def run(args: argparse.Namespace) -> None:
 # How a finished run's best weights are used, per --model.
 _USE = {
     "masknet": "masknet evaluate, mask and register take --weights {best}",
+    "crossmasknet": "in Python, CrossMaskNet.from_file('{best}'); any Mask-X takes it as "
+    "register(..., model=...)",
     "masknet2": "masknet register --two-sided and masknet denoise --method masknet take "
     "--weights {best}",
     "denoise": "masknet denoise --method masknet takes --weights {best}",

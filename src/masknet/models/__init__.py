@@ -1,6 +1,7 @@
-"""Models: the PointNet encoder, MaskNet, the two-sided MaskNet, the refinement mask, and the
+"""Models: the PointNet encoder, MaskNet, CrossMaskNet, the two-sided MaskNet, the refinement mask, and the
 learned registration networks."""
 
+from masknet.models.cross_masknet import CrossMaskNet
 from masknet.models.dcp import DCP
 from masknet.models.layers import RegistrationSolution
 from masknet.models.masknet import FusedMaskNet, MaskNet, ScoredMask, select_mask
@@ -23,6 +24,7 @@ REGISTRATION_NETWORKS = {
 }
 
 __all__ = [
+    "CrossMaskNet",
     "DCP",
     "FusedMaskNet",
     "LKSolution",

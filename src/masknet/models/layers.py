@@ -125,15 +125,24 @@ class EdgeConvEncoder(nn.Module):
     in for the original BatchNorm, so a cloud's features depend on that cloud alone
     (batch 1 at inference behaves as in training).
 
+    ``dynamic=False`` keeps the first layer's graph (the k nearest points in space) for
+    every layer: one 3-D KD-tree search per cloud instead of a pairwise distance matrix in
+    feature space per layer, for networks that must run fast on a CPU.
+
     forward: points (B, N, 3) -> features (B, N, out_channels); k is clamped to N.
     """
 
     def __init__(
-        self, channels: Sequence[int] = (64, 64, 128, 256), out_channels: int = 512, k: int = 20
+        self,
+        channels: Sequence[int] = (64, 64, 128, 256),
+        out_channels: int = 512,
+        k: int = 20,
+        dynamic: bool = True,
     ):
         super().__init__()
         dims = [3, *channels]
         self.k = k
+        self.dynamic = dynamic
         self.edges = nn.ModuleList(
             nn.Sequential(nn.Linear(2 * a, b, bias=False), nn.LayerNorm(b))
             for a, b in zip(dims[:-1], dims[1:], strict=True)
@@ -145,6 +154,7 @@ class EdgeConvEncoder(nn.Module):
     def forward(self, points: Tensor) -> Tensor:
         k = min(self.k, points.shape[1])
         x, outputs = points, []
+        graph = None if self.dynamic else neighbour_index(points, k)
         for edge in self.edges:
             linear, norm = edge
             c = x.shape[-1]
@@ -153,7 +163,8 @@ class EdgeConvEncoder(nn.Module):
             w_a, w_b = linear.weight[:, :c], linear.weight[:, c:]
             neighbour_part = x @ w_a.T  # (B, N, C')
             centre_part = x @ (w_b - w_a).T
-            edges = gather_points(neighbour_part, neighbour_index(x, k)) + centre_part[:, :, None]
+            idx = neighbour_index(x, k) if graph is None else graph
+            edges = gather_points(neighbour_part, idx) + centre_part[:, :, None]
             x = nn.functional.leaky_relu(norm(edges), 0.2).amax(2)
             outputs.append(x)
         return nn.functional.leaky_relu(self.out(torch.cat(outputs, -1)), 0.2)

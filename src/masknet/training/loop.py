@@ -9,7 +9,9 @@ compute the loss and export weights). The loop owns the rest:
 * an atomic checkpoint every epoch (``checkpoint.safetensors``, nothing pickled,
   :mod:`masknet.training.checkpoint`; written to a temporary
   file then renamed), so a kill at any moment loses at most the current epoch,
-  and ``resume=True`` continues where it stopped;
+  and ``resume=True`` continues where it stopped; with ``checkpoint_minutes`` also
+  within an epoch, every that many minutes, and always on SIGTERM (the run saves where
+  it stands and exits), so a long run can stop and go on elsewhere losing nothing;
 * a CSV log (``log.csv``) and the best weights by validation metric
   (``best.safetensors``, via the task's exporter);
 * several processes under ``torchrun`` (DistributedDataParallel; gloo on CPU,
@@ -20,14 +22,14 @@ compute the loss and export weights). The loop owns the rest:
   GPUs where SyncBatchNorm is used). Rank 0 validates, logs and writes files.
 
 Pairs are a pure function of (seed, epoch, batch), so a resumed run sees the
-same data it would have seen without the interruption.
+same data it would have seen without the interruption: a run resumed within an epoch
+skips the batches it has trained on and continues with the same weights, optimiser
+state, running means and torch RNG state as the run that stopped.
 """
 
 from __future__ import annotations
 
-import csv
 import json
-import math
 import os
 import sys
 import time
@@ -40,11 +42,17 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from masknet._atomic import atomic_target
-from masknet._extras import progress_bar
 from masknet.errors import MaskNetError
 from masknet.runtime import default_precision, resolve_device
-from masknet.training.checkpoint import load_checkpoint, save_checkpoint
+from masknet.training.distributed import init_distributed
+from masknet.training.epoch import (
+    RunState,
+    Saver,
+    end_epoch,
+    resume_run,
+    stop_on_sigterm,
+    train_epoch,
+)
 
 __all__ = ["Task", "TrainConfig", "fit", "split_train_val"]
 
@@ -92,12 +100,8 @@ class TrainConfig:
     device: str = "auto"
     threads: int | None = None
     max_minutes: float | None = None  # per invocation: no epoch starts that would end past it
+    checkpoint_minutes: float | None = None  # also save within an epoch this often
     extra: dict = field(default_factory=dict)
-
-
-# Settings that may change between a run and its --resume; any other change is refused,
-# because it would change the data split, the pairs or the model being continued.
-RESUMABLE_CHANGES = {"epochs", "max_minutes", "threads", "device"}
 
 
 def _check_config(config: TrainConfig, n_train: int) -> None:
@@ -105,25 +109,6 @@ def _check_config(config: TrainConfig, n_train: int) -> None:
         raise MaskNetError(
             f"{n_train} training shapes are fewer than one batch of {config.batch_size}; "
             "lower --batch-size or --val-fraction"
-        )
-
-
-def _check_resumable(path: Path, saved: dict | None, current: dict) -> None:
-    if saved is None:
-        return  # checkpoints from before run_info was stored
-    # Compare as stored: JSON turns tuples into lists.
-    saved, current = (json.loads(json.dumps(x, default=list)) for x in (saved, current))
-    changed = [
-        key
-        for key in sorted(set(saved["train"]) | set(current["train"]))
-        if key not in RESUMABLE_CHANGES and saved["train"].get(key) != current["train"].get(key)
-    ]
-    if saved["task"] != current["task"]:
-        changed.append("task/pair settings")
-    if changed:
-        raise MaskNetError(
-            f"{path}: cannot resume with different settings ({', '.join(changed)}); "
-            "use the original ones or a new --out"
         )
 
 
@@ -145,21 +130,6 @@ def _checkpoint_path(out: Path) -> Path:
     """The run's checkpoint: ``checkpoint.safetensors``, or an earlier version's ``.pt``."""
     legacy = out / "checkpoint.pt"
     return legacy if legacy.exists() and not (out / CHECKPOINT).exists() else out / CHECKPOINT
-
-
-def _write_csv(rows: list[dict], path: Path) -> None:
-    with atomic_target(path) as tmp, open(tmp, "w", newline="") as fh:
-        # Every key of every row, in first-seen order: a mixed task's kinds vary by epoch.
-        writer = csv.DictWriter(fh, fieldnames=list(dict.fromkeys(k for r in rows for k in r)))
-        writer.writeheader()
-        writer.writerows(rows)
-
-
-def _learning_rate(config: TrainConfig, epoch: int) -> float:
-    if config.lr_schedule == "constant":
-        return config.lr
-    progress = epoch / max(1, config.epochs - 1)
-    return config.min_lr + 0.5 * (config.lr - config.min_lr) * (1 + math.cos(math.pi * progress))
 
 
 def fit(
@@ -202,7 +172,7 @@ def fit(
                 "continue; choose another --out, or move those files away"
             )
     device = resolve_device(config.device)
-    rank, world, joined = _init_distributed(device)
+    rank, world, joined = init_distributed(device)
     if not joined:
         return _fit(task, train_points, config, resume, init_weights, device, rank, world)
     # Leave the group before the interpreter exits: gloo threads still running at exit
@@ -259,21 +229,9 @@ def _fit(
             model = nn.SyncBatchNorm.convert_sync_batchnorm(model)
         train_model = nn.parallel.DistributedDataParallel(model)
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
-    history: list[dict] = []
-    best = -math.inf
-    start_epoch = 0
+    run = RunState()
     if resume and ckpt_path.exists():
-        state = load_checkpoint(ckpt_path, model, optimizer, device)
-        _check_resumable(ckpt_path, state.get("run_info"), run_info)
-        history, best, start_epoch = state["history"], state["best"], state["epoch"]
-        if lead and start_epoch >= config.epochs:
-            print(
-                f"{ckpt_path}: already finished {start_epoch} of {config.epochs} epochs; "
-                "raise --epochs to train more",
-                file=sys.stderr,
-            )
-        elif lead:
-            print(f"resuming {ckpt_path} at epoch {start_epoch + 1}", file=sys.stderr)
+        run = resume_run(ckpt_path, model, optimizer, device, run_info, config.epochs, lead)
     elif resume and lead:
         print(f"no checkpoint in {out}: starting a fresh run", file=sys.stderr)
 
@@ -287,107 +245,44 @@ def _fit(
         out.mkdir(parents=True, exist_ok=True)
         (out / "run.json").write_text(json.dumps(run_info, indent=2))
     autocast = torch.autocast(device.type, dtype=torch.bfloat16, enabled=precision == "bf16")
-    interactive = sys.stderr.isatty()
-    started = time.perf_counter()
-    elapsed_before = history[-1]["elapsed_min"] if history else 0.0
-
-    for epoch in range(start_epoch, config.epochs):
-        lr = _learning_rate(config, epoch)
-        for group in optimizer.param_groups:
-            group["lr"] = lr
-        train_model.train()
-        epoch_start = time.perf_counter()
-        sums: dict[str, float] = {}
-        counts: dict[str, int] = {}  # per key: a mixed task's metrics need not be in every batch
-        count = 0
-        batches = task.train_batches(train_set, config.batch_size, config.seed, epoch)
-        total = len(batches) if hasattr(batches, "__len__") else len(train_set) // config.batch_size
-        bar = progress_bar(
-            batches,
-            total=total,
-            desc=f"epoch {epoch + 1}/{config.epochs}",
-            leave=interactive,
-            mininterval=0.5 if interactive else 60,
-            file=sys.stderr,
-            disable=not lead,
-        )
-        for batch in bar:
-            if world > 1:
-                batch = type(batch)(*(x.tensor_split(world)[rank] for x in batch))
-            with autocast:
-                loss, metrics = task.step(train_model, batch, device)
-            loss_value = loss.item()
-            if not math.isfinite(loss_value):
-                raise MaskNetError(f"training diverged at epoch {epoch + 1}: loss is {loss_value}")
-            optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            optimizer.step()
-            count += 1
-            for key, value in {"loss": loss_value, **metrics}.items():
-                sums[key] = sums.get(key, 0.0) + value
-                counts[key] = counts.get(key, 0) + 1
-            shown = {k: f"{sums[k] / counts[k]:.3f}" for k in (task.metric,) if k in sums}
-            bar.set_postfix(loss=f"{sums['loss'] / count:.4f}", **shown, refresh=False)
-        bar.close()
-        means = {k: v / counts[k] for k, v in sums.items()}
-        if world > 1:
-            means = _mean_over_processes(means, device)
-        row = {"epoch": epoch + 1, "lr": lr}
-        row.update({f"train_{k}": v for k, v in means.items()})
-        stop = False
-        if lead:
-            row.update(
-                {
-                    f"val_{k}": v
-                    for k, v in _validate(task, model, val_batches, device, autocast).items()
-                }
-            )
-            row["epoch_min"] = (time.perf_counter() - epoch_start) / 60
-            row["elapsed_min"] = elapsed_before + (time.perf_counter() - started) / 60
-            history.append(row)
-
-            score = row[f"val_{task.metric}"] if val_batches else row[f"train_{task.metric}"]
-            score = score if task.maximize else -score
-            meta = {"epoch": epoch + 1, **run_info, "val": row}
-            if score > best:
-                best = score
-                task.export(model, out / "best.safetensors", meta)
-            task.export(model, out / "last.safetensors", meta)
-            save_checkpoint(
-                out / CHECKPOINT,
-                model,
+    saver = Saver(out / CHECKPOINT, model, optimizer, run, run_info, config, lead and world == 1)
+    with stop_on_sigterm(enabled=world == 1) as stop:
+        for epoch in range(run.epoch, config.epochs):
+            epoch_start = time.perf_counter()
+            means = train_epoch(
+                task,
+                train_model,
                 optimizer,
-                {
-                    "epoch": epoch + 1,
-                    "history": history,
-                    "best": best,
-                    "run_info": run_info,
-                },
+                train_set,
+                config,
+                epoch,
+                run,
+                saver,
+                stop,
+                device,
+                lead,
+                world,
+                rank,
             )
-            _write_csv(history, out / "log.csv")
-            print(
-                f"epoch {epoch + 1}: "
-                + ", ".join(
-                    f"{k} {v:.3g}" if k == "lr" else f"{k} {v:.4f}"  # lr exact: 5e-05, not 0.0001
-                    for k, v in row.items()
-                    if k != "epoch"
-                ),
-                file=sys.stderr,
-                flush=True,
-            )
-            if config.max_minutes is not None:
-                spent = (time.perf_counter() - started) / 60
-                if spent + row["epoch_min"] > config.max_minutes:
-                    print(
-                        f"stopping: time budget of {config.max_minutes} min reached",
-                        file=sys.stderr,
-                    )
-                    stop = True
-        if world > 1:
-            stop = _broadcast_flag(stop, device)
-        if stop:
-            break
-    return history
+            if means is None:  # stopped within the epoch, where it stands saved
+                break
+            if end_epoch(
+                task,
+                model,
+                run,
+                saver,
+                means,
+                val_batches,
+                config,
+                epoch,
+                epoch_start,
+                device,
+                autocast,
+                lead,
+                world,
+            ):
+                break
+    return run.history
 
 
 def _load_init(model: nn.Module, init_weights: nn.Module) -> None:
@@ -403,55 +298,3 @@ def _load_init(model: nn.Module, init_weights: nn.Module) -> None:
             f"--init weights do not fit this model (missing {missing[:3]}, "
             f"unexpected {unexpected[:3]})"
         )
-
-
-def _init_distributed(device: torch.device) -> tuple[int, int, bool]:
-    """(rank, world size, joined): joins the process group when started by torchrun;
-    ``joined`` says that this call did, so that fit() leaves it again."""
-    world = int(os.environ.get("WORLD_SIZE", "1"))
-    if world == 1:
-        return 0, 1, False
-    import torch.distributed as dist
-
-    joined = not dist.is_initialized()
-    if joined:
-        dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
-    return dist.get_rank(), dist.get_world_size(), joined
-
-
-def _mean_over_processes(sums: dict[str, float], device: torch.device) -> dict[str, float]:
-    """Average per-process metric means, so rank 0 logs the whole batch."""
-    import torch.distributed as dist
-
-    keys = sorted(sums)
-    on = device if device.type == "cuda" else "cpu"
-    values = torch.tensor([sums[k] for k in keys], dtype=torch.float64, device=on)
-    dist.all_reduce(values)
-    return {k: float(v) / dist.get_world_size() for k, v in zip(keys, values, strict=True)}
-
-
-def _broadcast_flag(flag: bool, device: torch.device) -> bool:
-    """Rank 0's decision, on every rank (so all stop at the same epoch)."""
-    import torch.distributed as dist
-
-    value = torch.tensor([int(flag)], device=device if device.type == "cuda" else "cpu")
-    dist.broadcast(value, src=0)
-    return bool(value.item())
-
-
-@torch.no_grad()
-def _validate(
-    task: Task, model: nn.Module, batches: list, device: torch.device, autocast
-) -> dict[str, float]:
-    if not batches:
-        return {}
-    model.eval()
-    sums: dict[str, float] = {}
-    counts: dict[str, int] = {}
-    for batch in batches:
-        with autocast:
-            loss, metrics = task.step(model, batch, device)
-        for key, value in {"loss": loss.item(), **metrics}.items():
-            sums[key] = sums.get(key, 0.0) + value
-            counts[key] = counts.get(key, 0) + 1
-    return {k: v / counts[k] for k, v in sums.items()}

@@ -10,11 +10,16 @@ from torch import Tensor, nn
 
 from masknet.data.pairs import PairConfig, Pairs
 from masknet.metrics import mask_metrics
+from masknet.models.cross_masknet import CrossMaskNet
 from masknet.models.masknet import MaskNet, select_mask
 from masknet.training.pair_task import PairTask
 from masknet.training.scan_mix import ScanMix, by_kind
 
-__all__ = ["MaskNetTask"]
+__all__ = ["MASK_NETWORKS", "MaskNetTask"]
+
+# The template-mask networks by name, as ``MaskNetTask(network=...)`` and ``masknet train
+# --model`` take them.
+MASK_NETWORKS = {"masknet": MaskNet, "crossmasknet": CrossMaskNet}
 
 
 @dataclass
@@ -23,7 +28,9 @@ class MaskNetTask(PairTask):
 
     pairs, num_points: see :class:`PairTask` (default: the paper's protocol).
     loss: ``"mse"`` (the paper's) or ``"bce"``.
-    model_config: keyword arguments of :class:`MaskNet` (default: the paper's sizes).
+    network: which mask network: ``"masknet"`` (the paper's) or ``"crossmasknet"``
+        (:class:`~masknet.models.CrossMaskNet`: local geometry and cross-attention).
+    model_config: keyword arguments of that network's class (default: its own sizes).
     role: ``"template"`` (the paper's main use: score template points seen by the
         source, top-k precision) or ``"denoise"`` (score the points of a source
         with outliers, given the clean template; threshold 0.5, F1 of the kept points).
@@ -37,6 +44,7 @@ class MaskNetTask(PairTask):
     """
 
     loss: Literal["mse", "bce"] = "mse"
+    network: Literal["masknet", "crossmasknet"] = "masknet"
     model_config: dict = field(default_factory=dict)
     name: str = "masknet"
     metric: str = "precision"
@@ -48,6 +56,10 @@ class MaskNetTask(PairTask):
     def __post_init__(self) -> None:
         if self.teacher is not None and self.loss != "bce":
             raise ValueError("distilling from a teacher needs loss='bce'")
+        if self.network not in MASK_NETWORKS:
+            raise ValueError(
+                f"network must be one of {sorted(MASK_NETWORKS)}, got {self.network!r}"
+            )
         if not 0.0 <= self.distill_weight <= 1.0:
             raise ValueError(f"distill_weight must lie in [0, 1], got {self.distill_weight}")
 
@@ -77,7 +89,7 @@ class MaskNetTask(PairTask):
         return cls(mix=mix, **kwargs)
 
     def build_model(self) -> nn.Module:
-        return MaskNet(**self.model_config)
+        return MASK_NETWORKS[self.network](**self.model_config)
 
     def step(
         self, model: nn.Module, batch: Pairs, device: torch.device
@@ -122,6 +134,8 @@ class MaskNetTask(PairTask):
 
     def describe_extra(self) -> dict:
         extra = {"loss": self.loss} | ({"role": self.role} if self.role != "template" else {})
+        if self.network != "masknet":  # only then: earlier runs' settings stay as they were
+            extra["network"] = self.network
         if self.teacher is not None:
             extra |= {"teacher": self.teacher, "distill_weight": self.distill_weight}
         return extra
