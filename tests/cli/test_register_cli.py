@@ -185,6 +185,9 @@ def test_register_finds_an_object_in_a_scene(tmp_path, capsys):
     assert main([*args, "--html", str(tmp_path / "v.html")]) == 0
     text = capsys.readouterr().out
     assert "scene search:" in text and "source kept:" in text
+    # The scan is named by its file, never by the placeholder of --help.
+    assert "regions of scene.npy searched" in text and "SOURCE" not in text
+    assert "path: scene search (the template found in scene.npy," in text
     kept = np.loadtxt(tmp_path / "r_source_mask.txt").astype(bool)
     on_object = np.repeat(np.arange(4) == 1, len(shapes[1]))
     assert (kept & on_object).sum() > 0.95 * on_object.sum() and (kept & ~on_object).sum() < 50
@@ -213,6 +216,7 @@ def test_register_finds_an_object_in_a_scene(tmp_path, capsys):
     assert main([*other, "--scene", "on"]) in (0, 3)
     captured = capsys.readouterr()
     assert "scene search:" in captured.out and "may not be in this scan" in captured.err
+    assert "under half of other.npy lies on scene.npy" in captured.err
 
 
 def test_register_says_how_many_rows_it_dropped(tmp_path, pair_files, capsys):

@@ -344,7 +344,7 @@ def run(args: argparse.Namespace) -> int:
         removed = write_all(writers, stale=derived)
 
     print_result(args, name, template, source, source_rows, result)
-    report_path(result.info, result.R)
+    report_path(result.info, result.R, Path(args.source).name)
     print("reported by the method: " + shown_numbers(result.info))
     print(f"did it work: {check.verdict}: {check.reason}")
     print(
