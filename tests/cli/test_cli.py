@@ -93,6 +93,20 @@ def test_help_does_not_import_torch_and_names_agree():
     assert set(METHODS) == set(METHOD_TITLES)
 
 
+def test_help_lists_what_to_run_first_one_line_each(monkeypatch):
+    from masknet.cli import build_parser
+
+    monkeypatch.setenv("COLUMNS", "80")  # argparse wraps at the terminal's width
+    text = build_parser().format_help()
+    listed = text.split("\ncommands:\n", 1)[1].splitlines()[1:]  # after "COMMAND"
+    names = [line.split()[0] for line in listed]
+    assert names[:2] == ["register", "mask"]  # what a newcomer runs first
+    assert names.index("train") > names.index("demo") and names[-1] == "make-sample"
+    # One line each, a description beside every name (none wraps onto its own line).
+    assert all(line.startswith("    ") and len(line.split()) > 2 for line in listed)
+    assert len(listed) == 10 and "masknet register TEMPLATE SOURCE" in text
+
+
 def test_an_unwritable_viewer_path_fails_before_anything_is_written(tmp_path, pair_files, capsys):
     template, source, _ = pair_files
     blocker = tmp_path / "plain_file"

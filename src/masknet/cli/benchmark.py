@@ -17,7 +17,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Add ``benchmark`` to the ``masknet`` subparsers."""
     p = subparsers.add_parser(
         "benchmark",
-        help="reproduce the paper's experiments on seeded ModelNet40 test pairs: "
+        help="reproduce the paper's experiments: tables and plots",
+        description="reproduce the paper's experiments on seeded ModelNet40 test pairs: "
         "table (JSON, CSV), plot (PNG), and with --results the tables of a results page",
     )
     p.add_argument(

@@ -13,7 +13,9 @@ from masknet.cli._common import add_model_options, load_model, positive_int, see
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Add ``demo`` to the ``masknet`` subparsers."""
     p = subparsers.add_parser(
-        "demo", help="run the shipped model on the bundled sample: metrics and a picture"
+        "demo",
+        help="run the shipped model on the bundled sample",
+        description="run the shipped model on the bundled sample: metrics and a picture",
     )
     p.add_argument(
         "--out",

@@ -14,7 +14,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Add ``denoise`` to the ``masknet`` subparsers."""
     p = subparsers.add_parser(
         "denoise",
-        help="remove the points of NOISY that TEMPLATE (a clean cloud of the same object) "
+        help="drop the points of a scan that TEMPLATE does not explain",
+        description="remove the points of NOISY that TEMPLATE (a clean cloud of the same object) "
         "does not explain",
     )
     p.add_argument(

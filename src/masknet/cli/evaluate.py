@@ -21,7 +21,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Add ``evaluate`` to the ``masknet`` subparsers."""
     p = subparsers.add_parser(
         "evaluate",
-        help="mask precision/recall/F1/IoU on seeded ModelNet40 test pairs, or (--scans) on "
+        help="measure mask precision on test pairs or real scans",
+        description="mask precision/recall/F1/IoU on seeded ModelNet40 test pairs, or (--scans) on "
         "pairs cut from real scans, with ICP against Mask-ICP",
     )
     p.add_argument("--data", help="ModelNet40 folder or .npz (default: $MASKNET_DATA)")

@@ -39,7 +39,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Add ``register`` to the ``masknet`` subparsers."""
     p = subparsers.add_parser(
         "register",
-        help="align SOURCE to TEMPLATE (Mask-X, or plain X with --no-mask); write the "
+        help="align SOURCE to TEMPLATE and write the moved source",
+        description="align SOURCE to TEMPLATE (Mask-X, or plain X with --no-mask); write the "
         "moved source, the 4x4 transform and the inlier template",
         epilog=exit_codes_text(),
         formatter_class=argparse.RawDescriptionHelpFormatter,

@@ -33,7 +33,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Add ``register-many`` to the ``masknet`` subparsers."""
     p = subparsers.add_parser(
         "register-many",
-        help="register many pairs in parallel (all cores, or a Dask cluster): one result "
+        help="register many pairs on every core (resumable)",
+        description="register many pairs in parallel (all cores, or a Dask cluster): one result "
         "per pair and summary.csv in OUTDIR; run it again to finish an interrupted batch",
         epilog=exit_codes_text(),
         formatter_class=argparse.RawDescriptionHelpFormatter,

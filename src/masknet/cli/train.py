@@ -25,7 +25,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Add ``train`` to the ``masknet`` subparsers."""
     p = subparsers.add_parser(
         "train",
-        help="train MaskNet or a registration network on ModelNet40 (CPU or GPU), resumable",
+        help="train MaskNet or a registration network (resumable)",
+        description="train MaskNet or a registration network on ModelNet40 (CPU or GPU), resumable",
     )
     p.add_argument(
         "--model",
