@@ -61,7 +61,7 @@ def test_bad_input_is_one_line_and_writes_nothing(
 
 
 def test_unknown_pretrained_name_is_clear(capsys):
-    assert main(["demo", "--pretrained", "nope"]) == 2
+    assert main(["demo", "--weights", "nope"]) == 2
     assert "no shipped MaskNet weights named 'nope'" in capsys.readouterr().err
 
 
@@ -69,8 +69,8 @@ def test_unknown_pretrained_name_is_clear(capsys):
     "args",
     [
         ["evaluate", "--pairs", "0"],
-        ["train", "--out", "x", "--batch-size", "0"],
-        ["train", "--out", "x", "--seed", "-1"],
+        ["train", "--output", "x", "--batch-size", "0"],
+        ["train", "--output", "x", "--seed", "-1"],
         ["mask", "a.xyz", "b.xyz", "-o", "c.xyz", "--k", "0"],
         ["mask", "a.xyz", "b.xyz", "-o", "c.xyz", "--threshold", "nan"],
     ],

@@ -68,7 +68,7 @@ def run(args: argparse.Namespace) -> None:
         )
     model = load_model(args)
     mask, scores = model.predict_mask_with_scores(
-        template, source, k=args.k, threshold=args.threshold, precision=args.inference_precision
+        template, source, k=args.k, threshold=args.threshold, precision=args.precision
     )
     layers = {"template": template, "source": source, "inliers": template[mask]}
     title = f"MaskNet inliers: {Path(args.template).name} seen by {Path(args.source).name}"
