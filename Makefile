@@ -21,7 +21,7 @@ $(STAMP): pyproject.toml constraints.txt
 install: $(STAMP)
 
 demo: install
-	$(BIN)/masknet demo --out masknet_demo
+	$(BIN)/masknet demo -o masknet_demo
 
 test: install
 	@bash scripts/install-system-deps.sh --test

@@ -28,7 +28,7 @@ start)
     # The recipe: fixed for the whole run (--resume refuses any change but --epochs,
     # --threads, --max-minutes and --checkpoint-minutes).
     nohup nice -n 19 "$MASKNET" train --model crossmasknet --loss bce --data "$DATA" \
-        --out "$RUN" --epochs 40 --batch-size 32 --lr 5e-4 --lr-schedule cosine \
+        --output "$RUN" --epochs 40 --batch-size 32 --lr 5e-4 --lr-schedule cosine \
         --precision fp32 --threads 2 --seed 0 --checkpoint-minutes 10 --resume \
         >>"$RUN/train.log" 2>&1 &
     echo $! >"$PIDFILE"

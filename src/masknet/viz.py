@@ -16,6 +16,7 @@ __all__ = [
     "display_index",
     "display_points",
     "distance_colours",
+    "fit_title",
     "plot_clouds",
     "plot_learning_curve",
     "plot_mask",
@@ -97,7 +98,7 @@ def plot_mask(
             ax.scatter(*template[sel].T, s=size, c=colour, label=f"{name} ({sel.sum()})")
     ax.legend(loc="upper left", fontsize=7, markerscale=4)
     if title:
-        fig.suptitle(title, fontsize=11)
+        fit_title(fig, title, fontsize=11)
     return _save(fig, path)
 
 
@@ -168,7 +169,7 @@ def plot_clouds(
         if i == 0:
             ax.legend(loc="upper left", fontsize=8, markerscale=4)
     if title:
-        fig.suptitle(title, fontsize=11)
+        fit_title(fig, title, fontsize=11)
     return _save(fig, path)
 
 
@@ -223,8 +224,23 @@ def plot_registration(
         pad=0.1,
     )
     bar.set_label("distance to the template (input units; farther: yellow)", fontsize=8)
-    fig.suptitle(f"{title}\n{textwrap.fill(verdict, 120)}", fontsize=10)
+    fit_title(fig, f"{title}\n{verdict}", fontsize=10)
     return _save(fig, path)
+
+
+def fit_title(fig, text: str, fontsize: float) -> None:
+    """``fig``'s title, each line wrapped at word breaks to fit the figure's width (a long
+    verdict or file name would run off both edges, the title being centred)."""
+    width_pt = fig.get_figwidth() * 72 * 0.96  # a margin at either edge
+    columns = max(20, int(width_pt / (0.5 * fontsize)))  # a first guess: mean glyph width
+    renderer = fig.canvas.get_renderer()
+    while True:
+        wrapped = "\n".join(textwrap.fill(line, columns) for line in text.splitlines())
+        title = fig.suptitle(wrapped, fontsize=fontsize)
+        # The guess is checked on the rendered text: narrow it until the title fits.
+        if title.get_window_extent(renderer).width <= width_pt * fig.dpi / 72 or columns <= 20:
+            return
+        columns = int(columns * 0.9)
 
 
 def _save(fig, path: str | os.PathLike) -> Path:

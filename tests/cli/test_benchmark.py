@@ -17,6 +17,6 @@ def test_the_command_offers_exactly_the_registrys_experiments(capsys):
 
 
 def test_an_unknown_experiment_is_refused_in_one_line(tmp_path, capsys):
-    assert main(["benchmark", "no-such-thing", "--out", str(tmp_path / "b")]) == 2
+    assert main(["benchmark", "no-such-thing", "--output", str(tmp_path / "b")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no-such-thing" in err[0] and "registration" in err[0]

@@ -61,7 +61,7 @@ def test_bad_input_is_one_line_and_writes_nothing(
 
 
 def test_unknown_pretrained_name_is_clear(capsys):
-    assert main(["demo", "--pretrained", "nope"]) == 2
+    assert main(["demo", "--weights", "nope"]) == 2
     assert "no shipped MaskNet weights named 'nope'" in capsys.readouterr().err
 
 
@@ -69,8 +69,8 @@ def test_unknown_pretrained_name_is_clear(capsys):
     "args",
     [
         ["evaluate", "--pairs", "0"],
-        ["train", "--out", "x", "--batch-size", "0"],
-        ["train", "--out", "x", "--seed", "-1"],
+        ["train", "--output", "x", "--batch-size", "0"],
+        ["train", "--output", "x", "--seed", "-1"],
         ["mask", "a.xyz", "b.xyz", "-o", "c.xyz", "--k", "0"],
         ["mask", "a.xyz", "b.xyz", "-o", "c.xyz", "--threshold", "nan"],
     ],
@@ -91,6 +91,20 @@ def test_help_does_not_import_torch_and_names_agree():
 
     assert NETWORK_METHODS == tuple(REGISTRATION_NETWORKS)
     assert set(METHODS) == set(METHOD_TITLES)
+
+
+def test_help_lists_what_to_run_first_one_line_each(monkeypatch):
+    from masknet.cli import build_parser
+
+    monkeypatch.setenv("COLUMNS", "80")  # argparse wraps at the terminal's width
+    text = build_parser().format_help()
+    listed = text.split("\ncommands:\n", 1)[1].splitlines()[1:]  # after "COMMAND"
+    names = [line.split()[0] for line in listed]
+    assert names[:2] == ["register", "mask"]  # what a newcomer runs first
+    assert names.index("train") > names.index("demo") and names[-1] == "make-sample"
+    # One line each, a description beside every name (none wraps onto its own line).
+    assert all(line.startswith("    ") and len(line.split()) > 2 for line in listed)
+    assert len(listed) == 10 and "masknet register TEMPLATE SOURCE" in text
 
 
 def test_an_unwritable_viewer_path_fails_before_anything_is_written(tmp_path, pair_files, capsys):

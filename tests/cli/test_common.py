@@ -73,3 +73,48 @@ def test_a_writer_error_names_the_users_file_not_the_temporary_one(tmp_path, pai
     assert (
         err.startswith(f"masknet: error: {out}: cannot write an empty cloud") and ".part" not in err
     )
+
+
+# Each old spelling, kept for one version: (command line with it, the attribute it sets,
+# the value, what the warning says to use).
+_OLD_SPELLINGS = [
+    ("demo --out d", "output", "d", "-o/--output"),
+    ("benchmark registration --out b", "output", "b", "-o/--output"),
+    ("train --out r", "output", "r", "-o/--output"),
+    ("evaluate --json e.json", "output", "e.json", "-o/--output"),
+    ("register-many --list l.txt --out o", "output", "o", "-o/--output"),
+    ("mask t.xyz s.xyz -o m.xyz --pretrained scans", "weights", "scans", "--weights NAME"),
+    ("mask t.xyz s.xyz -o m.xyz --inference-precision fp32", "precision", "fp32", "--precision"),
+    ("register t.xyz s.xyz -o m.xyz --pretrained scans", "weights", ["scans"], "--weights NAME"),
+    ("register t.xyz s.xyz -o m.xyz --network-weights n", "weights", ["n"], "--weights FILE"),
+    ("denoise t.xyz s.xyz -o k.xyz --inference-precision bf16", "precision", "bf16", "--precision"),
+]
+
+
+@pytest.mark.parametrize(("line", "dest", "value", "new"), _OLD_SPELLINGS)
+def test_old_spellings_work_for_one_version_with_a_warning(line, dest, value, new, capsys):
+    from masknet.cli import build_parser
+
+    args = build_parser().parse_args(line.split())
+    assert getattr(args, dest) == value
+    spellings = {"--out", "--json", "--pretrained", "--inference-precision", "--network-weights"}
+    old = next(word for word in line.split() if word in spellings)
+    assert capsys.readouterr().err == (
+        f"masknet: warning: {old} is deprecated and goes in the next version; use {new}\n"
+    )
+
+
+def test_one_spelling_per_idea_across_commands():
+    """Every command that writes takes -o/--output; weights are --weights, precision
+    --precision; the old spellings are hidden from --help."""
+    import argparse
+
+    from masknet.cli import build_parser
+
+    parser = build_parser()
+    commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    for name, sub in commands.choices.items():
+        shown = {s for a in sub._actions if a.help != argparse.SUPPRESS for s in a.option_strings}
+        assert not shown & {"--out", "--json", "--pretrained", "--network-weights"}, name
+        assert "--inference-precision" not in shown, name
+        assert {"-o", "--output"} <= shown, name  # every command writes something

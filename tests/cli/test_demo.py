@@ -12,7 +12,7 @@ def test_demo_writes_picture_and_metrics(tmp_path, small_masknet_weights, capsys
         main(
             [
                 "demo",
-                "--out",
+                "--output",
                 str(tmp_path),
                 "--pairs",
                 "16",

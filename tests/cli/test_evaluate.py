@@ -22,7 +22,7 @@ def test_evaluate_json(tmp_path, small_masknet_weights, capsys):
         "3",
         "--weights",
         str(small_masknet_weights),
-        "--json",
+        "--output",
         str(out),
     ]
     assert main(args) == 0

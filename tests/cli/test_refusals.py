@@ -98,8 +98,8 @@ MASK = "mask template.xyz source.npy -o m.xyz"
 REGISTER = "register template.xyz source.npy -o r.xyz"
 DENOISE = "denoise template.xyz source.npy -o kept.xyz"
 EVALUATE_SCANS = "evaluate --weights @weights --scans scans"
-TRAIN = "train --out run"
-TRAIN_SCANS = "train --out run --scans scans --modelnet-fraction 0 --val-scans b"
+TRAIN = "train -o run"
+TRAIN_SCANS = "train -o run --scans scans --modelnet-fraction 0 --val-scans b"
 
 # command line -> the whole message, or its start where it ends in "..."
 REFUSALS = {
@@ -120,9 +120,12 @@ REFUSALS = {
     "denoise template.xyz source.npy -o kept.foo": "kept.foo: cannot write extension '.foo' (supported: ...",
     "mask template.xyz source.npy -o taken.xyz": "taken.xyz: is a directory, not a file",
     "mask template.xyz source.npy -o scans": "scans: is a directory, not a file",
-    "mask template.xyz source.npy -o m.xyz --weights modelnet40": (
-        "modelnet40: weights file not found (shipped weights go by name: --pretrained NAME; "
+    "mask template.xyz source.npy -o m.xyz --weights runs/modelnet40": (
+        "runs/modelnet40: weights file not found (shipped weights go by name: --weights NAME; "
         "in Python, pretrained(NAME))"
+    ),
+    "mask template.xyz source.npy -o m.xyz --weights nope": (
+        "no shipped MaskNet weights named 'nope'; available: ..."
     ),
     "register template.xyz source.npy -o r.xyz --two-sided --weights @weights": (
         "--two-sided needs two-sided MaskNet weights (masknet train --model masknet2); ..."
@@ -151,10 +154,10 @@ REFUSALS = {
         "every scan is held out for validation; none is left to train on"
     ),
     # benchmark
-    "benchmark nope --out bench --results RESULTS.md": (
+    "benchmark nope -o bench --results RESULTS.md": (
         "unknown experiment 'nope'; choose from registration, networks, ..."
     ),
-    "benchmark registration --out bench --results missing.md": (
+    "benchmark registration -o bench --results missing.md": (
         "missing.md: no such results file (--results rewrites one)"
     ),
     # denoise, evaluate, mask
@@ -164,9 +167,7 @@ REFUSALS = {
     # register
     f"{REGISTER} --refine -1": "--refine must be >= 0, got -1",
     f"{REGISTER} --two-sided --no-mask": "--two-sided and --no-mask exclude each other",
-    f"{REGISTER} --method icp --network-weights w.safetensors": (
-        "--network-weights needs a learned --method, not icp"
-    ),
+    f"{REGISTER} --method icp --weights w.safetensors": ("w.safetensors: weights file not found"),
     # train: refused in build_task (before any data) or on the data's size
     f"{TRAIN} --model refine --model-config '{{\"wings\": 2}}'": (
         "refine: RefineMaskNet.__init__() got an unexpected keyword argument 'wings'"
@@ -248,7 +249,7 @@ def test_a_parser_refusal_is_one_error_line(workdir, capsys, command):
         f"{MASK} --weights @weights",
         "evaluate --data @sample --weights @weights",
         EVALUATE_SCANS,
-        "benchmark registration --quick --out bench",
+        "benchmark registration --quick -o bench",
     ],
 )
 def test_the_tripwires_catch_a_command_that_gets_to_its_work(workdir, command):

@@ -120,11 +120,25 @@ def test_register_with_learned_networks(tmp_path, turned_pair_files, method, cap
     assert capsys.readouterr().out.startswith(f"Mask-{pretty}:")
 
 
-def test_register_network_weights_need_a_learned_method(tmp_path, pair_files, capsys):
+def test_register_weights_of_a_network_need_its_method(tmp_path, pair_files, capsys):
+    from masknet.models.weights import shipped_weights_path
+
     template, source, _ = pair_files
+    dcp = str(shipped_weights_path("dcp_modelnet40.safetensors"))
     args = ["register", str(template), str(source), "-o", str(tmp_path / "m.xyz")]
-    assert main([*args, "--network-weights", "x.safetensors"]) == 2
-    assert "learned --method" in capsys.readouterr().err
+    assert main([*args, "--weights", dcp, "--method", "icp"]) == 2
+    assert f"{dcp}: holds dcp weights; they need --method dcp" in capsys.readouterr().err
+    # One --weights flag for both networks of a Mask-X: the mask's by name, DCP's by file.
+    assert main([*args, "--method", "dcp", "--weights", "modelnet40", "--weights", dcp]) == 0
+    assert capsys.readouterr().out.startswith("Mask-DCP:")
+    assert main([*args, "--method", "dcp", "--weights", dcp, "--weights", dcp]) == 2
+    assert "two files of dcp weights" in capsys.readouterr().err
+    # The old spelling still works, for one version, and says what to write instead.
+    assert main([*args, "--method", "dcp", "--network-weights", dcp]) == 0
+    assert capsys.readouterr().err.startswith(
+        "masknet: warning: --network-weights is deprecated and goes in the next version; "
+        "use --weights FILE\n"
+    )
 
 
 def test_register_bad_source_is_one_line_and_writes_nothing(tmp_path, pair_files, capsys):
@@ -185,6 +199,9 @@ def test_register_finds_an_object_in_a_scene(tmp_path, capsys):
     assert main([*args, "--html", str(tmp_path / "v.html")]) == 0
     text = capsys.readouterr().out
     assert "scene search:" in text and "source kept:" in text
+    # The scan is named by its file, never by the placeholder of --help.
+    assert "regions of scene.npy searched" in text and "SOURCE" not in text
+    assert "path: scene search (the template found in scene.npy," in text
     kept = np.loadtxt(tmp_path / "r_source_mask.txt").astype(bool)
     on_object = np.repeat(np.arange(4) == 1, len(shapes[1]))
     assert (kept & on_object).sum() > 0.95 * on_object.sum() and (kept & ~on_object).sum() < 50
@@ -213,6 +230,7 @@ def test_register_finds_an_object_in_a_scene(tmp_path, capsys):
     assert main([*other, "--scene", "on"]) in (0, 3)
     captured = capsys.readouterr()
     assert "scene search:" in captured.out and "may not be in this scan" in captured.err
+    assert "under half of other.npy lies on scene.npy" in captured.err
 
 
 def test_register_says_how_many_rows_it_dropped(tmp_path, pair_files, capsys):

@@ -41,7 +41,7 @@ SMALL = ["--scan-points", "64", "--batch-size", "8", "--threads", "1", "--precis
 
 def test_train_on_scans_alone_skips_a_bad_file_and_resumes(tmp_path, scan_folder, weights, capsys):
     out = tmp_path / "run"
-    args = ["train", "--scans", str(scan_folder), "--out", str(out), "--init", str(weights)]
+    args = ["train", "--scans", str(scan_folder), "--output", str(out), "--init", str(weights)]
     args += ["--modelnet-fraction", "0", "--scan-batches", "2", "--val-scans", "desk"]
     args += ["--val-pairs", "8", "--loss", "bce", *SMALL]
     assert main([*args, "--epochs", "1"]) == 0
@@ -59,7 +59,7 @@ def test_train_on_scans_alone_skips_a_bad_file_and_resumes(tmp_path, scan_folder
 def test_train_scans_refuse_other_models_and_unknown_validation_names(
     tmp_path, scan_folder, capsys
 ):
-    base = ["train", "--scans", str(scan_folder), "--out", str(tmp_path / "r"), *SMALL]
+    base = ["train", "--scans", str(scan_folder), "--output", str(tmp_path / "r"), *SMALL]
     assert main([*base, "--model", "dcp"]) == 2
     assert "--scans trains MaskNet" in capsys.readouterr().err
     assert main([*base, "--val-scans", "kitchen", "--modelnet-fraction", "0"]) == 2
@@ -73,7 +73,7 @@ def test_evaluate_on_scans_reports_masks_per_scan_and_registration(
 ):
     out = tmp_path / "scans.json"
     args = ["evaluate", "--scans", str(scan_folder), "--weights", str(weights)]
-    args += ["--pairs-per-scan", "2", "--scan-points", "64", "--json", str(out)]
+    args += ["--pairs-per-scan", "2", "--scan-points", "64", "--output", str(out)]
     assert main(args) == 0
     text = capsys.readouterr().out
     assert "8 pairs from 4 scans" in text and "room2" in text and "Mask-ICP" in text
@@ -113,7 +113,7 @@ def test_train_two_sided_on_scans_exports_loadable_weights(tmp_path, scan_folder
     from masknet.models import TwoSidedMaskNet
 
     out = tmp_path / "run2"
-    args = ["train", "--model", "masknet2", "--scans", str(scan_folder), "--out", str(out)]
+    args = ["train", "--model", "masknet2", "--scans", str(scan_folder), "--output", str(out)]
     args += ["--init", str(weights), "--modelnet-fraction", "0", "--scan-batches", "2"]
     args += ["--val-scans", "desk", "--val-pairs", "8", "--epochs", "1", *SMALL]
     assert main(args) == 0
@@ -126,7 +126,7 @@ def test_train_two_sided_on_scans_exports_loadable_weights(tmp_path, scan_folder
     # Fine-tuning that two-sided file: its source branch goes on learning from where it was.
     again = tmp_path / "run3"
     args[args.index("--init") + 1] = str(out / "best.safetensors")
-    args[args.index("--out") + 1] = str(again)
+    args[args.index("--output") + 1] = str(again)
     assert main(args) == 0
     tuned = TwoSidedMaskNet.from_file(again / "best.safetensors")
     assert all(torch.equal(v, start[k]) for k, v in tuned.masknet.state_dict().items())
@@ -141,7 +141,7 @@ def test_train_a_refinement_mask_on_scans_and_fine_tune_it(tmp_path, scan_folder
 
     small = {"k": 6, "local_channels": [8, 16], "point_channels": [16, 32], "head_channels": [16]}
     out = tmp_path / "refine"
-    args = ["train", "--model", "refine", "--scans", str(scan_folder), "--out", str(out)]
+    args = ["train", "--model", "refine", "--scans", str(scan_folder), "--output", str(out)]
     args += ["--modelnet-fraction", "0", "--scan-batches", "2", "--val-scans", "desk"]
     args += ["--val-pairs", "8", "--epochs", "1", "--model-config", json.dumps(small), *SMALL]
     assert main(args) == 0
@@ -153,7 +153,7 @@ def test_train_a_refinement_mask_on_scans_and_fine_tune_it(tmp_path, scan_folder
     assert json.loads((out / "run.json").read_text())["task"]["loss"] == "bce"
     # --init: fine-tuning starts from that file and keeps its architecture
     again = tmp_path / "refine2"
-    tune = ["train", "--model", "refine", "--scans", str(scan_folder), "--out", str(again)]
+    tune = ["train", "--model", "refine", "--scans", str(scan_folder), "--output", str(again)]
     tune += ["--modelnet-fraction", "0", "--scan-batches", "2", "--val-scans", "desk"]
     tune += ["--val-pairs", "8", "--epochs", "1", "--init", str(out / "best.safetensors"), *SMALL]
     tune += ["--lr", "1e-9"]
@@ -162,7 +162,15 @@ def test_train_a_refinement_mask_on_scans_and_fine_tune_it(tmp_path, scan_folder
     assert tuned.config == first.config
     for a, b in zip(tuned.state_dict().values(), first.state_dict().values(), strict=True):
         assert torch.allclose(a, b, atol=1e-6)  # a tiny rate: the weights barely move
-    bad = ["train", "--model", "refine", "--scans", str(scan_folder), "--out", str(tmp_path / "x")]
+    bad = [
+        "train",
+        "--model",
+        "refine",
+        "--scans",
+        str(scan_folder),
+        "--output",
+        str(tmp_path / "x"),
+    ]
     bad += ["--modelnet-fraction", "0", "--model-config", '{"wings": 2}', *SMALL]
     assert main(bad) == 2
     assert "refine:" in capsys.readouterr().err

@@ -24,7 +24,7 @@ def tiny_data(tmp_path):
 
 def _train(data, out, *extra: str) -> list[str]:
     return [
-        "train", "--data", str(data), "--out", str(out), "--num-points", "64",
+        "train", "--data", str(data), "--output", str(out), "--num-points", "64",
         "--batch-size", "16", "--precision", "fp32", "--threads", "1", "--val-pairs", "8",
         "--model-config", '{"encoder_channels": [8, 16], "head_channels": [16, 8]}', *extra,
     ]  # fmt: skip

@@ -348,3 +348,19 @@ def test_derive_seed_stable_and_distinct():
 def test_config_to_dict_round_trip():
     config = PairConfig(noise_sigma=0.01, protocol="official")
     assert PairConfig(**config.to_dict()) == config
+
+
+def test_sample_pair_is_one_seeded_test_pair_of_the_bundled_sample():
+    from masknet.data import bundled_sample_path, load_modelnet40, sample_pair
+
+    template, source, truth = sample_pair()
+    assert template.dtype == source.dtype == truth.dtype == np.float64
+    assert template.shape == (1024, 3) and source.shape == (717, 3) and truth.shape == (4, 4)
+    shapes = load_modelnet40(bundled_sample_path(), "test").points[:1]
+    pair = make_test_pairs(shapes, 1, PairConfig(), seed=3)
+    np.testing.assert_array_equal(source, pair.source[0].double().numpy())
+    # The truth moves the source onto template points.
+    moved = source @ truth[:3, :3].T + truth[:3, 3]
+    assert cKDTree(template).query(moved)[0].max() < 1e-5
+    noisy = sample_pair(seed=4, config=PairConfig(outlier_ratio=0.1))[1]
+    assert len(noisy) > len(source) * 0.9 and not np.array_equal(noisy[:10], source[:10])

@@ -19,7 +19,17 @@ def quick_run(tmp_path_factory):
     mp.delenv("MASKNET_DATA", raising=False)  # the bundled sample, as in CI without data
     try:
         # A smoke run: every experiment's code path, on a few pairs.
-        argv = ["benchmark", "all", "--quick", "--pairs", "4", "--out", str(out), "--threads", "1"]
+        argv = [
+            "benchmark",
+            "all",
+            "--quick",
+            "--pairs",
+            "4",
+            "--output",
+            str(out),
+            "--threads",
+            "1",
+        ]
         code = main(argv)
     finally:
         mp.undo()
@@ -107,7 +117,7 @@ def test_benchmark_help_names_every_experiment(capsys, monkeypatch):
 
 def test_benchmark_resume_from_the_command_line(tmp_path, monkeypatch, capsys):
     monkeypatch.delenv("MASKNET_DATA", raising=False)
-    argv = ["benchmark", "iterations", "--quick", "--pairs", "4", "--out", str(tmp_path)]
+    argv = ["benchmark", "iterations", "--quick", "--pairs", "4", "--output", str(tmp_path)]
     argv += ["--threads", "1"]
     assert main(argv) == 0
     first = json.loads((tmp_path / "iterations.json").read_text())
@@ -137,7 +147,7 @@ def test_benchmark_rewrites_a_results_page_only_when_one_is_named(tmp_path, monk
     monkeypatch.chdir(tmp_path)
     (tmp_path / "docs").mkdir()
     (tmp_path / "docs" / "RESULTS.md").write_text("# results\n")
-    argv = ["benchmark", "registration", "--out", "bench", "--pairs", "5"]
+    argv = ["benchmark", "registration", "--output", "bench", "--pairs", "5"]
     assert main(argv) == 0
     assert main([*argv, "--results", "docs/RESULTS.md"]) == 0
     assert main([*argv, "--quick", "--results", "docs/RESULTS.md"]) == 0

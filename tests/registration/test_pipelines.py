@@ -12,6 +12,7 @@ from scipy.spatial.transform import Rotation
 from masknet.data import bundled_sample_path, load_modelnet40
 from masknet.geometry.sampling import NetworkClouds
 from masknet.models import MaskNet, TwoSidedMaskNet
+from masknet.registration.auto import PATHS
 from masknet.registration.auto import auto_register as run_auto
 from masknet.registration.backends.base import MaskModels, PipelineRun
 from masknet.registration.options import RobustOptions
@@ -20,7 +21,7 @@ from masknet.registration.robust import robust_register as run_robust
 pytestmark = pytest.mark.usefixtures("one_thread")
 
 # info["path"], as documented (masknet.registration.auto, .coarse)
-AUTO_PATHS = {"fast", "consensus", "robust/consensus", "robust/correspondences", "robust/search"}
+AUTO_PATHS = set(PATHS) - {"scene search"}  # the scene search's is set by the facade
 ROBUST_PATHS = {"correspondences", "search"}
 SEARCH_ONLY = RobustOptions(correspondence_hypotheses=0)  # skip the FPFH hypotheses
 

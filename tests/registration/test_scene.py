@@ -261,6 +261,6 @@ def test_after_a_scene_search_the_default_masks_with_the_papers_network(scene_pa
 
     monkeypatch.setattr(plan, "default_fast_model", refused)
     result = register(obj, points)
-    assert result.info["path"] == "scene search"
+    assert result.info["path"] == "scene search" and type(result.info["path"]) is str
     rot, trans = pose_errors(result.transform[None], truth[None])
     assert rot[0] < 1.0 and trans[0] < 0.02

@@ -180,7 +180,7 @@ def _train_cmd(data: Path, out: Path, epochs: int, *extra: str) -> list[str]:
         "train",
         "--data",
         str(data),
-        "--out",
+        "--output",
         str(out),
         "--epochs",
         str(epochs),

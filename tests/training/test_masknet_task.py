@@ -93,7 +93,7 @@ def test_distilling_refuses_mse_and_weights_outside_0_1(settings, message):
 def test_the_cli_refuses_distilling_what_it_cannot(extra, message, tmp_path, capsys):
     from masknet.cli import main
 
-    code = main(["train", "--out", str(tmp_path / "r"), *extra])
+    code = main(["train", "--output", str(tmp_path / "r"), *extra])
     assert code == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "r").exists()

@@ -59,7 +59,7 @@ def test_the_command_refuses_a_template_mask_for_a_mask_network(tmp_path, capsys
             "masknet",
             "--template-mask",
             "modelnet40",
-            "--out",
+            "--output",
             str(tmp_path / "r"),
         ]
     )
@@ -76,7 +76,7 @@ def test_the_command_refuses_an_unknown_mask_network_before_loading_data(tmp_pat
             "pointnetlk",
             "--template-mask",
             "nonesuch",
-            "--out",
+            "--output",
             str(tmp_path / "r"),
         ]
     )

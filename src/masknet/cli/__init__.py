@@ -35,17 +35,18 @@ from masknet.errors import MaskNetError, MaskNetWarning
 
 __all__ = ["COMMANDS", "main", "build_parser", "run_script"]
 
-# Command name -> its module, in the order ``masknet --help`` lists them.
+# Command name -> its module, in the order ``masknet --help`` lists them: what a newcomer
+# runs first (register, mask) first, training and the sample's rebuild last.
 COMMANDS = {
-    "train": train,
-    "evaluate": evaluate,
-    "mask": mask,
     "register": register,
+    "mask": mask,
     "register-many": register_many,
     "denoise": denoise,
     "show": show,
-    "benchmark": benchmark,
     "demo": demo,
+    "evaluate": evaluate,
+    "benchmark": benchmark,
+    "train": train,
     "make-sample": make_sample,
 }
 
@@ -62,16 +63,29 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
+class _CommandsFormatter(argparse.HelpFormatter):
+    """argparse's help, with room for the longest command name, so that each command of
+    ``masknet --help`` is listed on one line (argparse leaves the listed commands out when
+    it sizes the name column)."""
+
+    def __init__(self, prog: str) -> None:
+        super().__init__(prog)
+        self._action_max_length = 4 + max(map(len, COMMANDS))  # indented by 4
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``masknet`` parser: one subparser per command of :data:`COMMANDS`."""
     from masknet import __version__
 
     parser = _Parser(
         prog="masknet",
-        description="MaskNet: predict which template points a partial source cloud also sees.",
+        description="MaskNet: predict which template points a partial source cloud also "
+        "sees, and register the two. Start with: masknet register TEMPLATE SOURCE -o OUT.ply "
+        "(masknet COMMAND --help for each command's options).",
+        formatter_class=_CommandsFormatter,
     )
     parser.add_argument("--version", action="version", version=f"masknet {__version__}")
-    sub = parser.add_subparsers(dest="command", required=True)
+    sub = parser.add_subparsers(dest="command", required=True, title="commands", metavar="COMMAND")
     for module in COMMANDS.values():
         module.add_parser(sub)
     return parser

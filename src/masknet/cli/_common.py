@@ -212,38 +212,117 @@ def add_file_options(p: argparse.ArgumentParser, html: bool = True) -> None:
         )
 
 
+class _OldSpelling(argparse.Action):
+    """An option's old spelling, kept for one version: it sets what the new spelling sets
+    (appending where the new one appends) and says so in one line on stderr."""
+
+    def __init__(self, option_strings, dest, new: str, append: bool = False, **kwargs) -> None:
+        super().__init__(option_strings, dest, **kwargs)
+        self.new, self.append = new, append
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        import sys
+
+        print(
+            f"masknet: warning: {option_string} is deprecated and goes in the next version; "
+            f"use {self.new}",
+            file=sys.stderr,
+        )
+        if self.append:
+            values = [*(getattr(namespace, self.dest, None) or []), values]
+        setattr(namespace, self.dest, values)
+
+
+def add_old_spelling(
+    p: argparse.ArgumentParser | argparse._ArgumentGroup,
+    old: str,
+    new: str,
+    dest: str,
+    append: bool = False,
+    **kwargs,
+) -> None:
+    """Accept ``old`` for one version as ``new`` (stored in ``dest``), with a one-line
+    deprecation warning; hidden from ``--help``."""
+    p.add_argument(
+        old,
+        dest=dest,
+        action=_OldSpelling,
+        new=new,
+        append=append,
+        help=argparse.SUPPRESS,
+        **kwargs,
+    )
+
+
+def add_output_option(
+    p: argparse.ArgumentParser, help: str, old: str | None = None, **kwargs
+) -> None:
+    """``-o/--output``, every command's one spelling of where its results go; ``old``, an
+    earlier spelling of the command's, still works for one version."""
+    if old is None:
+        p.add_argument("-o", "--output", help=help, **kwargs)
+        return
+    # argparse counts a required option as given by its own flags only: the two spellings
+    # form a required group (its message names only -o/--output, the old one is hidden).
+    required = kwargs.pop("required", False)
+    group = p.add_mutually_exclusive_group(required=required) if required else p
+    group.add_argument("-o", "--output", help=help, **kwargs)
+    kwargs.pop("default", None)
+    add_old_spelling(group, old, "-o/--output", "output", **kwargs)
+
+
 def add_model_options(
     p: argparse.ArgumentParser,
-    default_pretrained: str | None = "modelnet40",
+    default_weights: str | None = "modelnet40",
     kind: str = "MaskNet",
     default_text: str | None = None,
+    several: bool = False,
 ) -> None:
-    """The ``model`` group: which MaskNet weights, and the inference precision.
-    ``default_pretrained`` None: each network's own shipped default (``default_text``
-    says which)."""
+    """The ``model`` group: which weights (``--weights NAME_OR_FILE``: shipped weights by
+    name, or a .safetensors file), and the networks' precision. ``default_weights`` None:
+    each network's own shipped default (``default_text`` says which). ``several``:
+    ``--weights`` may be given more than once (a list), for commands that load several
+    networks."""
     g = p.add_argument_group("model")
     g.add_argument(
-        "--weights", help="a .safetensors file from masknet train (default: shipped weights)"
+        "--weights",
+        metavar="NAME_OR_FILE",
+        default=[] if several else default_weights,
+        action="append" if several else "store",
+        help=f"the name of shipped {kind} weights, or a .safetensors file from masknet train "
+        f"(default {default_text or default_weights})",
     )
+    add_old_spelling(g, "--pretrained", "--weights NAME", "weights", append=several)
     g.add_argument(
-        "--pretrained",
-        default=default_pretrained,
-        help=f"name of shipped {kind} weights (default {default_text or default_pretrained})",
-    )
-    g.add_argument(
-        "--inference-precision",
+        "--precision",
         choices=["auto", "fp32", "bf16"],
         default="auto",
-        help="auto: bf16 where the CPU/GPU runs it natively (mask agreement 99.7%% with fp32), "
-        "else fp32",
+        help="the networks' precision: auto, bf16 where the CPU/GPU runs it natively (mask "
+        "agreement 99.7%% with fp32), else fp32",
     )
+    add_old_spelling(
+        g, "--inference-precision", "--precision", "precision", choices=["auto", "fp32", "bf16"]
+    )
+
+
+def is_weights_file(text: str) -> bool:
+    """Whether ``--weights`` names a file (a .safetensors path, a path with a folder, or an
+    existing file) rather than shipped weights by name."""
+    path = Path(text)
+    return path.suffix.lower() == ".safetensors" or len(path.parts) > 1 or path.is_file()
+
+
+def load_weights(kind, text: str):
+    """``kind`` (a network class with ``from_file`` and ``pretrained``) from ``--weights``
+    ``text``: a file, or shipped weights by name."""
+    return kind.from_file(text) if is_weights_file(text) else kind.pretrained(text)
 
 
 def load_model(args: argparse.Namespace, two_sided: bool = False) -> MaskNet:
-    """The MaskNet of the ``model`` options; resolves ``--inference-precision auto``.
+    """The MaskNet of the ``model`` options; resolves ``--precision auto``.
 
     ``two_sided``: shipped names are two-sided MaskNets (``masknet2_<name>``), and a
-    ``--weights`` file may hold either kind (its metadata says which). ``--pretrained``
+    ``--weights`` file may hold either kind (its metadata says which). ``--weights``
     unset: the kind's own shipped default.
     """
 
@@ -252,14 +331,15 @@ def load_model(args: argparse.Namespace, two_sided: bool = False) -> MaskNet:
     from masknet.models.weights import read_metadata
     from masknet.runtime import default_precision
 
-    if args.inference_precision == "auto":
-        args.inference_precision = default_precision("cpu")
+    if args.precision == "auto":
+        args.precision = default_precision("cpu")
     kind = TwoSidedMaskNet if two_sided else MaskNet
-    if args.weights:
-        if two_sided and TwoSidedMaskNet._config_key() not in read_metadata(args.weights):
+    if not args.weights:
+        return kind.pretrained()
+    if is_weights_file(args.weights) and two_sided:
+        if TwoSidedMaskNet._config_key() not in read_metadata(args.weights):
             kind = MaskNet  # a paper MaskNet file: it masks the template only
-        return kind.from_file(args.weights)
-    return kind.pretrained(args.pretrained) if args.pretrained else kind.pretrained()
+    return load_weights(kind, args.weights)
 
 
 PROGRESS_AFTER_S = 2.0  # steps that take longer say so on stderr

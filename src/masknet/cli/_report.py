@@ -35,15 +35,15 @@ def _is_number(value: object) -> bool:
     return np.issubdtype(np.asarray(value).dtype, np.number) or np.asarray(value).dtype == bool
 
 
-def report_path(info: dict, rotation: np.ndarray) -> None:
+def report_path(info: dict, rotation: np.ndarray, source_name: str = "the source") -> None:
     """Say which path of ``auto`` / ``robust`` ran and why, and warn of an ambiguous answer
-    (``rotation``: the result's (3, 3))."""
+    (``rotation``: the result's (3, 3); ``source_name``: the source file's name)."""
     if "path" not in info:
         return
     path = str(info["path"])
     escalated = float(info.get("escalated_fitness", np.nan))
     if path == "scene search":
-        print("path: scene search (the template found in SOURCE, then Mask-ICP from there)")
+        print(f"path: scene search (the template found in {source_name}, then Mask-ICP from there)")
         return
     if path == "fast" and np.isnan(escalated):
         why = "the fast path's fit passed"
@@ -101,17 +101,20 @@ def print_result(args, name: str, template, source, source_rows, result) -> None
     if result.mask is not None:
         print(f"inliers: {int(result.mask.sum()):,} of {len(template):,} template points")
     if result.scene is not None:
+        from pathlib import Path
+
+        template_name, source_name = Path(args.template).name, Path(args.source).name
         print(
-            f"scene search: {result.scene.regions} regions of SOURCE searched, "
+            f"scene search: {result.scene.regions} regions of {source_name} searched, "
             f"{result.scene.spacing:.2g} template radii apart, "
             f"in {result.times['search']:.1f} s; {100 * result.scene.coverage:.1f}% "
             "of the template lies on the scene where it was found"
         )
         if result.scene.coverage < LOW_FITNESS:
             print(
-                "masknet: warning: under half of TEMPLATE lies on SOURCE where it fits best; "
-                "the object may not be in this scan (or TEMPLATE shows more of it than the "
-                "scan sees)",
+                f"masknet: warning: under half of {template_name} lies on {source_name} where "
+                f"it fits best; the object may not be in this scan (or {template_name} shows "
+                "more of it than the scan sees)",
                 file=sys.stderr,
             )
     if result.source_mask is not None:

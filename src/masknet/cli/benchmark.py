@@ -9,7 +9,7 @@ import sys
 import time
 from pathlib import Path
 
-from masknet.cli._common import positive_int, seed
+from masknet.cli._common import add_output_option, positive_int, seed
 from masknet.errors import MaskNetError
 
 
@@ -17,7 +17,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Add ``benchmark`` to the ``masknet`` subparsers."""
     p = subparsers.add_parser(
         "benchmark",
-        help="reproduce the paper's experiments on seeded ModelNet40 test pairs: "
+        help="reproduce the paper's experiments: tables and plots",
+        description="reproduce the paper's experiments on seeded ModelNet40 test pairs: "
         "table (JSON, CSV), plot (PNG), and with --results the tables of a results page",
     )
     p.add_argument(
@@ -35,10 +36,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="a small run (20 pairs, fewer settings; the bundled sample when no data is "
         "given); never rewrites --results",
     )
-    p.add_argument(
-        "--out",
-        default="masknet_benchmark",
+    add_output_option(
+        p,
         help="folder for JSON, CSV and PNG (default masknet_benchmark)",
+        old="--out",
+        default="masknet_benchmark",
+        metavar="OUTDIR",
     )
     p.add_argument(
         "--results",
@@ -51,7 +54,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "--resume",
         action="store_true",
         help="after a kill: keep the table rows the interrupted run already wrote to "
-        "--out/.rows (same pairs, seed, weights, data and version) and compute the rest",
+        "OUTDIR/.rows (same pairs, seed, weights, data and version) and compute the rest",
     )
 
 
@@ -85,7 +88,7 @@ def run(args: argparse.Namespace) -> None:
         pairs=args.pairs or (20 if args.quick else 1000),
         seed=args.seed,
         quick=args.quick,
-        out=Path(args.out),
+        out=Path(args.output),
         progress=sys.stderr.isatty(),
         command=shlex.join(argv) if argv else f"masknet benchmark {args.experiment}",
         resume=args.resume,

@@ -7,18 +7,28 @@ import json
 from pathlib import Path
 
 from masknet._extras import PICTURES, require
-from masknet.cli._common import add_model_options, load_model, positive_int, seed
+from masknet.cli._common import (
+    add_model_options,
+    add_output_option,
+    load_model,
+    positive_int,
+    seed,
+)
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Add ``demo`` to the ``masknet`` subparsers."""
     p = subparsers.add_parser(
-        "demo", help="run the shipped model on the bundled sample: metrics and a picture"
+        "demo",
+        help="run the shipped model on the bundled sample",
+        description="run the shipped model on the bundled sample: metrics and a picture",
     )
-    p.add_argument(
-        "--out",
-        default="masknet_demo",
+    add_output_option(
+        p,
         help="folder for the picture and metrics (default masknet_demo)",
+        old="--out",
+        default="masknet_demo",
+        metavar="OUTDIR",
     )
     p.add_argument(
         "--pairs", type=positive_int, default=240, help="pairs to evaluate (default 240)"
@@ -45,18 +55,18 @@ def run(args: argparse.Namespace) -> None:
         sample.points,
         args.pairs,
         args.seed,
-        precision=args.inference_precision,
+        precision=args.precision,
         progress=False,
         keep_outputs=True,
     )
     pairs = result.pairs_data
     print(
-        f"MaskNet ({args.weights or args.pretrained}) on the bundled sample: {args.pairs} seeded pairs "
+        f"MaskNet ({args.weights}) on the bundled sample: {args.pairs} seeded pairs "
         f"from {len(sample)} ModelNet40 test shapes, 30% missing, rotation <= 45 deg, translation <= 1"
     )
     print(format_table(result.rows))
-    print(f"inference: {result.ms_per_pair:.2f} ms/pair (batched, {args.inference_precision})")
-    out = Path(args.out)
+    print(f"inference: {result.ms_per_pair:.2f} ms/pair (batched, {args.precision})")
+    out = Path(args.output)
     predicted = select_mask(torch.from_numpy(result.scores[:1]), k=pairs.source.shape[1])[0].numpy()
     picture = plot_mask(
         pairs.template[0].numpy(),

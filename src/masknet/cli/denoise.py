@@ -5,7 +5,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from masknet.cli._common import add_file_options, add_model_options, finite_float, load_model
+from masknet.cli._common import (
+    add_file_options,
+    add_model_options,
+    finite_float,
+    load_model,
+    load_weights,
+)
 from masknet.cli._mask_outputs import mask_outputs, write_kept
 from masknet.errors import MaskNetError
 
@@ -14,7 +20,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Add ``denoise`` to the ``masknet`` subparsers."""
     p = subparsers.add_parser(
         "denoise",
-        help="remove the points of NOISY that TEMPLATE (a clean cloud of the same object) "
+        help="drop the points of a scan that TEMPLATE does not explain",
+        description="remove the points of NOISY that TEMPLATE (a clean cloud of the same object) "
         "does not explain",
     )
     p.add_argument(
@@ -54,7 +61,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "(default 3x the template's point spacing)",
     )
     add_file_options(p)
-    add_model_options(p, default_pretrained="scans", kind="two-sided MaskNet (--method masknet)")
+    add_model_options(
+        p,
+        default_weights="scans",
+        kind="two-sided MaskNet (--method masknet) or refinement network (--method refined)",
+    )
 
 
 def run(args: argparse.Namespace) -> None:
@@ -74,7 +85,7 @@ def run(args: argparse.Namespace) -> None:
         if args.method == "refined":
             from masknet.models.refine import RefineMaskNet
 
-            model = RefineMaskNet.from_file(args.weights) if args.weights else None
+            model = load_weights(RefineMaskNet, args.weights)
         else:
             model = load_model(args, two_sided=True)
         result = denoise(
@@ -83,7 +94,7 @@ def run(args: argparse.Namespace) -> None:
             method=args.method,
             model=model,
             threshold=args.threshold,
-            precision=args.inference_precision,
+            precision=args.precision,
         )
         rule = f"MaskNet score >= {args.threshold}"
     layers = {"template": template, "kept": result.points, "removed": noisy[~result.mask]}

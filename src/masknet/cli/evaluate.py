@@ -8,6 +8,7 @@ import json
 from masknet.cli import _scans
 from masknet.cli._common import (
     add_model_options,
+    add_output_option,
     add_pair_options,
     load_model,
     pair_config,
@@ -21,13 +22,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Add ``evaluate`` to the ``masknet`` subparsers."""
     p = subparsers.add_parser(
         "evaluate",
-        help="mask precision/recall/F1/IoU on seeded ModelNet40 test pairs, or (--scans) on "
+        help="measure mask precision on test pairs or real scans",
+        description="mask precision/recall/F1/IoU on seeded ModelNet40 test pairs, or (--scans) on "
         "pairs cut from real scans, with ICP against Mask-ICP",
     )
     p.add_argument("--data", help="ModelNet40 folder or .npz (default: $MASKNET_DATA)")
     p.add_argument("--pairs", type=positive_int, default=1000, help="test pairs (default 1000)")
     p.add_argument("--seed", type=seed, default=0, help="seed of the test pairs (default 0)")
-    p.add_argument("--json", help="also write the results to this JSON file")
+    add_output_option(p, help="also write the results to this JSON file", old="--json")
     p.add_argument(
         "--realign-rounds",
         type=positive_int,
@@ -42,7 +44,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> None:
-    """Print the metrics table (and write it as JSON with ``--json``)."""
+    """Print the metrics table (and write it as JSON with ``-o/--output``)."""
     from masknet.data import load_modelnet40
     from masknet.evaluation.evaluate import evaluate_masknet, format_table
     from masknet.io import write_text_atomic
@@ -58,7 +60,7 @@ def run(args: argparse.Namespace) -> None:
         args.pairs,
         args.seed,
         pair_config(args),
-        precision=args.inference_precision,
+        precision=args.precision,
         realign_rounds=args.realign_rounds,
     )
     print(
@@ -66,14 +68,14 @@ def run(args: argparse.Namespace) -> None:
     )
     print(format_table(result.rows))
     print(f"top-k precision: standard error of the mean {result.topk_precision_stderr:.4f}")
-    print(f"inference: {result.ms_per_pair:.2f} ms/pair (batched, {args.inference_precision})")
-    if args.json:
+    print(f"inference: {result.ms_per_pair:.2f} ms/pair (batched, {args.precision})")
+    if args.output:
         out = result.to_dict() | {
             "categories": args.categories,
-            "weights": args.weights or args.pretrained,
+            "weights": args.weights,
         }
-        write_text_atomic(args.json, json.dumps(out, indent=2) + "\n")
-        print(f"wrote {args.json}")
+        write_text_atomic(args.output, json.dumps(out, indent=2) + "\n")
+        print(f"wrote {args.output}")
 
 
 def _run_scans(args: argparse.Namespace, model) -> None:
@@ -92,7 +94,7 @@ def _run_scans(args: argparse.Namespace, model) -> None:
         args.pairs_per_scan,
         args.seed,
         view,
-        precision=args.inference_precision,
+        precision=args.precision,
         pipelines=None if args.no_registration else SCAN_PIPELINES,
     )
     total = args.pairs_per_scan * len(scans)
@@ -114,7 +116,7 @@ def _run_scans(args: argparse.Namespace, model) -> None:
                 f"{name:<22}{row['rot_mean']:8.2f} {row['rot_median']:8.2f} "
                 f"  {row['trans_mean']:.4f}   {row['ms_per_pair']:.1f} ms"
             )
-    if args.json:
-        out = result.to_dict() | {"weights": args.weights or args.pretrained}
-        write_text_atomic(args.json, json.dumps(out, indent=2) + "\n")
-        print(f"wrote {args.json}")
+    if args.output:
+        out = result.to_dict() | {"weights": args.weights}
+        write_text_atomic(args.output, json.dumps(out, indent=2) + "\n")
+        print(f"wrote {args.output}")

@@ -10,7 +10,9 @@ from masknet.cli._common import positive_int
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Add ``make-sample`` to the ``masknet`` subparsers."""
     p = subparsers.add_parser(
-        "make-sample", help="rebuild the bundled sample from the ModelNet40 test split"
+        "make-sample",
+        help="rebuild the bundled sample from ModelNet40",
+        description="rebuild the bundled sample from the ModelNet40 test split",
     )
     p.add_argument("--data", help="ModelNet40 folder or .npz (default: $MASKNET_DATA)")
     p.add_argument("-o", "--output", required=True, help="the .npz file to write")

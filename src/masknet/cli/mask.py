@@ -21,7 +21,9 @@ from masknet.errors import MaskNetError
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Add ``mask`` to the ``masknet`` subparsers."""
     p = subparsers.add_parser(
-        "mask", help="predict which TEMPLATE points SOURCE sees; write them and the mask"
+        "mask",
+        help="mark the TEMPLATE points that SOURCE also sees",
+        description="predict which TEMPLATE points SOURCE sees; write them and the mask",
     )
     add_cloud_arguments(p, source_help="partial cloud of the same object")
     p.add_argument(
@@ -66,7 +68,7 @@ def run(args: argparse.Namespace) -> None:
         )
     model = load_model(args)
     mask, scores = model.predict_mask_with_scores(
-        template, source, k=args.k, threshold=args.threshold, precision=args.inference_precision
+        template, source, k=args.k, threshold=args.threshold, precision=args.precision
     )
     layers = {"template": template, "source": source, "inliers": template[mask]}
     title = f"MaskNet inliers: {Path(args.template).name} seen by {Path(args.source).name}"

@@ -14,6 +14,7 @@ from masknet.cli._common import (
     add_cloud_arguments,
     add_file_options,
     add_model_options,
+    add_old_spelling,
     at_least_three,
     check_html,
     check_outputs,
@@ -39,7 +40,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Add ``register`` to the ``masknet`` subparsers."""
     p = subparsers.add_parser(
         "register",
-        help="align SOURCE to TEMPLATE (Mask-X, or plain X with --no-mask); write the "
+        help="align SOURCE to TEMPLATE and write the moved source",
+        description="align SOURCE to TEMPLATE (Mask-X, or plain X with --no-mask); write the "
         "moved source, the 4x4 transform and the inlier template",
         epilog=exit_codes_text(),
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -62,13 +64,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "where the fit says it may be wrong; robust: the coarse-to-fine pipeline (FPFH "
         "correspondence hypotheses, then the two-sided mask and rotation hypotheses; any "
         "rotation, outliers); icp: the paper's Mask-ICP; a learned network (pointnetlk, dcp, "
-        "prnet, pcrnet, rpmnet; shipped weights unless --network-weights); or Open3D's icp / "
+        "prnet, pcrnet, rpmnet; shipped weights unless --weights names a file of one); or "
+        "Open3D's icp / "
         "RANSAC / FGR on FPFH",
-    )
-    p.add_argument(
-        "--network-weights",
-        metavar="PATH",
-        help="weights (.safetensors from masknet train --model NAME) for a learned --method",
     )
     p.add_argument("--no-mask", action="store_true", help="plain X instead of Mask-X")
     p.add_argument(
@@ -184,11 +182,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     add_file_options(p)
     add_model_options(
         p,
-        default_pretrained=None,
+        default_weights=None,
         default_text="modelnet40_small for the default method's fast path, modelnet40 for "
         "--method icp; with --two-sided, --iterations above 1 or --method robust the "
-        "two-sided scans",
+        "two-sided scans; give it twice for a learned --method: the mask's and the "
+        "network's file (masknet train --model NAME)",
+        several=True,
     )
+    add_old_spelling(p, "--network-weights", "--weights FILE", "weights", append=True)
 
 
 def scene_option(
@@ -265,7 +266,8 @@ def run(args: argparse.Namespace) -> int:
     args.method = default_method(args.method, None, rounds_asked)
     # Nothing named: register() picks the shipped default itself (the paper's MaskNet for
     # one round, the two-sided network for a loop).
-    named = args.two_sided or args.weights or args.pretrained
+    args.weights, network_weights = split_weights(args.weights, args.method)
+    named = args.two_sided or args.weights
     model = load_model(args, two_sided=args.two_sided) if named and not args.no_mask else None
     from masknet.models.two_sided import TwoSidedMaskNet
 
@@ -279,12 +281,8 @@ def run(args: argparse.Namespace) -> int:
         options["max_iterations"] = args.max_iterations
     if args.max_correspondence_distance is not None:
         options["max_correspondence_distance"] = cut_for(args)
-    if args.network_weights:
-        from masknet.models import REGISTRATION_NETWORKS
-
-        if args.method not in REGISTRATION_NETWORKS:
-            raise MaskNetError(f"--network-weights needs a learned --method, not {args.method}")
-        options["network"] = REGISTRATION_NETWORKS[args.method].from_file(args.network_weights)
+    if network_weights is not None:
+        options["network"] = network_weights
     with progress(f"registering {len(source):,} onto {len(template):,} points ({args.method})"):
         result = register(
             template,
@@ -293,7 +291,7 @@ def run(args: argparse.Namespace) -> int:
             use_mask=not args.no_mask,
             iterations=args.iterations,
             model=model,
-            precision=getattr(args, "inference_precision", "auto"),
+            precision=args.precision,
             init=args.init,
             refine_iterations=args.refine,
             max_points=args.max_points,
@@ -344,7 +342,7 @@ def run(args: argparse.Namespace) -> int:
         removed = write_all(writers, stale=derived)
 
     print_result(args, name, template, source, source_rows, result)
-    report_path(result.info, result.R)
+    report_path(result.info, result.R, Path(args.source).name)
     print("reported by the method: " + shown_numbers(result.info))
     print(f"did it work: {check.verdict}: {check.reason}")
     print(
@@ -367,6 +365,37 @@ def run(args: argparse.Namespace) -> int:
     if removed:
         print(f"removed {', '.join(map(str, removed))} (an earlier run's; this run wrote none)")
     return EXIT_LIKELY_WRONG if check.verdict == "likely wrong" and not args.exit_zero else 0
+
+
+def split_weights(given: list[str], method: str) -> tuple[str | None, object | None]:
+    """``--weights``, given up to twice, as (the mask network's name or file, or None; the
+    learned ``method``'s network loaded from its file, or None). A file's metadata says
+    which network it holds."""
+    from masknet.cli._common import is_weights_file
+    from masknet.models import REGISTRATION_NETWORKS
+    from masknet.models.weights import read_metadata
+
+    masks, network = [], None
+    for text in given:
+        held = is_weights_file(text) and next(
+            (
+                name
+                for name, kind in REGISTRATION_NETWORKS.items()
+                if kind._config_key() in read_metadata(text)
+            ),
+            None,
+        )
+        if not held:
+            masks.append(text)
+        elif held != method:
+            raise MaskNetError(f"{text}: holds {held} weights; they need --method {held}")
+        elif network is not None:
+            raise MaskNetError(f"--weights: two files of {held} weights; give one")
+        else:
+            network = REGISTRATION_NETWORKS[held].from_file(text)
+    if len(masks) > 1:
+        raise MaskNetError(f"--weights: two mask networks ({', '.join(masks)}); give one")
+    return (masks[0] if masks else None), network
 
 
 def method_option(text: str) -> tuple[str, object]:

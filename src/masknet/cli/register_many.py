@@ -14,6 +14,7 @@ from pathlib import Path
 from masknet.cli._common import (
     EXIT_LIKELY_WRONG,
     EXIT_SOME_FAILED,
+    add_output_option,
     exit_codes_text,
     finite_float,
     init_option,
@@ -33,7 +34,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Add ``register-many`` to the ``masknet`` subparsers."""
     p = subparsers.add_parser(
         "register-many",
-        help="register many pairs in parallel (all cores, or a Dask cluster): one result "
+        help="register many pairs on every core (resumable)",
+        description="register many pairs in parallel (all cores, or a Dask cluster): one result "
         "per pair and summary.csv in OUTDIR; run it again to finish an interrupted batch",
         epilog=exit_codes_text(),
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -49,13 +51,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--sources", metavar="GLOB", help="with --template: the sources, a glob ('scans/*.pcd')"
     )
-    p.add_argument(
-        "-o",
-        "--out",
-        required=True,
-        metavar="OUTDIR",
+    add_output_option(
+        p,
         help="the folder of the results: NAME.json and NAME_transform.txt per pair, and "
         f"{SUMMARY} (pose, fitness, verdict, time; failed pairs with their error)",
+        old="--out",
+        required=True,
+        metavar="OUTDIR",
     )
     p.add_argument(
         "--workers",
@@ -246,7 +248,7 @@ def run(args: argparse.Namespace) -> int:
     if args.max_correspondence_distance is not None:
         options["max_correspondence_distance"] = args.max_correspondence_distance
     check_options(options)
-    out = Path(args.out)
+    out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
     todo = [job for job in jobs if not _finished(out, job, options)]
     skipped = len(jobs) - len(todo)

@@ -12,7 +12,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Add ``show`` to the ``masknet`` subparsers."""
     p = subparsers.add_parser(
         "show",
-        help="write an interactive 3D view (one offline HTML file) and a PNG of clouds",
+        help="write an offline 3D view (HTML) and a PNG of clouds",
+        description="write an interactive 3D view (one offline HTML file) and a PNG of clouds",
     )
     p.add_argument("clouds", nargs="+", help="point cloud files, one layer each")
     p.add_argument("-o", "--output", required=True, help="the .html file; the PNG goes beside it")

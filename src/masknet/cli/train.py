@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, NamedTuple
 
 from masknet.cli import _scans
 from masknet.cli._common import (
+    add_output_option,
     add_pair_options,
     json_object,
     pair_config,
@@ -25,7 +26,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Add ``train`` to the ``masknet`` subparsers."""
     p = subparsers.add_parser(
         "train",
-        help="train MaskNet or a registration network on ModelNet40 (CPU or GPU), resumable",
+        help="train MaskNet or a registration network (resumable)",
+        description="train MaskNet or a registration network on ModelNet40 (CPU or GPU), resumable",
     )
     p.add_argument(
         "--model",
@@ -41,9 +43,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "pcrnet (full-cloud pairs, as their papers train) or prnet, rpmnet (partial pairs)",
     )
     p.add_argument("--data", help="ModelNet40 folder or .npz (default: $MASKNET_DATA)")
-    p.add_argument(
-        "--out",
+    add_output_option(
+        p,
+        old="--out",
         required=True,
+        metavar="OUTDIR",
         help="run folder: best.safetensors (the weights to use), last.safetensors, "
         "checkpoint.safetensors (for --resume), log.csv, run.json",
     )
@@ -117,7 +121,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="also checkpoint within an epoch this often (SIGTERM always saves where the "
         "run stands and exits; --resume goes on from there)",
     )
-    p.add_argument("--resume", action="store_true", help="continue the checkpoint in --out")
+    p.add_argument("--resume", action="store_true", help="continue the checkpoint in OUTDIR")
     p.add_argument(
         "--init",
         help="start from these weights, e.g. to fine-tune: a .safetensors file or the name "
@@ -308,7 +312,7 @@ def run(args: argparse.Namespace) -> None:
             f"--num-points must be in [16, {points.shape[1]}], got {args.num_points}"
         )
     config = TrainConfig(
-        out_dir=args.out,
+        out_dir=args.output,
         epochs=args.epochs,
         batch_size=args.batch_size,
         lr=args.lr,
@@ -332,15 +336,15 @@ def run(args: argparse.Namespace) -> None:
     except KeyboardInterrupt:
         from masknet.training.loop import CHECKPOINT
 
-        if (Path(args.out) / CHECKPOINT).exists():
+        if (Path(args.output) / CHECKPOINT).exists():
             raise KeyboardInterrupt(
-                f"the last finished epoch is saved in {Path(args.out) / CHECKPOINT}; "
+                f"the last finished epoch is saved in {Path(args.output) / CHECKPOINT}; "
                 "run the same command with --resume to continue"
             ) from None
         raise KeyboardInterrupt("before the first epoch finished: nothing was saved") from None
     if history:
         epochs = history[-1]["epoch"]
-        best = Path(args.out) / "best.safetensors"
+        best = Path(args.output) / "best.safetensors"
         print(f"trained {epochs} epoch{'s' if epochs != 1 else ''}; best weights: {best}")
         if epochs < args.epochs:
             print(f"{args.epochs - epochs} epochs left: the same command with --resume continues")
@@ -363,7 +367,7 @@ _USE = {
     "denoise": "masknet denoise --method masknet takes --weights {best}",
     "refine": "in Python, register(template, source, iterations=3, "
     "refine_masks=RefineMaskNet.from_file('{best}'))",
-    "network": "masknet register --method {model} --network-weights {best}",
+    "network": "masknet register --method {model} --weights {best}",
 }
 
 

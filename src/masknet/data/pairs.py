@@ -39,7 +39,15 @@ from masknet.geometry import (
     transform_points,
 )
 
-__all__ = ["PairConfig", "Pairs", "make_pairs", "iterate_pairs", "make_test_pairs", "derive_seed"]
+__all__ = [
+    "PairConfig",
+    "Pairs",
+    "make_pairs",
+    "iterate_pairs",
+    "make_test_pairs",
+    "sample_pair",
+    "derive_seed",
+]
 
 
 @dataclass(frozen=True)
@@ -238,3 +246,21 @@ def make_test_pairs(
             )
         )
     return Pairs(*(torch.cat(parts) for parts in zip(*batches, strict=True)))
+
+
+def sample_pair(
+    seed: int = 3, config: PairConfig | None = None, shape: int = 0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One seeded pair from the bundled ModelNet40 sample, as numpy float64, to try things
+    on: template (N, 3), source (M, 3) a partial, moved view of it (``config``, default
+    the paper's protocol), and truth (4, 4), the transform that maps the source onto the
+    template (``template ≈ source @ R.T + t``). ``shape`` indexes the sample's test shapes.
+
+    It is :func:`make_test_pairs` on one shape; the default pair (seed 3, the first shape)
+    is turned by 27.4 degrees and moved by 0.82.
+    """
+    from masknet.data.modelnet import bundled_sample_path, load_modelnet40
+
+    shapes = load_modelnet40(bundled_sample_path(), "test").points[shape : shape + 1]
+    pair = make_test_pairs(shapes, 1, config or PairConfig(), seed=seed)
+    return tuple(a[0].double().numpy() for a in (pair.template, pair.source, pair.transform))

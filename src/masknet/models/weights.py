@@ -42,7 +42,7 @@ def read_metadata(path: str | os.PathLike) -> dict[str, str]:
         hint = (
             ""
             if path.suffix
-            else " (shipped weights go by name: --pretrained NAME; in Python, pretrained(NAME))"
+            else " (shipped weights go by name: --weights NAME; in Python, pretrained(NAME))"
         )
         raise MaskNetError(f"{path}: weights file not found{hint}")
     try:

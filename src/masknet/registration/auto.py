@@ -41,9 +41,10 @@ Between those sizes (objects), a source whose principal axes are turned
 ``search_first_turn_deg`` or more from the template's goes to the search first: the fast
 path starts from the pose as given and seldom holds that far off.
 
-``info["path"]`` says which ran (``"fast"``, ``"consensus"``, ``"robust/consensus"``,
-``"robust/correspondences"`` and ``"robust/search"``), and ``info["escalated_fitness"]``
-the fast path's fit that sent it on (NaN when it did not).
+``info["path"]`` says which ran (:data:`PATHS`: ``"fast"``, ``"consensus"``,
+``"robust/consensus"``, ``"robust/correspondences"`` and ``"robust/search"``, or
+``"scene search"`` where :func:`masknet.register` found the template in a scan first), and
+``info["escalated_fitness"]`` the fast path's fit that sent it on (NaN when it did not).
 """
 
 from __future__ import annotations
@@ -71,7 +72,18 @@ from masknet.registration.robust.consensus import ConsensusRun, consensus_regist
 from masknet.registration.robust.search import REFINE_TOLERANCE, coarse_to_fine
 from masknet.registration.rounds import mask_and_register
 
-__all__ = ["auto_register"]
+__all__ = ["PATHS", "auto_register"]
+
+# Every ``info["path"]`` of the default: its own paths, then the scene search's (set where
+# the call left the scan, masknet.registration.pipeline). The README lists them all.
+PATHS = (
+    "fast",
+    "consensus",
+    "robust/consensus",
+    "robust/correspondences",
+    "robust/search",
+    "scene search",
+)
 
 # Scans of this many times ``consensus_from`` points skip the pose as given in the consensus
 # front end: that large, it is seldom right, and its refinement costs what RANSAC does.

@@ -343,13 +343,18 @@ def leave_frame(
     def out(a: np.ndarray | None) -> np.ndarray | None:
         return None if a is None else (a[0] if single else a)
 
+    def info_out(a: np.ndarray) -> object:
+        # A pair's text (info["path"]) is a plain str, as a reader compares and prints it.
+        value = out(a)
+        return str(value) if isinstance(value, np.str_) else value
+
     return RegistrationResult(
         R=out(total[:, :3, :3].copy()),
         t=out(total[:, :3, 3].copy()),
         transform=out(total),
         mask=out(mask),
         times=times,
-        info={key: out(value) for key, value in info.items()},
+        info={key: info_out(value) for key, value in info.items()},
         rounds=rounds,
         sampled=pair.nets.sizes() if single else None,
         correspondence_inliers=out(inliers),

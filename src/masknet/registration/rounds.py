@@ -84,8 +84,14 @@ def mask_and_register(
                     template, moved, k=k, threshold=threshold, precision=precision
                 )
             times["mask"] += time.perf_counter() - tic
-            if mask is not None:
-                check_template_points(int(mask.sum(-1).min()))
+            if mask is not None and refining:
+                check_template_points(
+                    int(mask.sum(-1).min()),
+                    rule=f"the refiner's mask in round {round_index + 1}; the clouds may not "
+                    "overlap at the pose reached, refine_masks=None runs plain rounds",
+                )
+            elif mask is not None:
+                check_template_points(int(mask.sum(-1).min()), k=k, threshold=threshold)
         tic = time.perf_counter()
         # Later rounds start where the last one ended; only the paper's loop (the
         # network again in every round) re-centres, as it always did.

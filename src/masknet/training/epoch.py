@@ -67,7 +67,7 @@ def check_resumable(path: Path, saved: dict | None, current: dict) -> None:
     if changed:
         raise MaskNetError(
             f"{path}: cannot resume with different settings ({', '.join(changed)}); "
-            "use the original ones or a new --out"
+            "use the original ones or a new --output"
         )
 
 

@@ -156,11 +156,11 @@ def fit(
         _check_config(config, len(train_idx))
     out = Path(config.out_dir)
     if out.exists() and not out.is_dir():
-        raise MaskNetError(f"{out}: exists and is not a folder; choose another --out")
+        raise MaskNetError(f"{out}: exists and is not a folder; choose another --output")
     ckpt_path = _checkpoint_path(out)
     if ckpt_path.exists() and not resume:
         raise MaskNetError(
-            f"{ckpt_path} exists: pass --resume to continue it, or choose another --out"
+            f"{ckpt_path} exists: pass --resume to continue it, or choose another --output"
         )
     if not ckpt_path.exists():
         # An earlier run's results without its checkpoint cannot be continued, and a new
@@ -169,7 +169,7 @@ def fit(
         if earlier:
             raise MaskNetError(
                 f"{out} holds an earlier run ({', '.join(earlier)}) but no checkpoint to "
-                "continue; choose another --out, or move those files away"
+                "continue; choose another --output, or move those files away"
             )
     device = resolve_device(config.device)
     rank, world, joined = init_distributed(device)

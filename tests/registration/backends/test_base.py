@@ -39,3 +39,17 @@ def test_check_template_points_refuses_under_three():
     check_template_points(3)
     with pytest.raises(MaskNetError, match="kept 2 template point"):
         check_template_points(2)
+
+
+def test_check_template_points_advises_on_what_the_caller_set():
+    # Neither k nor a threshold: top-k is the rule, so the advice must not name a threshold.
+    with pytest.raises(MaskNetError, match="k = the source's points") as default:
+        check_template_points(1)
+    with pytest.raises(MaskNetError, match="top-k with k=2; give k of at least 3") as top_k:
+        check_template_points(2, k=2)
+    with pytest.raises(MaskNetError, match="threshold 0.9; lower the threshold"):
+        check_template_points(0, threshold=0.9)
+    with pytest.raises(MaskNetError, match=r"\(the refiner's mask\)"):
+        check_template_points(1, rule="the refiner's mask")
+    for refused in (default, top_k):
+        assert "threshold" not in str(refused.value)

@@ -81,14 +81,32 @@ def keep_source_points(source: np.ndarray, keep: np.ndarray | None) -> np.ndarra
     return source[:, kept] if MIN_POINTS <= len(kept) < source.shape[1] else source
 
 
-def check_template_points(fewest: int) -> None:
+def check_template_points(
+    fewest: int,
+    k: int | None = None,
+    threshold: float | None = None,
+    rule: str | None = None,
+) -> None:
     """MaskNetError where a mask keeps fewer than 3 template points of a pair (``fewest``,
-    the smallest count of a batch): nothing can be registered onto them."""
-    if fewest < MIN_POINTS:
-        raise MaskNetError(
-            f"the mask kept {fewest} template point(s); registration needs at least "
-            f"{MIN_POINTS} (lower the threshold, or use top-k)"
-        )
+    the smallest count of a batch): nothing can be registered onto them.
+
+    The advice fits what chose the mask: ``threshold`` or ``k`` as the caller gave them
+    (neither: top-k with k = the source's points), or ``rule``, a mask that no option of
+    the caller's set (the refiner's, one passed in), said as it is."""
+    if fewest >= MIN_POINTS:
+        return
+    if rule is not None:
+        how = rule
+    elif threshold is not None:
+        how = f"threshold {threshold:g}; lower the threshold, or give k instead"
+    elif k is not None:
+        how = f"top-k with k={k}; give k of at least {MIN_POINTS}"
+    else:
+        how = f"top-k with k = the source's points; the source needs at least {MIN_POINTS}"
+    raise MaskNetError(
+        f"the mask kept {fewest} template point(s); registration needs at least "
+        f"{MIN_POINTS} ({how})"
+    )
 
 
 def points_in_use(

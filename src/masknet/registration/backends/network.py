@@ -82,7 +82,7 @@ def _network_batch(
         if index is None
         else index
     )
-    check_template_points(index.shape[1])
+    check_template_points(index.shape[1], rule="the mask given to the network")
     network = options.network
     limit = getattr(network, "config", {}).get("input_points")
     n_used, m = index.shape[1], source.shape[1]
