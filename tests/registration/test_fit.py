@@ -115,3 +115,30 @@ def test_covered_points_are_the_template_points_near_the_moved_source():
     moved = np.array([[0.05, 0, 0], [1.2, 0, 0]])
     np.testing.assert_array_equal(covered_points(template, moved, 0.1), [True, False, False])
     np.testing.assert_array_equal(covered_points(template, moved, 0.25), [True, True, False])
+
+
+def test_covered_points_is_exact_on_copied_points_and_covers_a_rescan():
+    from masknet.registration.fit import covered_points
+
+    rng = np.random.default_rng(0)
+    # A sphere's surface: a seen cap (z > 0.2) of the template, copied and re-sampled.
+    template = rng.normal(size=(2000, 3))
+    template /= np.linalg.norm(template, axis=1, keepdims=True)
+    seen = template[:, 2] > 0.2
+    copied = template[seen]
+    limit = 0.15  # about 1.5 spacings of 2,000 points on the unit sphere
+    np.testing.assert_array_equal(covered_points(template, copied, limit), seen)
+    rescan = rng.normal(size=(1500, 3))
+    rescan /= np.linalg.norm(rescan, axis=1, keepdims=True)
+    rescan = rescan[rescan[:, 2] > 0.2]
+    covered = covered_points(template, rescan, limit)
+    assert (covered & seen).sum() / seen.sum() > 0.97  # the band covers between its points
+    assert (covered & ~seen).sum() / covered.sum() < 0.08  # and stays near the cap
+    # Each source point claims the template point under it, off by noise the band (three
+    # times the median residual, here 0) does not reach.
+    noisy = copied.copy()
+    noisy[::3] += rng.normal(scale=0.001, size=noisy[::3].shape)
+    np.testing.assert_array_equal(covered_points(template, noisy, limit), seen)
+    # A source point beyond the limit claims nothing.
+    far = np.vstack([copied, [[0.0, 0.0, -5.0]]])
+    np.testing.assert_array_equal(covered_points(template, far, limit), seen)

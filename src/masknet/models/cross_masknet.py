@@ -30,7 +30,7 @@ import torch
 from torch import Tensor, nn
 
 from masknet.models.layers import EdgeConvEncoder, linear_stack, mlp
-from masknet.models.mask_predictor import MaskPredictor, Precision
+from masknet.models.mask_prediction import MaskPredictionMixin, Precision
 from masknet.models.masknet import centre_pair
 from masknet.models.weights import SafetensorsWeights
 
@@ -68,7 +68,7 @@ class AttentionStep(nn.Module):
         return x + self.feedforward(x)
 
 
-class CrossMaskNet(MaskPredictor, SafetensorsWeights, nn.Module):
+class CrossMaskNet(MaskPredictionMixin, SafetensorsWeights, nn.Module):
     """A template mask from local geometry and cross-attention (see the module's docs).
 
     Args:
@@ -82,7 +82,7 @@ class CrossMaskNet(MaskPredictor, SafetensorsWeights, nn.Module):
 
     Weights: :meth:`save`, :meth:`from_file`, :meth:`pretrained` (shipped files
     ``resources/weights/crossmasknet_<name>.safetensors``). The prediction methods are
-    MaskNet's (:class:`~masknet.models.mask_predictor.MaskPredictor`).
+    MaskNet's (:class:`~masknet.models.mask_prediction.MaskPredictionMixin`).
     """
 
     weights_prefix = "crossmasknet_"
@@ -132,5 +132,5 @@ class CrossMaskNet(MaskPredictor, SafetensorsWeights, nn.Module):
 
     def scorer(self, precision: Precision = "fp32"):
         """The inference path, :meth:`forward` under ``precision``'s autocast
-        (:meth:`~masknet.models.mask_predictor.MaskPredictor.forward_scorer`)."""
+        (:meth:`~masknet.models.mask_prediction.MaskPredictionMixin.forward_scorer`)."""
         return self.forward_scorer(precision)

@@ -41,9 +41,9 @@ from torch import Tensor, nn
 from masknet.geometry.clouds import MIN_POINTS
 from masknet.models.layers import linear_stack
 from masknet.models.mask_context import MaskContext
-from masknet.models.mask_predictor import (
+from masknet.models.mask_prediction import (
     PAIRS_PER_CALL,
-    MaskPredictor,
+    MaskPredictionMixin,
     Precision,
     ScoredMask,
     prepare_inputs,
@@ -109,7 +109,7 @@ def predict_two_masks(
     return (st[0], ss[0]) if single else (st, ss)
 
 
-class MaskNet(MaskPredictor, SafetensorsWeights, nn.Module):
+class MaskNet(MaskPredictionMixin, SafetensorsWeights, nn.Module):
     """The MaskNet network.
 
     Weights: :meth:`save`, :meth:`from_file` and :meth:`pretrained` (names

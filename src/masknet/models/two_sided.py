@@ -41,7 +41,7 @@ from torch import Tensor, nn
 
 from masknet.geometry.knn import knn_points
 from masknet.models.layers import gather_points, linear_stack, mlp_pool
-from masknet.models.mask_predictor import PAIRS_PER_CALL, select_template_mask
+from masknet.models.mask_prediction import PAIRS_PER_CALL, select_template_mask
 from masknet.models.masknet import MaskNet, centre_pair, predict_two_masks
 from masknet.models.weights import SafetensorsWeights
 

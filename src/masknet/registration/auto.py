@@ -263,8 +263,11 @@ def _fast_path(
     accepted = None
     if right >= accept:
         mask = None
-        if model is not None:  # the template points the moved source covers
-            moved = transform_points(transform, kept)
+        if model is not None:  # the template points the moved source covers: every
+            # source point a two-sided network keeps (the fine grid's surface drops a rim)
+            seen = source if source_mask is None else source[source_mask]
+            seen = seen if len(seen) >= MIN_POINTS else kept
+            moved = transform_points(transform, seen)
             mask = covered_points(template, moved, FIT_SPACINGS * spacing)[None]
         info = _info("fast", fit, np.nan)
         accepted = PipelineRun(

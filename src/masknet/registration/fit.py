@@ -53,6 +53,7 @@ from masknet.registration.validation import as_numpy_batch, as_rigid_transforms
 __all__ = [
     "FIT_SLACK",
     "FIT_SPACINGS",
+    "RESIDUAL_BAND",
     "SCORE_TRUNCATION",
     "PoseFit",
     "RegistrationQuality",
@@ -69,6 +70,9 @@ __all__ = [
 
 # The inlier distance of the score, in template spacings: evaluate_registration's default.
 FIT_SPACINGS = DEFAULT_SPACINGS
+# The covered points' band: template points within this many times the median distance of
+# the moved source to the template are seen (covered_points), at most the inlier distance.
+RESIDUAL_BAND = 3.0
 # A refined round whose pose fits worse than this below its start's (pose_fit's truncated
 # score, 0-1) is undone, and the rounds stop there.
 FIT_SLACK = 0.02
@@ -205,11 +209,31 @@ def overlap_fit(
 
 
 def covered_points(template: np.ndarray, moved_source: np.ndarray, limit: float) -> np.ndarray:
-    """(N,) bool: the template points (N, 3) within ``limit`` of the source as a pose moved
-    it (M, 3): the overlap mask the pipelines return for a pose."""
+    """(N,) bool: the template points (N, 3) that the source, as a pose moved it (M, 3),
+    saw: the overlap mask the pipelines return for a pose.
+
+    Two kinds of evidence, both within ``limit`` (the fit's inlier distance):
+
+    - each source point within ``limit`` claims its nearest template point: an observation
+      accounts for the point under it (at an exact pose on copied points this alone is the
+      true mask);
+    - a template point is seen where the source passes within the band its own residuals
+      allow: ``RESIDUAL_BAND`` times the median distance of the source points to the
+      template, capped at ``limit``. A source sampled apart from the template (a re-scan)
+      leaves residuals of about half a spacing, and the band covers the surface between its
+      points; a pose exact on copied points leaves none, and the band adds nothing at the
+      seen region's edge, where a fixed ``limit`` took in a spacing's worth of unseen points
+      (top-k precision 0.957 against 1.000 on ModelNet40 test pairs).
+    """
     from masknet.geometry.knn import cloud_tree
 
-    return cloud_tree(moved_source).query(template, k=1)[0] <= limit
+    to_source = cloud_tree(moved_source).query(template, k=1)[0]
+    to_template, nearest = cloud_tree(template).query(moved_source, k=1)
+    on_template = to_template <= limit
+    band = min(limit, RESIDUAL_BAND * float(np.median(to_template))) if len(moved_source) else 0.0
+    covered = to_source <= band
+    covered[nearest[on_template]] = True
+    return covered
 
 
 def given_cut(

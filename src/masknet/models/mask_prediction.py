@@ -1,6 +1,6 @@
 """What every template-mask network answers: scores, masks, and the mask protocol.
 
-A network mixes in :class:`MaskPredictor` and provides ``scorer(precision)``, a callable
+A network mixes in :class:`MaskPredictionMixin` and provides ``scorer(precision)``, a callable
 ``(template (B, N, 3), source (B, M, 3), chunk_size) -> scores (B, N)`` in [0, 1]; the
 mixin turns numpy clouds into validated, radius-scaled batches, runs the scorer a few
 pairs at a time and selects masks (top-k with k = M, or a threshold).
@@ -20,7 +20,7 @@ from masknet.runtime import default_precision
 
 __all__ = [
     "PAIRS_PER_CALL",
-    "MaskPredictor",
+    "MaskPredictionMixin",
     "Precision",
     "ScoredMask",
     "prepare_inputs",
@@ -98,7 +98,7 @@ def prepare_inputs(
     return t, s, single, precision
 
 
-class MaskPredictor:
+class MaskPredictionMixin:
     """Mixin of :class:`masknet.models.MaskNet` and :class:`masknet.models.CrossMaskNet`:
     :meth:`predict`, :meth:`predict_mask`, :meth:`predict_mask_with_scores` and
     :meth:`predict_masks`, from the network's ``scorer``."""
