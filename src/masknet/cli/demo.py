@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 
 from masknet._extras import PICTURES, require
-from masknet.cli._common import add_model_options, load_model, positive_int, seed
+from masknet.cli._common import add_model_options, load_model, positive_int, refuse_inputs, seed
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -30,6 +30,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> None:
     """Evaluate on the sample; write ``masknet_demo.png`` and ``metrics.json``."""
     require(*PICTURES)  # for the picture; refused now, not after the evaluation
+    out = Path(args.out)
+    refuse_inputs([out / "masknet_demo.png", out / "metrics.json"], filter(None, [args.weights]))
     import torch
 
     from masknet.data import bundled_sample_path, load_modelnet40
@@ -56,7 +58,6 @@ def run(args: argparse.Namespace) -> None:
     )
     print(format_table(result.rows))
     print(f"inference: {result.ms_per_pair:.2f} ms/pair (batched, {args.inference_precision})")
-    out = Path(args.out)
     predicted = select_mask(torch.from_numpy(result.scores[:1]), k=pairs.source.shape[1])[0].numpy()
     picture = plot_mask(
         pairs.template[0].numpy(),

@@ -32,6 +32,8 @@ from masknet.registration.methods import METHOD_TITLES, METHODS, PIPELINES
 if TYPE_CHECKING:  # heavy imports stay out of ``masknet --help``
     import numpy as np
 
+    from masknet.registration.assessment import Assessment
+    from masknet.registration.result import RegistrationResult
     from masknet.registration.scene import SceneSearch
 
 
@@ -221,7 +223,6 @@ def run(args: argparse.Namespace) -> int:
     from masknet.registration import assess_registration, register
     from masknet.registration.many import transform_text
     from masknet.registration.methods import GLOBAL_METHODS
-    from masknet.registration.options import DEFAULT_SPACINGS
     from masknet.viewer import scene_layers, view_writers
 
     if args.refine < 0:
@@ -236,7 +237,8 @@ def run(args: argparse.Namespace) -> int:
         out.with_name(out.stem + "_inliers" + out.suffix),
         out.with_name(out.stem + "_source_mask.txt"),
     ]
-    check_outputs([out, *derived] + check_html(args.html), inputs=[args.template, args.source])
+    inputs = [args.template, args.source, *filter(None, (args.weights, args.network_weights))]
+    check_outputs([out, *derived] + check_html(args.html), inputs=inputs)
     with progress(f"reading {args.template}"):
         template, template_rows = read_points_with_rows(
             args.template, drop_nonfinite=args.drop_nonfinite
@@ -310,9 +312,11 @@ def run(args: argparse.Namespace) -> int:
     # Colour and normals of .ply/.pcd inputs go on to the outputs (normals turned too).
     carried = read_point_attributes(args.source, out).take(source_rows).turned(result.R)
     template_carried = read_point_attributes(args.template, out).take(template_rows)
+    # The answer first (the transform, then the moved source); the side outputs after it
+    # may be skipped (an empty inlier cloud cannot be a .ply), never the answer.
     writers = [
-        (out, lambda p: write_points(p, moved, *carried)),
         (transform_path, lambda p: write_text_atomic(p, text)),
+        (out, lambda p: write_points(p, moved, *carried)),
     ]
     if result.mask is not None:
         inliers_path = out.with_name(out.stem + "_inliers" + out.suffix)
@@ -341,7 +345,31 @@ def run(args: argparse.Namespace) -> int:
         else:
             writers += registration_views(args.html, template, source, moved, result, check, title)
     with progress("writing the outputs"):
-        removed = write_all(writers, stale=derived)
+        removed = write_all(writers, stale=derived, optional=[p for p, _ in writers[2:]])
+    written = [p for p, _ in writers if p.exists()]  # a skipped side output is not there
+    try:
+        _report(args, name, template, source, source_rows, result, check)
+        print(f"wrote {', '.join(map(str, written))}")
+        if removed:
+            print(f"removed {', '.join(map(str, removed))} (an earlier run's; this run wrote none)")
+    except KeyboardInterrupt:  # the answer is on disk: say so, and still exit 130
+        raise KeyboardInterrupt(
+            f"the outputs were written: {', '.join(map(str, written))}"
+        ) from None
+    return EXIT_LIKELY_WRONG if check.verdict == "likely wrong" and not args.exit_zero else 0
+
+
+def _report(
+    args: argparse.Namespace,
+    name: str,
+    template: np.ndarray,
+    source: np.ndarray,
+    source_rows: np.ndarray,
+    result: RegistrationResult,
+    check: Assessment,
+) -> None:
+    """Print what the method reported, the verdict and its warnings."""
+    from masknet.registration.options import DEFAULT_SPACINGS
 
     print_result(args, name, template, source, source_rows, result)
     report_path(result.info, result.R)
@@ -363,10 +391,6 @@ def run(args: argparse.Namespace) -> int:
             "ran (--scene on forces one)",
             file=sys.stderr,
         )
-    print(f"wrote {', '.join(str(p) for p, _ in writers)}")
-    if removed:
-        print(f"removed {', '.join(map(str, removed))} (an earlier run's; this run wrote none)")
-    return EXIT_LIKELY_WRONG if check.verdict == "likely wrong" and not args.exit_zero else 0
 
 
 def method_option(text: str) -> tuple[str, object]:
