@@ -5,6 +5,8 @@ and leaves no folder it made."""
 from __future__ import annotations
 
 import contextlib
+import types
+import warnings
 
 import numpy as np
 import pytest
@@ -240,3 +242,30 @@ def test_a_rerun_with_other_options_says_it_replaces_the_earlier_results(
     main([*args, "--iterations", "2"])
     err = capsys.readouterr().err
     assert f"earlier results in {out} made with other files or options are replaced: 1 of 1" in err
+
+
+def test_an_interrupt_as_the_command_returns_still_gets_its_line(capsys, monkeypatch):
+    """Ctrl-C in the CLI's own teardown, after a command finished, is one line and 130."""
+    import masknet.cli
+
+    class Interrupted(contextlib.AbstractContextManager):
+        def __init__(self, *args, **kwargs) -> None:
+            pass
+
+        def __exit__(self, *exc):
+            raise KeyboardInterrupt
+
+    # The CLI's own view of the warnings module; pytest's stays as it is.
+    own = types.SimpleNamespace(
+        catch_warnings=Interrupted,
+        simplefilter=lambda *a, **k: None,
+        showwarning=warnings.showwarning,
+    )
+    monkeypatch.setattr(masknet.cli, "warnings", own)
+    monkeypatch.setattr(masknet.cli.make_sample, "run", lambda args: 0)
+    try:
+        code = main(["make-sample", "-o", "never.npz"])
+    except KeyboardInterrupt:  # not pytest's own Ctrl-C: that would end the whole session
+        pytest.fail("the interrupt escaped the CLI's guard")
+    assert code == EXIT_INTERRUPTED
+    assert capsys.readouterr().err == "masknet: interrupted\n"

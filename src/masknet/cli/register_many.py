@@ -253,7 +253,7 @@ def _write_summary(out: Path, jobs, options: dict) -> list[dict]:
     return records
 
 
-def check_outputs_of(args: argparse.Namespace, jobs, out: Path) -> None:
+def _check_results(args: argparse.Namespace, jobs, out: Path) -> None:
     """The output rule, before any work: ``out`` is a folder (or not made yet), and no
     result file (``NAME.json``, ``NAME_transform.txt``, ``summary.csv``) is one of the
     inputs (the list file, a pair's files), through a link neither."""
@@ -282,7 +282,7 @@ def run(args: argparse.Namespace) -> int:
         options["max_correspondence_distance"] = args.max_correspondence_distance
     check_options(options)
     out = Path(args.out)
-    check_outputs_of(args, jobs, out)
+    _check_results(args, jobs, out)
     # No folder made here: the first file written makes it, so an interrupt before leaves
     # none behind.
     todo, replaced = _plan(out, jobs, options)
