@@ -129,6 +129,29 @@ def test_an_output_folder_that_is_a_file_is_one_line(
     assert sha256_of(tmp_path) == before
 
 
+def test_a_start_matrix_named_as_an_output_is_refused(
+    tmp_path, saved, capsys, sha256_of, no_batch_work, monkeypatch
+):
+    """Refining an earlier result into the same name would overwrite the start it read."""
+    import masknet.io
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("an input was read: the refusal came after work started")
+
+    monkeypatch.setattr(masknet.io, "read_points_with_rows", no_work)
+    (tmp_path / "out").mkdir()
+    np.savetxt(tmp_path / "m_transform.txt", np.eye(4))
+    np.savetxt(tmp_path / "out" / "s_transform.txt", np.eye(4))
+    before = sha256_of(tmp_path)
+    pair = [str(tmp_path / "t.npy"), str(tmp_path / "s.npy")]
+    start = ["--init", str(tmp_path / "m_transform.txt")]
+    code = main(["register", *pair, "-o", str(tmp_path / "m.npy"), *start])
+    _refused(code, capsys.readouterr().err, "m_transform.txt: is the input", CLASH)
+    code = main(_batch(tmp_path, "-o", str(tmp_path / "out"), "--init", str(tmp_path / "out" / "s_transform.txt")))  # fmt: skip
+    _refused(code, capsys.readouterr().err, "s_transform.txt: is the input", CLASH)
+    assert sha256_of(tmp_path) == before
+
+
 # the other commands that read files given by name
 
 

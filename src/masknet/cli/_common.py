@@ -11,7 +11,7 @@ import os
 import tempfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 from masknet._extras import PICTURES, require
 from masknet.errors import MaskNetError
@@ -79,10 +79,19 @@ def exit_codes_text() -> str:
     return "exit status:\n" + "\n".join(f"  {code:>3}  {text}" for code, text in EXIT_CODES.items())
 
 
-def init_option(text: str) -> str | np.ndarray:
+class StartFile(NamedTuple):
+    """``--init FILE``: the file, an input no output may overwrite (a run refining an
+    earlier ``<stem>_transform.txt``), and the (4, 4) source -> template matrix it holds."""
+
+    path: str
+    matrix: np.ndarray
+
+
+def init_option(text: str) -> str | StartFile:
     """``--init``: ``centroid``, ``identity``, or a file holding a 4x4 source -> template
     matrix to start from (Open3D's ``init``): text (``#`` comments, as the
-    ``<stem>_transform.txt`` that ``masknet register`` writes) or ``.npy``."""
+    ``<stem>_transform.txt`` that ``masknet register`` writes) or ``.npy``. A command
+    takes it apart with :func:`start_files`."""
     if text in ("centroid", "identity"):
         return text
     import numpy as np
@@ -103,7 +112,16 @@ def init_option(text: str) -> str | np.ndarray:
         raise argparse.ArgumentTypeError(
             f"{text}: expected a finite 4x4 matrix, got shape {matrix.shape}"
         )
-    return matrix.astype(np.float64)
+    return StartFile(text, matrix.astype(np.float64))
+
+
+def start_files(args: argparse.Namespace) -> list[str]:
+    """The file of ``--init`` (none for ``centroid`` and ``identity``), for the output
+    rule; ``args.init`` is left as ``register``'s ``init`` takes it, a name or the matrix."""
+    if not isinstance(args.init, StartFile):
+        return []
+    path, args.init = args.init
+    return [path]
 
 
 def json_object(text: str) -> dict:

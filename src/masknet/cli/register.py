@@ -23,6 +23,7 @@ from masknet.cli._common import (
     load_model,
     positive_int,
     progress,
+    start_files,
 )
 from masknet.cli._pictures import registration_views
 from masknet.cli._report import print_result, report_path, shown_numbers
@@ -231,7 +232,8 @@ def run(args: argparse.Namespace) -> int:
         out.with_name(out.stem + "_inliers" + out.suffix),
         out.with_name(out.stem + "_source_mask.txt"),
     ]
-    inputs = [args.template, args.source, *filter(None, (args.weights, args.network_weights))]
+    inputs = [args.template, args.source, *start_files(args)]
+    inputs += filter(None, (args.weights, args.network_weights))
     check_outputs([out, *derived] + check_html(args.html), inputs=inputs)
     with progress(f"reading {args.template}"):
         template, template_rows = read_points_with_rows(

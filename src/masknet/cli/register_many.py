@@ -19,6 +19,7 @@ from masknet.cli._common import (
     finite_float,
     init_option,
     positive_int,
+    start_files,
 )
 from masknet.errors import MaskNetError
 from masknet.registration.methods import METHODS
@@ -253,13 +254,14 @@ def _write_summary(out: Path, jobs, options: dict) -> list[dict]:
     return records
 
 
-def _check_results(args: argparse.Namespace, jobs, out: Path) -> None:
+def _check_results(args: argparse.Namespace, jobs, out: Path, started_from: list[str]) -> None:
     """The output rule, before any work: ``out`` is a folder (or not made yet), and no
     result file (``NAME.json``, ``NAME_transform.txt``, ``summary.csv``) is one of the
-    inputs (the list file, a pair's files), through a link neither."""
+    inputs (the list file, a pair's files, ``--init``'s file), through a link neither."""
     if out.exists() and not out.is_dir():
         raise MaskNetError(f"{out}: is a file; the results of a batch go into a folder")
     inputs = [args.list] if args.list else []
+    inputs += started_from
     inputs += [path for job in jobs for path in (job.template, job.source)]
     text = (".txt", ".json", ".csv")
     check_outputs([out / SUMMARY], text, inputs, hint="give the results another folder")
@@ -274,6 +276,7 @@ def run(args: argparse.Namespace) -> int:
     from masknet.registration.many import executor, run_jobs
 
     jobs = read_jobs(args)
+    started_from = start_files(args)
     options = {"use_mask": not args.no_mask, "iterations": args.iterations, "init": args.init}
     options |= {"drop_nonfinite": True} if args.drop_nonfinite else {}
     if args.method is not None:
@@ -282,7 +285,7 @@ def run(args: argparse.Namespace) -> int:
         options["max_correspondence_distance"] = args.max_correspondence_distance
     check_options(options)
     out = Path(args.out)
-    _check_results(args, jobs, out)
+    _check_results(args, jobs, out, started_from)
     # No folder made here: the first file written makes it, so an interrupt before leaves
     # none behind.
     todo, replaced = _plan(out, jobs, options)
