@@ -92,7 +92,7 @@ def test_an_optional_output_that_refuses_is_skipped_and_the_others_written(tmp_p
 
     with pytest.warns(
         MaskNetWarning,
-        match=r"/side.ply: cannot write an empty cloud as .ply; that side output is skipped",
+        match=r"/side.ply: cannot write an empty cloud as .ply; skipped, the other outputs are written",
     ):
         removed = write_all(
             [(answer, lambda p: p.write_text("NEW")), (side, refuses)],

@@ -171,9 +171,7 @@ def write_all(
             except MaskNetError as exc:
                 if Path(path) not in optional:
                     raise
-                warn(
-                    f"{staging.named(str(exc))}; that side output is skipped, the others are written"
-                )
+                warn(f"{staging.named(str(exc))}; skipped, the other outputs are written")
                 staging.drop_last()
                 skipped.append(Path(path))
         return staging.commit([*stale, *skipped])

@@ -200,6 +200,19 @@ def test_mixed_units_give_one_exit_status_and_the_transform_in_every_format(
         assert not (tmp_path / f"out_inliers{ext}").exists()
 
 
+@pytest.mark.parametrize("ext", [".npy", ".ply"])
+def test_nothing_kept_is_the_same_outcome_in_every_format(tmp_path, pair, capsys, ext, o3d):
+    """denoise (and mask) keep no point: the mask is the answer, in every format."""
+    np.savetxt(tmp_path / "template.xyz", pair[0])
+    np.savetxt(tmp_path / "far.xyz", pair[1] + 100.0)  # nothing near the template
+    out = tmp_path / f"kept{ext}"
+    code = main(["denoise", str(tmp_path / "template.xyz"), str(tmp_path / "far.xyz"), "-o", str(out), "--max-distance", "0.01"])  # fmt: skip
+    assert code == 0
+    assert np.loadtxt(tmp_path / "kept_mask.txt").sum() == 0
+    assert out.exists() == (ext == ".npy")  # an empty .ply cannot be written: said, not fatal
+    assert (ext == ".ply") == ("kept.ply: cannot write an empty cloud" in capsys.readouterr().err)
+
+
 # interrupts
 
 
