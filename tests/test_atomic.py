@@ -79,3 +79,47 @@ def test_written_files_follow_the_umask(tmp_path):
         os.umask(mask)
     for name in ("a.txt", "b.txt"):
         assert stat.S_IMODE((tmp_path / name).stat().st_mode) == 0o644
+
+
+def test_an_optional_output_that_refuses_is_skipped_and_the_others_written(tmp_path):
+    from masknet.errors import MaskNetWarning
+
+    answer, side = tmp_path / "answer.txt", tmp_path / "side.ply"
+    side.write_text("AN EARLIER RUN'S")
+
+    def refuses(path):
+        raise MaskNetError(f"{path}: cannot write an empty cloud as .ply")
+
+    with pytest.warns(
+        MaskNetWarning,
+        match=r"/side.ply: cannot write an empty cloud as .ply; skipped, the other outputs are written",
+    ):
+        removed = write_all(
+            [(answer, lambda p: p.write_text("NEW")), (side, refuses)],
+            optional=[side],
+        )
+    # the answer is there; the earlier side file is gone with it (it is not this run's)
+    assert answer.read_text() == "NEW" and removed == [side]
+    assert _names(tmp_path) == ["answer.txt"]
+    with pytest.raises(MaskNetError, match="empty cloud"):  # not optional: all or nothing
+        write_all([(answer, lambda p: p.write_text("NEWER")), (side, refuses)])
+    assert answer.read_text() == "NEW"
+
+
+@pytest.mark.parametrize("failure", [KeyboardInterrupt, MaskNetError])
+def test_a_failed_write_removes_only_the_empty_folders_it_made(tmp_path, failure):
+    (tmp_path / "there").mkdir()  # empty, but there before: it stays
+
+    def fails(path):
+        raise failure("stopped")
+
+    for target in (tmp_path / "new" / "deeper" / "a.txt", tmp_path / "there" / "a.txt"):
+        with pytest.raises(failure):
+            write_all([(target, fails)])
+    assert _names(tmp_path) == ["there"] and _names(tmp_path / "there") == []
+    # a folder it made that holds something by then is kept, and so is what it holds
+    kept = tmp_path / "made" / "kept.txt"
+    write_all([(kept, lambda p: p.write_text("KEPT"))])
+    with pytest.raises(failure):
+        write_all([(tmp_path / "made" / "sub" / "b.txt", fails)])
+    assert _names(tmp_path / "made") == ["kept.txt"]

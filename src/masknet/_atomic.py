@@ -13,7 +13,7 @@ import tempfile
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
-from masknet.errors import MaskNetError
+from masknet.errors import MaskNetError, warn
 
 __all__ = ["atomic_target", "write_all", "write_text_atomic"]
 
@@ -24,6 +24,7 @@ class _Staging:
     def __init__(self) -> None:
         self.files: list[tuple[str, Path]] = []  # (temporary file, its target)
         self.current = "output"  # the target an error is about
+        self.made: list[Path] = []  # folders this staging created, outermost first
 
     def add(self, path: str | os.PathLike, suffix: str) -> str:
         """A new temporary file ``.<name>.tmpXXXX<suffix>`` beside ``path`` (parent
@@ -32,7 +33,9 @@ class _Staging:
         target = Path(path)
         if target.is_dir():
             raise MaskNetError(f"{self.current}: is a directory, not a file")
+        missing = [p for p in [target.parent, *target.parent.parents] if not p.exists()]
         target.parent.mkdir(parents=True, exist_ok=True)
+        self.made += reversed(missing)
         fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.tmp", suffix=suffix, dir=target.parent)
         os.close(fd)
         self.files.append((tmp, target))
@@ -76,10 +79,24 @@ class _Staging:
                 os.unlink(aside)
         return stale
 
+    def drop_last(self) -> None:
+        """Forget the last temporary file (an output that will not be written)."""
+        tmp, _ = self.files.pop()
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+
     def discard(self) -> None:
         for tmp, _ in self.files:
             with contextlib.suppress(OSError):
                 os.unlink(tmp)
+
+    def unmake(self) -> None:
+        """Remove the folders this staging created and that are still empty, innermost
+        first: a failed or interrupted run leaves no empty folder behind, and a folder that
+        was there before, or that holds anything, stays."""
+        for folder in reversed(self.made):
+            with contextlib.suppress(OSError):
+                folder.rmdir()  # refuses a folder that is not empty
 
     def named(self, message: str) -> str:
         """``message`` with every temporary file's name replaced by its target's."""
@@ -90,12 +107,15 @@ class _Staging:
 
 @contextlib.contextmanager
 def _staging() -> Iterator[_Staging]:
-    """A :class:`_Staging` whose temporary files are gone on exit. An :class:`OSError`
+    """A :class:`_Staging` whose temporary files are gone on exit, and on a failure or an
+    interrupt the folders it created too, where they are empty. An :class:`OSError`
     becomes a :class:`MaskNetError` naming the target, and a MaskNetError naming a
     temporary file names its target instead."""
     staging = _Staging()
+    failed = True
     try:
         yield staging
+        failed = False
     except OSError as exc:
         raise MaskNetError(f"{staging.current}: cannot write ({exc.strerror or exc})") from exc
     except MaskNetError as exc:
@@ -105,6 +125,8 @@ def _staging() -> Iterator[_Staging]:
         raise MaskNetError(message) from exc
     finally:
         staging.discard()
+        if failed:  # after discard: a folder holding a temporary file is not empty
+            staging.unmake()
 
 
 @contextlib.contextmanager
@@ -122,22 +144,37 @@ def atomic_target(path: str | os.PathLike, suffix: str = "") -> Iterator[str]:
 
 
 def write_all(
-    writers: list[tuple[Path, Callable[[Path], None]]], stale: Iterable[Path] = ()
+    writers: list[tuple[Path, Callable[[Path], None]]],
+    stale: Iterable[Path] = (),
+    optional: Iterable[Path] = (),
 ) -> list[Path]:
     """Write every output or none, and never lose a file that was there before.
 
-    Each writer is called with a temporary file beside its target (with the target's
-    extension); only when all have been written are they moved into place, each earlier
-    file kept aside until every move has succeeded, and put back if one fails.
+    Each writer is called, in order, with a temporary file beside its target (with the
+    target's extension); only when all have been written are they moved into place, each
+    earlier file kept aside until every move has succeeded, and put back if one fails.
     ``stale``: side files the caller owns but did not write this time (an earlier
     run's); those that exist are removed in the same transaction, so no earlier output
-    looks like part of this one. Returns them. Errors name the targets, never the
-    temporary files.
+    looks like part of this one. Returns them. ``optional``: side outputs whose writer
+    may refuse its content (a :class:`MaskNetError`, e.g. an empty cloud as ``.ply``):
+    such an output is skipped with a one-line :class:`~masknet.errors.MaskNetWarning`
+    and counts as stale, and the others are written; the answer is never lost to a side
+    file's format. Errors name the targets, never the temporary files.
     """
+    optional = {Path(p) for p in optional}
+    skipped: list[Path] = []
     with _staging() as staging:
         for path, write in writers:
-            write(Path(staging.add(path, Path(path).suffix)))
-        return staging.commit(stale)
+            tmp = Path(staging.add(path, Path(path).suffix))
+            try:
+                write(tmp)
+            except MaskNetError as exc:
+                if Path(path) not in optional:
+                    raise
+                warn(f"{staging.named(str(exc))}; skipped, the other outputs are written")
+                staging.drop_last()
+                skipped.append(Path(path))
+        return staging.commit([*stale, *skipped])
 
 
 def _umask() -> int:

@@ -67,12 +67,13 @@ def test_progress_speaks_only_for_slow_steps(capsys):
 def test_a_writer_error_names_the_users_file_not_the_temporary_one(tmp_path, pair_files, capsys):
     template, source, _ = pair_files
     out = tmp_path / "inliers.ply"
-    # A threshold no score reaches keeps no point: an empty .ply cannot be written.
-    assert main(["mask", str(template), str(source), "-o", str(out), "--threshold", "1"]) == 2
+    # A threshold no score reaches keeps no point: an empty .ply cannot be written, and the
+    # mask, the answer, is written all the same.
+    assert main(["mask", str(template), str(source), "-o", str(out), "--threshold", "1"]) == 0
     err = capsys.readouterr().err.strip()
-    assert (
-        err.startswith(f"masknet: error: {out}: cannot write an empty cloud") and ".part" not in err
-    )
+    assert err.startswith(f"masknet: warning: {out}: cannot write an empty cloud")
+    assert ".tmp" not in err and ".part" not in err
+    assert not out.exists() and (tmp_path / "inliers_mask.txt").exists()
 
 
 # Each old spelling, kept for one version: (command line with it, the attribute it sets,

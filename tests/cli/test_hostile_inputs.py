@@ -134,26 +134,41 @@ def test_fuzzed_truncated_and_bit_flipped_files_fail_cleanly(tmp_path, kind, o3d
             assert points.ndim == 2 and points.shape[1] == 3 and np.isfinite(points).all()
 
 
+SIDE_FILE = {"register": "_transform.txt", "mask": "_mask.txt", "denoise": "_mask.txt"}
+
+
 @pytest.mark.parametrize("command", ["register", "mask", "denoise"])
-@pytest.mark.parametrize("through_link", [False, True])
+@pytest.mark.parametrize("kind", ["same path", "symbolic link", "hard link", "side file"])
 def test_an_output_that_is_an_input_is_refused_before_any_work(
-    tmp_path, capsys, command, through_link
+    tmp_path, capsys, monkeypatch, sha256_of, command, kind
 ):
+    import masknet.io
+
     template, source = tmp_path / "template.xyz", tmp_path / "source.xyz"
     write_points(template, GOOD)
     write_points(source, GOOD[:200] + 0.01)
-    before = {p: p.read_bytes() for p in (template, source)}
     target = source
-    if through_link:
+    if kind == "symbolic link":
         target = tmp_path / "alias.xyz"
         target.symlink_to(source)
+    elif kind == "hard link":
+        target = tmp_path / "alias.xyz"
+        target.hardlink_to(source)
+    elif kind == "side file":  # the input is named as one of the side files of -o
+        source = source.rename(tmp_path / f"out{SIDE_FILE[command]}")
+        target = tmp_path / "out.xyz"
+    before = sha256_of(tmp_path)
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("an input was read: the refusal came after work started")
+
+    monkeypatch.setattr(masknet.io, "read_points_with_rows", no_work)
+    monkeypatch.setattr(masknet.io, "read_points", no_work)
     code = main([command, str(template), str(source), "-o", str(target)])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1
     assert "is the input" in err[0] and "never overwrites an input" in err[0]
-    assert {p: p.read_bytes() for p in (template, source)} == before
-    made = sorted(p.name for p in tmp_path.iterdir())
-    assert made == sorted(["template.xyz", "source.xyz"] + (["alias.xyz"] if through_link else []))
+    assert sha256_of(tmp_path) == before  # every input as it was, nothing new
 
 
 def test_a_run_removes_the_side_files_of_an_earlier_run_that_it_did_not_write(tmp_path, capsys):

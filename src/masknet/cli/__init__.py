@@ -109,10 +109,15 @@ def main(argv: list[str] | None = None) -> int:
         problems.add(text)
         print(f"masknet: warning: {text}", file=sys.stderr)
 
-    with warnings.catch_warnings():
-        warnings.simplefilter("default", MaskNetWarning)  # each message once
-        warnings.showwarning = one_line
-        return _run(args)
+    def run() -> object:
+        with warnings.catch_warnings():
+            warnings.simplefilter("default", MaskNetWarning)  # each message once
+            warnings.showwarning = one_line
+            return COMMANDS[args.command].run(args)
+
+    # The guard holds the warnings' setup and teardown too: Ctrl-C landing there, once the
+    # outputs are written, still gets its one line and exit 130.
+    return _guarded(run, "masknet")
 
 
 def run_script(main: Callable[[], object]) -> None:
@@ -120,10 +125,6 @@ def run_script(main: Callable[[], object]) -> None:
     missing file, a bad option) ends it with one line ``<script>: error: <problem>`` and
     exit code 2, not a traceback; Ctrl-C with exit code 130."""
     raise SystemExit(_guarded(main, Path(sys.argv[0]).name))
-
-
-def _run(args: argparse.Namespace) -> int:
-    return _guarded(lambda: COMMANDS[args.command].run(args), "masknet")
 
 
 def _guarded(call: Callable[[], object], prog: str) -> int:

@@ -9,9 +9,9 @@ import json
 import math
 import os
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 from masknet._extras import PICTURES, require
 from masknet.errors import MaskNetError
@@ -69,7 +69,8 @@ EXIT_CODES = {
     "register-many: some results are likely wrong (--exit-zero gives 0 instead)",
     EXIT_SOME_FAILED: "register-many: some pairs failed (a bad file, a refusal); the others "
     "are written and summary.csv gives each error (--exit-zero gives 0 instead)",
-    EXIT_INTERRUPTED: "interrupted (Ctrl-C); no output half-written",
+    EXIT_INTERRUPTED: "interrupted (Ctrl-C); no output half-written, and the line says what "
+    "is already written",
 }
 
 
@@ -78,10 +79,19 @@ def exit_codes_text() -> str:
     return "exit status:\n" + "\n".join(f"  {code:>3}  {text}" for code, text in EXIT_CODES.items())
 
 
-def init_option(text: str) -> str | np.ndarray:
+class StartFile(NamedTuple):
+    """``--init FILE``: the file, an input no output may overwrite (a run refining an
+    earlier ``<stem>_transform.txt``), and the (4, 4) source -> template matrix it holds."""
+
+    path: str
+    matrix: np.ndarray
+
+
+def init_option(text: str) -> str | StartFile:
     """``--init``: ``centroid``, ``identity``, or a file holding a 4x4 source -> template
     matrix to start from (Open3D's ``init``): text (``#`` comments, as the
-    ``<stem>_transform.txt`` that ``masknet register`` writes) or ``.npy``."""
+    ``<stem>_transform.txt`` that ``masknet register`` writes) or ``.npy``. A command
+    takes it apart with :func:`start_files`."""
     if text in ("centroid", "identity"):
         return text
     import numpy as np
@@ -102,7 +112,16 @@ def init_option(text: str) -> str | np.ndarray:
         raise argparse.ArgumentTypeError(
             f"{text}: expected a finite 4x4 matrix, got shape {matrix.shape}"
         )
-    return matrix.astype(np.float64)
+    return StartFile(text, matrix.astype(np.float64))
+
+
+def start_files(args: argparse.Namespace) -> list[str]:
+    """The file of ``--init`` (none for ``centroid`` and ``identity``), for the output
+    rule; ``args.init`` is left as ``register``'s ``init`` takes it, a name or the matrix."""
+    if not isinstance(args.init, StartFile):
+        return []
+    path, args.init = args.init
+    return [path]
 
 
 def json_object(text: str) -> dict:
@@ -377,23 +396,18 @@ def progress(label: str, after: float | None = None) -> Iterator[None]:
 def check_outputs(
     paths: list[Path],
     text: tuple[str, ...] = (".txt", ".html", ".png"),
-    inputs: list[str | Path] = (),
+    inputs: Iterable[str | Path] = (),
+    hint: str = "give it another name",
 ) -> None:
-    """Refuse, before any computing, outputs that cannot be written: an unsupported
-    extension (point files; ``text`` suffixes are always fine), a path that is a
-    directory, a parent that is not a writable directory (missing ones are made), or a
-    path that is one of the ``inputs`` (the same file, through a link too): a run never
-    overwrites what it reads."""
+    """Refuse, before any computing, outputs that cannot be written: one of the ``inputs``
+    (:func:`refuse_inputs`), an unsupported extension (point files; ``text`` suffixes are
+    always fine), a path that is a directory, or a parent that is not a writable directory
+    (missing ones are made)."""
     from masknet.io import SUPPORTED_WRITE
 
-    for path in paths:
-        for given in inputs:
-            if _same_file(path, Path(given)):
-                raise MaskNetError(
-                    f"{path}: is the input {given}; an output never overwrites an input, "
-                    "give it another name"
-                )
+    refuse_inputs(paths, inputs, hint)
     seen: dict[Path, Path] = {}
+    writable: dict[Path, bool] = {}  # a batch writes many files into one folder: tried once
     for path in paths:
         key = path.resolve()
         if key in seen:
@@ -408,19 +422,36 @@ def check_outputs(
                 f"(supported: {', '.join(SUPPORTED_WRITE)})"
             )
         parent = next((p for p in [path.parent, *path.parent.parents] if p.exists()), Path("."))
-        if not parent.is_dir() or not _can_create_in(parent):
+        if parent not in writable:
+            writable[parent] = parent.is_dir() and _can_create_in(parent)
+        if not writable[parent]:
             raise MaskNetError(f"{path}: cannot write into {parent} (not a writable directory)")
 
 
-def _same_file(a: Path, b: Path) -> bool:
-    """Whether two paths name one file: by inode where both exist (hard and symbolic
-    links), else by resolved path."""
+def refuse_inputs(
+    outputs: Iterable[str | Path], inputs: Iterable[str | Path], hint: str = "give it another name"
+) -> None:
+    """The one output rule of every command: no output is one of the ``inputs`` (the same
+    path, a symbolic link to it, or a hard link to it), so a run never overwrites what it
+    reads. Raises a :class:`MaskNetError` naming the first clash, followed by ``hint``
+    (what to do). One pass over each list: a batch of thousands of pairs checks fast."""
+    given = {_identity(Path(p)): p for p in inputs}
+    for path in outputs:
+        clash = given.get(_identity(Path(path)))
+        if clash is not None:
+            raise MaskNetError(
+                f"{path}: is the input {clash}; an output never overwrites an input, {hint}"
+            )
+
+
+def _identity(path: Path) -> tuple[int, int] | str:
+    """What names one file whatever the path: (device, inode) where it exists (symbolic
+    and hard links), else the path with its links resolved (a file not made yet)."""
     try:
-        if a.exists() and b.exists():
-            return os.path.samefile(a, b)
+        info = path.stat()  # follows a symbolic link: its target is what gets written
     except OSError:
-        pass
-    return a.resolve() == b.resolve()
+        return os.path.realpath(path)
+    return (info.st_dev, info.st_ino)
 
 
 def _can_create_in(folder: Path) -> bool:

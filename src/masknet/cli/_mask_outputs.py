@@ -37,7 +37,9 @@ def write_kept(
     """Write, all or nothing, the ``points`` that ``mask`` keeps to the first of ``paths``
     (with the attributes of ``read_from``, the file ``points`` came from; ``rows``: its
     finite rows), the mask over that file's rows to the second, and with ``--html`` the
-    views of ``layers``. Returns the paths written."""
+    views of ``layers``. The mask is the answer: the points it keeps are skipped with a
+    warning where their format cannot hold them (none kept, as ``.ply``), so the outcome
+    does not depend on the format. Returns the paths written."""
     from masknet.io import read_point_attributes, write_mask, write_points
     from masknet.io_checks import over_rows
     from masknet.viewer import view_writers
@@ -45,10 +47,10 @@ def write_kept(
     out, mask_path = paths
     carried = read_point_attributes(read_from, out).take(rows).take(mask)
     writers = [
-        (out, lambda p: write_points(p, points[mask], *carried)),
         (mask_path, lambda p: write_mask(p, over_rows(mask, rows))),
+        (out, lambda p: write_points(p, points[mask], *carried)),
     ]
     if args.html:
         writers += view_writers(args.html, layers, title)
-    write_all(writers)
-    return [p for p, _ in writers]
+    write_all(writers, optional=[p for p, _ in writers[1:]])
+    return [p for p, _ in writers if p.exists()]  # a skipped output is not there

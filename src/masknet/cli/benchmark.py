@@ -24,7 +24,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "experiment",
         help="registration, networks, iterations, masks-per-round, refine-masks, "
-        "precision-vs-missing, rotation-sweep, noise, generalization, timing, denoising, "
+        "precision-vs-missing, protocols, rotation-sweep, noise, generalization, timing, denoising, "
         "outliers, scans, robust, real-pairs, methods, success, startup, or all",
     )
     p.add_argument("--data", help="ModelNet40 folder or .npz (default: $MASKNET_DATA)")

@@ -12,6 +12,7 @@ from masknet.cli._common import (
     add_output_option,
     load_model,
     positive_int,
+    refuse_inputs,
     seed,
 )
 
@@ -40,6 +41,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> None:
     """Evaluate on the sample; write ``masknet_demo.png`` and ``metrics.json``."""
     require(*PICTURES)  # for the picture; refused now, not after the evaluation
+    out = Path(args.output)
+    refuse_inputs([out / "masknet_demo.png", out / "metrics.json"], filter(None, [args.weights]))
     import torch
 
     from masknet.data import bundled_sample_path, load_modelnet40

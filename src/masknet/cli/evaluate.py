@@ -13,6 +13,7 @@ from masknet.cli._common import (
     load_model,
     pair_config,
     positive_int,
+    refuse_inputs,
     seed,
 )
 from masknet.errors import MaskNetError
@@ -49,6 +50,8 @@ def run(args: argparse.Namespace) -> None:
     from masknet.evaluation.evaluate import evaluate_masknet, format_table
     from masknet.io import write_text_atomic
 
+    if args.output:  # refused now, not after the evaluation
+        refuse_inputs([args.output], filter(None, (args.data, args.weights)))
     model = load_model(args)
     if args.scans:
         _run_scans(args, model)

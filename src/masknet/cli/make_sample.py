@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from masknet.cli._common import positive_int
+from masknet.cli._common import positive_int, refuse_inputs
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -23,7 +23,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> None:
     """Write the sample; print its size."""
+    from masknet.data.modelnet import resolve_data_path
     from masknet.data.sample import build_sample
 
+    refuse_inputs([args.output], [resolve_data_path(args.data)])
     path = build_sample(args.data, args.output, args.per_class)
     print(f"wrote {path} ({path.stat().st_size / 1e6:.2f} MB)")

@@ -24,6 +24,7 @@ from masknet.cli._common import (
     load_model,
     positive_int,
     progress,
+    start_files,
 )
 from masknet.cli._pictures import registration_views
 from masknet.cli._report import print_result, report_path, shown_numbers
@@ -31,8 +32,13 @@ from masknet.errors import MaskNetError
 from masknet.registration.methods import METHOD_TITLES, METHODS, PIPELINES
 
 if TYPE_CHECKING:  # heavy imports stay out of ``masknet --help``
+    from collections.abc import Callable
+
     import numpy as np
 
+    from masknet.models import MaskNet
+    from masknet.registration.assessment import Assessment
+    from masknet.registration.result import RegistrationResult
     from masknet.registration.scene import SceneSearch
 
 
@@ -212,18 +218,8 @@ def run(args: argparse.Namespace) -> int:
     """Register; write the outputs all-or-nothing and print what the method reported.
     Returns the exit status (:data:`masknet.cli._common.EXIT_CODES`)."""
 
-    from masknet.io import (
-        read_point_attributes,
-        read_points_with_rows,
-        write_points,
-        write_text_atomic,
-    )
-    from masknet.io_checks import over_rows
+    from masknet.io import read_points_with_rows
     from masknet.registration import assess_registration, register
-    from masknet.registration.many import transform_text
-    from masknet.registration.methods import GLOBAL_METHODS
-    from masknet.registration.options import DEFAULT_SPACINGS
-    from masknet.viewer import scene_layers, view_writers
 
     if args.refine < 0:
         raise MaskNetError(f"--refine must be >= 0, got {args.refine}")
@@ -237,7 +233,9 @@ def run(args: argparse.Namespace) -> int:
         out.with_name(out.stem + "_inliers" + out.suffix),
         out.with_name(out.stem + "_source_mask.txt"),
     ]
-    check_outputs([out, *derived] + check_html(args.html), inputs=[args.template, args.source])
+    inputs = [args.template, args.source, *start_files(args)]
+    inputs += [w for w in args.weights if Path(w).is_file()]  # shipped names are no files
+    check_outputs([out, *derived] + check_html(args.html), inputs=inputs)
     with progress(f"reading {args.template}"):
         template, template_rows = read_points_with_rows(
             args.template, drop_nonfinite=args.drop_nonfinite
@@ -264,25 +262,9 @@ def run(args: argparse.Namespace) -> int:
         "max_iterations": args.max_iterations is not None,
     }
     args.method = default_method(args.method, None, rounds_asked)
-    # Nothing named: register() picks the shipped default itself (the paper's MaskNet for
-    # one round, the two-sided network for a loop).
     args.weights, network_weights = split_weights(args.weights, args.method)
-    named = args.two_sided or args.weights
-    model = load_model(args, two_sided=args.two_sided) if named and not args.no_mask else None
-    from masknet.models.two_sided import TwoSidedMaskNet
-
-    if args.two_sided and model is not None and not isinstance(model, TwoSidedMaskNet):
-        raise MaskNetError(
-            f"--two-sided needs two-sided MaskNet weights (masknet train --model masknet2); "
-            f"{args.weights} holds a paper MaskNet, which masks the template only"
-        )
-    options = dict(args.option)
-    if args.max_iterations is not None and args.method not in GLOBAL_METHODS:
-        options["max_iterations"] = args.max_iterations
-    if args.max_correspondence_distance is not None:
-        options["max_correspondence_distance"] = cut_for(args)
-    if network_weights is not None:
-        options["network"] = network_weights
+    model = _model(args)
+    options = _method_options(args, network_weights)
     with progress(f"registering {len(source):,} onto {len(template):,} points ({args.method})"):
         result = register(
             template,
@@ -301,45 +283,122 @@ def run(args: argparse.Namespace) -> int:
             scene=scene_option(args, template, source),
             **options,
         )
+    name = _method_name(args)
+    on_object = source if result.source_mask is None else source[result.source_mask]
+    check = assess_registration(template, on_object, result.transform)
+    writers = _writers(args, out, (template, source), (template_rows, source_rows), result, check)
+    with progress("writing the outputs"):
+        removed = write_all(writers, stale=derived, optional=[p for p, _ in writers[2:]])
+    written = [p for p, _ in writers if p.exists()]  # a skipped side output is not there
+    try:
+        _report(args, name, template, source, source_rows, result, check)
+        print(f"wrote {', '.join(map(str, written))}")
+        if removed:
+            print(f"removed {', '.join(map(str, removed))} (an earlier run's; this run wrote none)")
+    except KeyboardInterrupt:  # the answer is on disk: say so, and still exit 130
+        raise KeyboardInterrupt(
+            f"the outputs were written: {', '.join(map(str, written))}"
+        ) from None
+    return EXIT_LIKELY_WRONG if check.verdict == "likely wrong" and not args.exit_zero else 0
+
+
+def _model(args: argparse.Namespace) -> MaskNet | None:
+    """The MaskNet the options name; None where none is named (``register`` then picks the
+    shipped default itself: the paper's MaskNet for one round, the two-sided network for a
+    loop)."""
+    from masknet.models.two_sided import TwoSidedMaskNet
+
+    named = args.two_sided or args.weights
+    model = load_model(args, two_sided=args.two_sided) if named and not args.no_mask else None
+    if args.two_sided and model is not None and not isinstance(model, TwoSidedMaskNet):
+        raise MaskNetError(
+            f"--two-sided needs two-sided MaskNet weights (masknet train --model masknet2); "
+            f"{args.weights} holds a paper MaskNet, which masks the template only"
+        )
+    return model
+
+
+def _method_options(args: argparse.Namespace, network: object | None) -> dict:
+    """The method's options: ``--option``, and the flags, which win over the same name;
+    ``network``: a learned method's own network, from ``--weights`` (or None)."""
+    from masknet.registration.methods import GLOBAL_METHODS
+
+    options = dict(args.option)
+    if args.max_iterations is not None and args.method not in GLOBAL_METHODS:
+        options["max_iterations"] = args.max_iterations
+    if args.max_correspondence_distance is not None:
+        options["max_correspondence_distance"] = cut_for(args)
+    if network is not None:
+        options["network"] = network
+    return options
+
+
+def _method_name(args: argparse.Namespace) -> str:
+    """The method as the report and the picture name it."""
+    if args.method in PIPELINES:  # they choose their own stages; the path line says which
+        name = "default pipeline (auto)" if args.method == "auto" else f"{args.method} pipeline"
+        return name + (", no masks" if args.no_mask else "")
+    return ("" if args.no_mask else "Mask-") + METHOD_TITLES[args.method]
+
+
+def _writers(
+    args: argparse.Namespace,
+    out: Path,
+    clouds: tuple[np.ndarray, np.ndarray],
+    rows: tuple[np.ndarray, np.ndarray],
+    result: RegistrationResult,
+    check: Assessment,
+) -> list[tuple[Path, Callable[[Path], None]]]:
+    """The writers of ``register``'s outputs, for :func:`~masknet._atomic.write_all`: the
+    answer first (the transform, then the moved source), then the side outputs (inliers,
+    source mask, views), which may be skipped. ``clouds``: template (N, 3) and source
+    (M, 3) as read; ``rows``: the input rows each kept."""
+    from masknet.io import read_point_attributes, write_mask, write_points, write_text_atomic
+    from masknet.io_checks import over_rows
+    from masknet.registration.many import transform_text
+    from masknet.viewer import scene_layers, view_writers
+
+    (template, source), (template_rows, source_rows) = clouds, rows
     moved = source @ result.R.T + result.t
-    transform_path = out.with_name(out.stem + "_transform.txt")
     # '#' comments, so that np.loadtxt reads the 4x4 matrix as it is.
     text = transform_text(result.transform)
     # Colour and normals of .ply/.pcd inputs go on to the outputs (normals turned too).
     carried = read_point_attributes(args.source, out).take(source_rows).turned(result.R)
-    template_carried = read_point_attributes(args.template, out).take(template_rows)
     writers = [
+        (out.with_name(out.stem + "_transform.txt"), lambda p: write_text_atomic(p, text)),
         (out, lambda p: write_points(p, moved, *carried)),
-        (transform_path, lambda p: write_text_atomic(p, text)),
     ]
     if result.mask is not None:
         inliers_path = out.with_name(out.stem + "_inliers" + out.suffix)
-        inliers = template_carried.take(result.mask)
+        inliers = read_point_attributes(args.template, out).take(template_rows).take(result.mask)
         writers.append((inliers_path, lambda p: write_points(p, template[result.mask], *inliers)))
     if result.source_mask is not None:
-        from masknet.io import write_mask
-
-        source_mask_path = out.with_name(out.stem + "_source_mask.txt")
+        source_mask = over_rows(result.source_mask, source_rows)
         writers.append(
-            (source_mask_path, lambda p: write_mask(p, over_rows(result.source_mask, source_rows)))
+            (out.with_name(out.stem + "_source_mask.txt"), lambda p: write_mask(p, source_mask))
         )
-    if args.method in PIPELINES:  # they choose their own stages; the path line says which
-        name = "default pipeline (auto)" if args.method == "auto" else f"{args.method} pipeline"
-        name += ", no masks" if args.no_mask else ""
-    else:
-        name = ("" if args.no_mask else "Mask-") + METHOD_TITLES[args.method]
-    on_object = source if result.source_mask is None else source[result.source_mask]
-    check = assess_registration(template, on_object, result.transform)
-    if args.html:  # written with the others, all or nothing; the verdict on the picture
-        title = f"{name}: {Path(args.source).name} -> {Path(args.template).name}"
+    if args.html:  # written with the others; the verdict on the picture
+        title = f"{_method_name(args)}: {Path(args.source).name} -> {Path(args.template).name}"
         if result.scene is not None:  # a scene: the object and its surroundings
             caption = f"did it work: {check.verdict}: {check.reason}"
             layers = scene_layers(template, moved, result.source_mask)
             writers += view_writers(args.html, layers, title, caption=caption)
         else:
             writers += registration_views(args.html, template, source, moved, result, check, title)
-    with progress("writing the outputs"):
-        removed = write_all(writers, stale=derived)
+    return writers
+
+
+def _report(
+    args: argparse.Namespace,
+    name: str,
+    template: np.ndarray,
+    source: np.ndarray,
+    source_rows: np.ndarray,
+    result: RegistrationResult,
+    check: Assessment,
+) -> None:
+    """Print what the method reported, the verdict and its warnings."""
+    from masknet.registration.options import DEFAULT_SPACINGS
 
     print_result(args, name, template, source, source_rows, result)
     report_path(result.info, result.R, Path(args.source).name)
@@ -361,10 +420,6 @@ def run(args: argparse.Namespace) -> int:
             "ran (--scene on forces one)",
             file=sys.stderr,
         )
-    print(f"wrote {', '.join(str(p) for p, _ in writers)}")
-    if removed:
-        print(f"removed {', '.join(map(str, removed))} (an earlier run's; this run wrote none)")
-    return EXIT_LIKELY_WRONG if check.verdict == "likely wrong" and not args.exit_zero else 0
 
 
 def split_weights(given: list[str], method: str) -> tuple[str | None, object | None]:

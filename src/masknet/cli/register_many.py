@@ -15,10 +15,12 @@ from masknet.cli._common import (
     EXIT_LIKELY_WRONG,
     EXIT_SOME_FAILED,
     add_output_option,
+    check_outputs,
     exit_codes_text,
     finite_float,
     init_option,
     positive_int,
+    start_files,
 )
 from masknet.errors import MaskNetError
 from masknet.registration.methods import METHODS
@@ -156,26 +158,45 @@ def _options_key(options: dict) -> dict:
             for k, v in sorted(options.items())}  # fmt: skip
 
 
-def _record_of(out: Path, job, options: dict) -> dict | None:
-    """The record an earlier run left for this pair with the same files and options, or
-    None."""
+def _earlier(out: Path, job) -> dict | None:
+    """The record an earlier run left for this pair's name, whatever its files and options;
+    None where there is none (or it cannot be read)."""
     try:
         record = json.loads((out / f"{job.name}.json").read_text())
     except (OSError, ValueError):
         return None
-    same = (record.get("template"), record.get("source"), record.get("options")) == (
-        str(job.template),
-        str(job.source),
-        _options_key(options),
-    )
-    return record if same else None
+    return record if isinstance(record, dict) else None
 
 
-def _finished(out: Path, job, options: dict) -> bool:
-    """Whether an earlier run registered this pair with the same files and options (a pair
-    that failed is tried again)."""
-    record = _record_of(out, job, options)
-    return record is not None and record.get("status") == "registered"
+def _is_same(record: dict | None, job, options: dict) -> bool:
+    """Whether ``record`` is of this pair's files with these options."""
+    return record is not None and (
+        record.get("template"),
+        record.get("source"),
+        record.get("options"),
+    ) == (str(job.template), str(job.source), _options_key(options))
+
+
+def _record_of(out: Path, job, options: dict) -> dict | None:
+    """The record an earlier run left for this pair with the same files and options, or
+    None."""
+    record = _earlier(out, job)
+    return record if _is_same(record, job, options) else None
+
+
+def _plan(out: Path, jobs, options: dict) -> tuple[list, int]:
+    """The jobs to run: those not registered earlier with the same files and options (a
+    pair that failed is tried again); and how many of them replace an earlier result
+    made with other files or options."""
+    todo, replaced = [], 0
+    for job in jobs:
+        record = _earlier(out, job)
+        if not _is_same(record, job, options):
+            todo.append(job)
+            replaced += record is not None
+        elif record.get("status") != "registered":
+            todo.append(job)
+    return todo, replaced
 
 
 def _record(job, outcome, options: dict) -> dict:
@@ -235,12 +256,29 @@ def _write_summary(out: Path, jobs, options: dict) -> list[dict]:
     return records
 
 
+def _check_results(args: argparse.Namespace, jobs, out: Path, started_from: list[str]) -> None:
+    """The output rule, before any work: ``out`` is a folder (or not made yet), and no
+    result file (``NAME.json``, ``NAME_transform.txt``, ``summary.csv``) is one of the
+    inputs (the list file, a pair's files, ``--init``'s file), through a link neither."""
+    if out.exists() and not out.is_dir():
+        raise MaskNetError(f"{out}: is a file; the results of a batch go into a folder")
+    inputs = [args.list] if args.list else []
+    inputs += started_from
+    inputs += [path for job in jobs for path in (job.template, job.source)]
+    text = (".txt", ".json", ".csv")
+    check_outputs([out / SUMMARY], text, inputs, hint="give the results another folder")
+    outputs = [out / f"{job.name}{end}" for job in jobs for end in ("_transform.txt", ".json")]
+    hint = "give the pair another NAME, or the results another folder"
+    check_outputs(outputs, text, inputs, hint=hint)
+
+
 def run(args: argparse.Namespace) -> int:
     """Register the pairs not finished yet; write each result as it comes, then the
     summary. Returns the exit status."""
     from masknet.registration.many import executor, run_jobs
 
     jobs = read_jobs(args)
+    started_from = start_files(args)
     options = {"use_mask": not args.no_mask, "iterations": args.iterations, "init": args.init}
     options |= {"drop_nonfinite": True} if args.drop_nonfinite else {}
     if args.method is not None:
@@ -249,14 +287,22 @@ def run(args: argparse.Namespace) -> int:
         options["max_correspondence_distance"] = args.max_correspondence_distance
     check_options(options)
     out = Path(args.output)
-    out.mkdir(parents=True, exist_ok=True)
-    todo = [job for job in jobs if not _finished(out, job, options)]
+    _check_results(args, jobs, out, started_from)
+    # No folder made here: the first file written makes it, so an interrupt before leaves
+    # none behind.
+    todo, replaced = _plan(out, jobs, options)
     skipped = len(jobs) - len(todo)
     print(
         f"{len(jobs):,} pairs; {skipped:,} finished earlier, {len(todo):,} to register"
         + (f" on {args.scheduler}" if args.scheduler else ""),
         file=sys.stderr,
     )
+    if replaced:
+        print(
+            f"masknet: warning: earlier results in {out} made with other files or options "
+            f"are replaced: {replaced:,} of {len(jobs):,} pairs",
+            file=sys.stderr,
+        )
     by_name = {job.name: job for job in todo}
     count = [skipped]
 
@@ -268,12 +314,27 @@ def run(args: argparse.Namespace) -> int:
         print(f"masknet: [{count[0]}/{len(jobs)}] {outcome.name}: {what}, {outcome.seconds:.2f} s",
               file=sys.stderr, flush=True)  # fmt: skip
 
+    records: list[dict] = []
     try:
         if todo:
             with executor(args.workers, args.scheduler) as pool:
                 run_jobs(todo, options, pool, done)
-    finally:  # the summary of what is finished, after an interrupt too
-        records = _write_summary(out, jobs, options)
+    except KeyboardInterrupt:
+        raise KeyboardInterrupt(
+            f"{count[0]:,} of {len(jobs):,} pairs are finished in {out}; the same command "
+            "again registers the rest"
+        ) from None
+    finally:  # the summary of what is finished, after an interrupt too; no folder, none
+        if out.is_dir():
+            records = _write_summary(out, jobs, options)
+    try:
+        return _report(args, records, out)
+    except KeyboardInterrupt:  # every result is on disk: say so, and still exit 130
+        raise KeyboardInterrupt(f"the results are written in {out}") from None
+
+
+def _report(args: argparse.Namespace, records: list[dict], out: Path) -> int:
+    """Print the batch's counts; the exit status they give."""
     failed = sum(r["status"] == "failed" for r in records)
     wrong = sum(r.get("verdict") == "likely wrong" for r in records)
     print(

@@ -13,6 +13,7 @@ from masknet.cli._common import (
     json_object,
     pair_config,
     positive_int,
+    refuse_inputs,
     seed,
 )
 from masknet.errors import MaskNetError
@@ -304,7 +305,12 @@ MODELS = tuple(TASK_BUILDERS)
 def run(args: argparse.Namespace) -> None:
     """Train; prints where the best weights went."""
     from masknet.training import TrainConfig, fit
+    from masknet.training.loop import CHECKPOINT, RUN_OUTPUTS
 
+    # --init best.safetensors of the same folder would be overwritten by the first epoch.
+    run_files = [Path(args.output) / name for name in (*RUN_OUTPUTS, CHECKPOINT)]
+    given = (args.init, args.template_mask, args.distill, args.data)
+    refuse_inputs(run_files, filter(None, given), hint="give the run another folder")
     task, model_class, precision = build_task(args)
     points = _training_shapes(args)
     if len(points) and not 16 <= args.num_points <= points.shape[1]:
