@@ -91,3 +91,33 @@ def test_a_killed_worker_stops_the_call(pairs, one_thread):
     with pytest.raises(MaskNetError, match="worker process of the batch stopped") as caught:
         register_many(pairs[:2], workers=1, method="icp", model=_KillsItsWorker())
     assert "\n" not in str(caught.value)
+
+
+def test_spawned_workers_of_a_script_without_the_guard_say_what_to_add(tmp_path):
+    # Where workers are spawned (macOS, Windows), they run the script again: the call
+    # fails at once, in one line naming the guard, not pair by pair.
+    script = tmp_path / "script.py"
+    script.write_text(
+        textwrap.dedent(
+            """\
+            import numpy as np
+            import masknet.registration.many as many
+            from masknet import MaskNetError, register_many
+
+            many.start_method = lambda: "spawn"
+            cloud = np.random.default_rng(0).normal(size=(64, 3))
+            try:
+                register_many([(cloud, cloud)], workers=1, method="icp")
+            except MaskNetError as exc:
+                print("refused:", exc)
+            """
+        )
+    )
+    env = dict(os.environ, PYTHONPATH=str(ROOT / "src"), OMP_NUM_THREADS="1")
+    done = subprocess.run(
+        [sys.executable, str(script)], cwd=tmp_path, env=env, capture_output=True, text=True,
+        timeout=300,
+    )  # fmt: skip
+    refused = [line for line in done.stdout.splitlines() if line.startswith("refused:")]
+    assert len(refused) == 1, (done.stdout, done.stderr[-2000:])
+    assert 'if __name__ == "__main__":' in refused[0]
