@@ -66,8 +66,8 @@ def calls(bunny_path: Path) -> dict[str, Callable]:
     )
     out["pointnetlk_it3"] = lambda: register(T[1], S[1], method="pointnetlk", iterations=3)
     out["icp_refine10"] = lambda: register(T[:2], S[:2], method="icp", refine_iterations=10)
-    out["icp_threshold"] = lambda: register(T[0], S[0], method="icp", threshold=0.5)
-    out["icp_k"] = lambda: register(T[0], S[0], k=500)
+    out["icp_threshold"] = lambda: register(T[0], S[0], method="icp", mask_threshold=0.5)
+    out["icp_k"] = lambda: register(T[0], S[0], method="icp", k=500)
     out["icp_identity"] = lambda: register(T[0], S[0], method="icp", init="identity")
     out["icp_cut"] = lambda: register(
         T[0] * 100, S[0] * 100, method="icp", max_correspondence_distance=5.0

@@ -45,6 +45,8 @@ def test_register_round_trip_through_the_files(tmp_path, small_masknet_weights, 
                 str(small_masknet_weights),
                 "--max-iterations",
                 "50",
+                "--method",
+                "icp",
             ]
         )
         == 0

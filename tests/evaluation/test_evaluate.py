@@ -32,6 +32,7 @@ def test_realigned_rounds_add_a_row(small_masknet):
     masks = register(
         pairs.template.double().numpy(),
         pairs.source.double().numpy(),
+        method="icp",
         iterations=2,
         model=small_masknet,
         precision="fp32",

@@ -63,14 +63,18 @@ def test_convention_source_moved_by_inverse_gives_transform(full_pairs):
     transform[:3, :3], transform[:3, 3] = rot, [0.05, -0.08, 0.03]
     # template = source @ R.T + t  <=>  source = (template - t) @ R
     source = (template - transform[:3, 3]) @ rot
-    result = register(template, source, use_mask=False, max_iterations=50)
+    result = register(template, source, method="icp", use_mask=False, max_iterations=50)
     np.testing.assert_allclose(result.transform, transform, atol=1e-6)
     np.testing.assert_allclose(source @ result.R.T + result.t, template, atol=1e-6)
 
 
 def test_plain_icp_recovers_pair_transform(full_pairs):
     result = register(
-        full_pairs.template.numpy(), full_pairs.source.numpy(), use_mask=False, max_iterations=50
+        full_pairs.template.numpy(),
+        full_pairs.source.numpy(),
+        method="icp",
+        use_mask=False,
+        max_iterations=50,
     )
     truth = full_pairs.transform.double().numpy()
     assert (_angle(result.R, truth[:, :3, :3]) < 1e-4).all()
@@ -137,12 +141,14 @@ def test_batch_shapes_and_equals_single(pairs, small_masknet):
 def test_rounds_are_cumulative(pairs, small_masknet, iterations):
     template, source = pairs.template.numpy(), pairs.source.numpy()
     result = register(
-        template, source, model=small_masknet, iterations=iterations, max_iterations=3
+        template, source, method="icp", model=small_masknet, iterations=iterations, max_iterations=3
     )
     assert len(result.rounds) == iterations
     np.testing.assert_array_equal(result.rounds[-1], result.transform)
     # Each round registers the source moved by the previous rounds' estimate.
-    first = register(template, source, model=small_masknet, iterations=1, max_iterations=3)
+    first = register(
+        template, source, method="icp", model=small_masknet, iterations=1, max_iterations=3
+    )
     np.testing.assert_allclose(result.rounds[0], first.transform, atol=1e-12)
 
 
@@ -166,11 +172,11 @@ def test_mask_is_top_k_with_k_equal_m(pairs, small_masknet):
     result = register(template, source, method="icp", model=small_masknet)
     assert (result.mask.sum(-1) == source.shape[1]).all()
     np.testing.assert_array_equal(result.mask, small_masknet.predict_mask(template, source))
-    k = register(template, source, model=small_masknet, k=100)
+    k = register(template, source, method="icp", model=small_masknet, k=100)
     assert (k.mask.sum(-1) == 100).all()
     scores = small_masknet.predict(template, source)
     thr = float(np.median(scores))
-    by_threshold = register(template, source, model=small_masknet, threshold=thr)
+    by_threshold = register(template, source, method="icp", model=small_masknet, mask_threshold=thr)
     np.testing.assert_array_equal(by_threshold.mask, scores >= thr)
 
 
@@ -189,18 +195,20 @@ class _FixedMask:
 def test_only_masked_template_points_take_part(pairs):
     template, source = pairs.template.numpy(), pairs.source.numpy()
     mask = pairs.mask.numpy()  # the true inliers
-    result = register(template, source, model=_FixedMask(mask), max_iterations=20)
+    result = register(template, source, method="icp", model=_FixedMask(mask), max_iterations=20)
     np.testing.assert_array_equal(result.mask, mask)
     # Replace the unmasked points by copies of source points, where they lure plain ICP
     # (started at the identity) into staying there; the masked registration never sees them.
     cluttered = template.copy()
     for b in range(len(template)):
         cluttered[b, ~mask[b]] = source[b, : int((~mask[b]).sum())]
-    moved = register(cluttered, source, model=_FixedMask(mask), max_iterations=20)
+    moved = register(cluttered, source, method="icp", model=_FixedMask(mask), max_iterations=20)
     # The clutter moves the call's frame (the template's centroid), whose coordinates hold
     # float32 values: the same registration to that precision.
     np.testing.assert_allclose(moved.transform, result.transform, atol=1e-6)
-    plain = register(cluttered, source, use_mask=False, init="identity", max_iterations=20)
+    plain = register(
+        cluttered, source, method="icp", use_mask=False, init="identity", max_iterations=20
+    )
     assert np.abs(plain.transform - result.transform).max() > 1e-3
 
 
@@ -208,7 +216,14 @@ def test_each_round_masks_the_moved_source(pairs):
     template, source = pairs.template.numpy(), pairs.source.numpy()
     fake = _FixedMask(pairs.mask.numpy())
     result = register(
-        template, source, model=fake, iterations=3, k=500, max_iterations=2, refine_masks="network"
+        template,
+        source,
+        method="icp",
+        model=fake,
+        iterations=3,
+        k=500,
+        max_iterations=2,
+        refine_masks="network",
     )
     assert len(fake.calls) == 3
     frame = Frame.of(template.astype(np.float64))  # the network sees the call's frame
@@ -241,8 +256,8 @@ def test_default_model_is_loaded_once(monkeypatch, pairs, small_masknet):
     plan.default_model.cache_clear()
     monkeypatch.setattr(MaskNet, "pretrained", staticmethod(fake_pretrained))
     try:
-        register(pairs.template[0].numpy(), pairs.source[0].numpy(), max_iterations=1)
-        register(pairs.template[1].numpy(), pairs.source[1].numpy(), max_iterations=1)
+        register(pairs.template[0].numpy(), pairs.source[0].numpy(), method="icp", max_iterations=1)
+        register(pairs.template[1].numpy(), pairs.source[1].numpy(), method="icp", max_iterations=1)
     finally:
         plan.default_model.cache_clear()
     assert calls == [1]
@@ -272,12 +287,12 @@ def test_bad_arguments_raise(pairs, small_masknet):
         register(template, source, iterations=0, model=small_masknet)
     with pytest.raises(MaskNetError, match="unknown option"):
         register(template, source, model=small_masknet, max_iters=3)
-    with pytest.raises(MaskNetError, match="either k or threshold"):
-        register(template, source, model=small_masknet, k=10, threshold=0.5)
+    with pytest.raises(MaskNetError, match="either k or mask_threshold"):
+        register(template, source, method="icp", model=small_masknet, k=10, mask_threshold=0.5)
     with pytest.raises(MaskNetError, match="k must be"):
-        register(template, source, model=small_masknet, k=0)
+        register(template, source, method="icp", model=small_masknet, k=0)
     with pytest.raises(MaskNetError, match="use_mask"):
-        register(template, source, use_mask=False, k=10)
+        register(template, source, method="icp", use_mask=False, k=10)
     with pytest.raises(MaskNetError, match="max_correspondence_distance"):
         register(template, source, use_mask=False, max_correspondence_distance=-1.0)
 
@@ -286,7 +301,7 @@ def test_open3d_icp_method(pairs, full_pairs, small_masknet):
     _open3d_or_skip()
     template, source = full_pairs.template.numpy(), full_pairs.source.numpy()
     theirs = register(template, source, method="open3d-icp", use_mask=False, max_iterations=50)
-    ours = register(template, source, use_mask=False, max_iterations=50)
+    ours = register(template, source, method="icp", use_mask=False, max_iterations=50)
     assert theirs.transform.shape == (2, 4, 4)
     np.testing.assert_allclose(theirs.transform, ours.transform, atol=1e-6)
     assert (theirs.info["iterations"] == -1).all()
@@ -296,7 +311,7 @@ def test_open3d_icp_method(pairs, full_pairs, small_masknet):
     theirs = register(
         template, source, method="open3d-icp", relative_fitness=0, relative_rmse=0, **kwargs
     )
-    ours = register(template, source, relative_rmse=0, **kwargs)
+    ours = register(template, source, method="icp", relative_rmse=0, **kwargs)
     np.testing.assert_array_equal(theirs.mask, ours.mask)
     # register() runs our ICP in float32 (centred); icp() itself matches Open3D to 1e-15
     # in float64 (tests/registration/test_icp.py).
@@ -374,8 +389,10 @@ def test_mask_pointnetlk_uses_the_mask(pairs, lk_network):
 def test_centroid_init_beats_identity_on_a_large_translation(full_pairs):
     template = full_pairs.template[0].numpy()
     source = template[::-1] + np.array([3.0, -2.0, 1.0])  # pure translation, far away
-    far = register(template, source, use_mask=False, init="identity", max_iterations=3)
-    near = register(template, source, use_mask=False, max_iterations=3)
+    far = register(
+        template, source, method="icp", use_mask=False, init="identity", max_iterations=3
+    )
+    near = register(template, source, method="icp", use_mask=False, max_iterations=3)
     np.testing.assert_allclose(near.t, [-3.0, 2.0, -1.0], atol=1e-6)
     assert np.abs(far.t - [-3.0, 2.0, -1.0]).max() > 0.1
 
@@ -385,9 +402,14 @@ def test_refinement_runs_on_the_whole_template(pairs):
     truth = pairs.transform.double().numpy()
     mask = pairs.mask.numpy().copy()
     mask[:, ::2] = False  # a poor mask leaves ICP off the truth
-    coarse = register(template, source, model=_FixedMask(mask), max_iterations=5)
+    coarse = register(template, source, method="icp", model=_FixedMask(mask), max_iterations=5)
     refined = register(
-        template, source, model=_FixedMask(mask), max_iterations=5, refine_iterations=30
+        template,
+        source,
+        method="icp",
+        model=_FixedMask(mask),
+        max_iterations=5,
+        refine_iterations=30,
     )
     assert refined.times["refine"] > 0 and coarse.times["refine"] == 0
     assert _angle(refined.R, truth[:, :3, :3]).mean() < _angle(coarse.R, truth[:, :3, :3]).mean()
@@ -417,7 +439,7 @@ def test_unknown_init_and_bad_refine_are_refused(pairs, small_masknet):
     with pytest.raises(MaskNetError, match="unknown init"):
         register(template, source, model=small_masknet, init="ransac")
     with pytest.raises(MaskNetError, match="refine_iterations"):
-        register(template, source, model=small_masknet, refine_iterations=-1)
+        register(template, source, method="icp", model=small_masknet, refine_iterations=-1)
     with pytest.raises(MaskNetError, match="max_points must be an integer >= 3, got 2"):
         register(template[0], source[0], model=small_masknet, max_points=2)
 
@@ -625,7 +647,7 @@ def test_a_mask_of_under_three_points_is_refused_on_every_path(pairs):
     template, source = pairs.template[0].numpy(), pairs.source[0].numpy()
     for method in ("icp", "open3d-icp"):
         with pytest.raises(MaskNetError, match="the mask kept [0-2] template point"):
-            register(template, source, method=method, threshold=0.999999)
+            register(template, source, method=method, mask_threshold=0.999999)
     with pytest.raises(MaskNetError, match="the mask kept 2 template point") as refused:
         register(template, source, method="icp", k=2)
     assert "k=2" in str(refused.value) and "threshold" not in str(refused.value)

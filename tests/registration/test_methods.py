@@ -170,28 +170,24 @@ def test_method_options_keywords_and_refusals():
     ],
 )
 def test_typed_options_choose_the_method(options, expected):
-    assert default_method(None, options, {}) == expected
-    assert default_method(None, options, {"iterations": True}) == expected  # options win
-    assert default_method("robust", options, {}) == "robust"  # a named method wins
+    assert default_method(None, options) == expected
+    assert default_method("robust", options) == "robust"  # a named method wins
 
 
 def test_default_method_rules():
     with pytest.raises(MaskNetError, match="NetworkOptions serves dcp, prnet, pcrnet, rpmnet"):
-        default_method(None, NetworkOptions(), {})
+        default_method(None, NetworkOptions())
     with pytest.raises(MaskNetError, match="options= takes a method's options, got dict"):
-        default_method(None, {"max_iterations": 3}, {})
-    assert default_method(None, None, {}) == "auto"
-    assert default_method(None, None, {"iterations": False, "k": False}) == "auto"
-    for key in ("iterations", "k", "threshold", "refine_iterations", "init", "icp options"):
-        assert default_method(None, None, {"iterations": False, key: True}) == "icp", key
-    assert default_method("dcp", None, {"k": True}) == "dcp"
+        default_method(None, {"max_iterations": 3})
+    assert default_method(None, None) == "auto"  # no other argument chooses the method
+    assert default_method("dcp", None) == "dcp"
 
 
 def test_importing_the_table_needs_no_torch():
     code = (
         "import sys\n"
         "import masknet.registration.methods as m\n"
-        "m.method_options('icp', None, {}); m.default_method(None, None, {})\n"
+        "m.method_options('icp', None, {}); m.default_method(None, None)\n"
         "print('torch' in sys.modules)\n"
     )
     out = subprocess.run(

@@ -30,11 +30,11 @@ def pair():
 def test_an_options_object_equals_its_keywords(pair, small_masknet):
     template, source = pair
     typed = register(template, source, model=small_masknet, options=ICPCriteria(max_iterations=25))
-    keywords = register(template, source, model=small_masknet, max_iterations=25)
+    keywords = register(template, source, method="icp", model=small_masknet, max_iterations=25)
     assert typed.method == keywords.method == "icp"  # the options' class names the method
     np.testing.assert_array_equal(typed.transform, keywords.transform)
     # ... and the budget is used: 25 iterations end elsewhere than 1
-    one = register(template, source, model=small_masknet, max_iterations=1)
+    one = register(template, source, method="icp", model=small_masknet, max_iterations=1)
     assert not np.allclose(one.transform, typed.transform)
 
 

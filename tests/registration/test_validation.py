@@ -52,11 +52,11 @@ def test_good_arguments_pass():
         ({"refine_iterations": False}, "refine_iterations must be an integer >= 0, got False"),
         ({"max_points": 2}, "max_points must be an integer >= 3, got 2"),
         ({"init": "ransac"}, r"unknown init 'ransac'; choose from \('centroid', 'identity'\)"),
-        ({"k": 10, "threshold": 0.5}, "give either k or threshold, not both"),
+        ({"k": 10, "threshold": 0.5}, "give either k or mask_threshold, not both"),
         ({"k": 0}, "k must be an integer >= 1, got 0"),
         ({"k": True}, "k must be an integer >= 1, got True"),
         ({"k": 5.0}, r"k must be an integer >= 1, got 5\.0"),
-        ({"k": 10, "use_mask": False}, "k and threshold select MaskNet's inliers"),
+        ({"k": 10, "use_mask": False}, "k and mask_threshold select MaskNet's inliers"),
         ({"threshold": 0.5, "use_mask": False}, "they need use_mask=True"),
     ],
 )

@@ -65,8 +65,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "--method",
         choices=list(METHODS),
         default=None,
-        help="auto (the default; icp when --refine, --init identity or "
-        "--max-iterations is given): one round of Mask-ICP, its fit checked, and robust "
+        help="auto (the default; no other flag changes it, and a flag it does not take is "
+        "refused naming the method that does): one round of Mask-ICP, its fit checked, and robust "
         "where the fit says it may be wrong; robust: the coarse-to-fine pipeline (FPFH "
         "correspondence hypotheses, then the two-sided mask and rotation hypotheses; any "
         "rotation, outliers); icp: the paper's Mask-ICP; a learned network (pointnetlk, dcp, "
@@ -125,10 +125,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "as the source has points)",
     )
     mask.add_argument(
-        "--threshold",
+        "--mask-threshold",
         type=finite_float,
         metavar="EPS",
-        help="round 1's mask: the template points scoring at least EPS (the paper's rule)",
+        help="round 1's mask: the template points scoring at least EPS (the paper's rule; "
+        "Open3D's threshold, the pair cut-off, is --max-correspondence-distance)",
+    )
+    mask.add_argument(  # the former name, read as Open3D's threshold by some: one version more
+        "--threshold", type=finite_float, dest="deprecated_threshold", help=argparse.SUPPRESS
     )
     p.add_argument(
         "--refine",
@@ -252,16 +256,9 @@ def run(args: argparse.Namespace) -> int:
         )
     if args.two_sided and args.no_mask:
         raise MaskNetError("--two-sided and --no-mask exclude each other")
-    from masknet.registration.methods import default_method
-
-    rounds_asked = {
-        "k": args.k is not None,
-        "threshold": args.threshold is not None,
-        "refine": args.refine != 0,
-        "init": isinstance(args.init, str) and args.init != "centroid",
-        "max_iterations": args.max_iterations is not None,
-    }
-    args.method = default_method(args.method, None, rounds_asked)
+    method_named = args.method is not None  # as register's method=None: the same refusals
+    args.method = args.method or "auto"
+    mask_threshold = threshold_option(args)
     args.weights, network_weights = split_weights(args.weights, args.method)
     model = _model(args)
     options = _method_options(args, network_weights)
@@ -269,7 +266,7 @@ def run(args: argparse.Namespace) -> int:
         result = register(
             template,
             source,
-            method=args.method,
+            method=args.method if method_named else None,
             use_mask=not args.no_mask,
             iterations=args.iterations,
             model=model,
@@ -278,7 +275,7 @@ def run(args: argparse.Namespace) -> int:
             refine_iterations=args.refine,
             max_points=args.max_points,
             k=args.k,
-            threshold=args.threshold,
+            mask_threshold=mask_threshold,
             **({} if args.refine_masks is None else {"refine_masks": args.refine_masks}),
             scene=scene_option(args, template, source),
             **options,
@@ -321,13 +318,12 @@ def _model(args: argparse.Namespace) -> MaskNet | None:
 def _method_options(args: argparse.Namespace, network: object | None) -> dict:
     """The method's options: ``--option``, and the flags, which win over the same name;
     ``network``: a learned method's own network, from ``--weights`` (or None)."""
-    from masknet.registration.methods import GLOBAL_METHODS
 
     options = dict(args.option)
-    if args.max_iterations is not None and args.method not in GLOBAL_METHODS:
+    if args.max_iterations is not None:
         options["max_iterations"] = args.max_iterations
     if args.max_correspondence_distance is not None:
-        options["max_correspondence_distance"] = cut_for(args)
+        options["max_correspondence_distance"] = args.max_correspondence_distance
     if network is not None:
         options["network"] = network
     return options
@@ -467,17 +463,13 @@ def method_option(text: str) -> tuple[str, object]:
         return name.strip(), value
 
 
-def cut_for(args: argparse.Namespace) -> float:
-    """``--max-correspondence-distance``, checked against the method's options."""
-    import dataclasses
-
-    from masknet.registration.methods import METHOD_TABLE
-
-    fields = {f.name for f in dataclasses.fields(METHOD_TABLE[args.method].options)}
-    if "max_correspondence_distance" not in fields:
-        raise MaskNetError(
-            f"--max-correspondence-distance does not apply to --method {args.method}"
-        )
-    if not args.max_correspondence_distance > 0:
-        raise MaskNetError("--max-correspondence-distance must be positive")
-    return args.max_correspondence_distance
+def threshold_option(args: argparse.Namespace) -> float | None:
+    """``--mask-threshold``, or ``--threshold``, its former name, with a warning on stderr."""
+    if args.deprecated_threshold is None:
+        return args.mask_threshold
+    print(
+        "masknet: warning: --threshold is deprecated; it is --mask-threshold, MaskNet's score "
+        "cut-off (Open3D's threshold, the pair cut-off, is --max-correspondence-distance)",
+        file=sys.stderr,
+    )
+    return args.deprecated_threshold

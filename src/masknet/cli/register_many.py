@@ -139,9 +139,7 @@ def check_options(options: dict) -> None:
     from masknet.registration.validation import as_rigid_transforms, check_arguments, split_init
 
     init = options["init"]
-    method = default_method(
-        options.get("method"), None, {"init": isinstance(init, str) and init != "centroid"}
-    )
+    method = default_method(options.get("method"), None)
     check_arguments(method, options["iterations"], None, None, options["use_mask"], init, 0, 1024)
     _, start = split_init(init)
     if start is not None:

@@ -192,6 +192,7 @@ def realigned_mask_metrics(
         result = register(
             template[i : i + chunk],
             source[i : i + chunk],
+            method="icp",  # Mask-ICP's rounds, with their max_iterations
             iterations=rounds,
             model=model,
             precision=precision,

@@ -47,7 +47,7 @@ ROUNDS = 3
 # "default" rows start from the default pipeline's answer (register(..., iterations=3) with
 # no method), with learned refined rounds or, to isolate what the masks add, plain ICP rounds.
 PIPELINES = {
-    "ICP, 30 iterations": {"use_mask": False, "max_iterations": 30},
+    "ICP, 30 iterations": {"method": "icp", "use_mask": False, "max_iterations": 30},
     "default, then refined Mask-ICP": {"default": True},
     "default, then plain ICP": {"default": True, "refine_masks": None},
     "Mask-ICP, paper's loop": {"method": "icp", "refine_masks": "network", "paper": True},

@@ -22,14 +22,13 @@ nearest sampled point).
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from typing import Any
 
 import numpy as np
 
 from masknet._moved import moved_names
-from masknet.errors import checks_done, warns_once
+from masknet.errors import checks_done, warn, warns_once
 from masknet.geometry.se3 import transform_points
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
@@ -39,13 +38,13 @@ from masknet.registration.methods import (
     METHOD_TITLES,
     METHODS,
     NETWORK_METHODS,
+    check_pipeline_keywords,
     default_method,
     open3d_spelling,
 )
 from masknet.registration.methods import (
     method_options as options_for,
 )
-from masknet.registration.options import ICPCriteria
 from masknet.registration.pipeline import (
     check_clouds,
     enter_frame,
@@ -58,7 +57,12 @@ from masknet.registration.plan import plan_call
 from masknet.registration.refinement import DEFAULT_REFINER, Refiner
 from masknet.registration.result import RegistrationResult
 from masknet.registration.scene import SceneSearch
-from masknet.registration.validation import as_rigid_transforms, check_arguments, split_init
+from masknet.registration.validation import (
+    as_rigid_transforms,
+    check_arguments,
+    mask_threshold_of,
+    split_init,
+)
 from masknet.runtime import small_blas
 
 __all__ = [
@@ -70,10 +74,6 @@ __all__ = [
     "RegistrationResult",
     "register",
 ]
-
-
-# Keywords that, with no method named, ask for Mask-ICP's rounds.
-_ICP_FIELDS = tuple(f.name for f in dataclasses.fields(ICPCriteria))
 
 
 @small_blas
@@ -89,13 +89,14 @@ def register(
     refine_iterations: int = 0,
     model: MaskNet | TwoSidedMaskNet | None = None,
     k: int | None = None,
-    threshold: float | None = None,
+    mask_threshold: float | None = None,
     precision: str = "auto",
-    init: str | np.ndarray = "centroid",
+    init: str | np.ndarray | None = "centroid",
     max_points: int = 1024,
     scene: bool | SceneSearch | None = None,
     refine_masks: str | Refiner | None = DEFAULT_REFINER,
     drop_nonfinite: bool = False,
+    threshold: float | None = None,
     **method_options: Any,
 ) -> RegistrationResult:
     """Register a partial source to a full template, optionally through MaskNet's mask.
@@ -106,10 +107,14 @@ def register(
         template: (N, 3) or (B, N, 3) full template cloud(s), any units.
         source: (M, 3) or (B, M, 3) partial source cloud(s), same units.
         method: a name of the method table (:data:`~masknet.registration.methods.METHOD_TABLE`).
-            None (default) runs ``"auto"``, the method of a typed ``options`` object, or
-            ``"icp"`` when an argument only Mask-ICP's rounds take is given
-            (``k``, ``threshold``, ``refine_iterations``,
-            ``init="identity"``, ICP's options). ``"auto"``: on objects one round of
+            None (default) runs ``"auto"``, or the method of a typed ``options`` object; no
+            other argument changes it. An argument that the pipelines do not take as the
+            rounds' methods do (``k``, ``mask_threshold``, ``refine_iterations``, Open3D's
+            ``max_iteration``, ``max_iterations`` with no method named, ICP's other options)
+            is refused in one line naming the method that takes it
+            (:func:`~masknet.registration.methods.check_pipeline_keywords`);
+            ``max_correspondence_distance`` and ``init`` tune the pipeline.
+            ``"auto"``: on objects one round of
             Mask-ICP, its fit checked; on scans and sparse clouds the consensus front end
             first; ``"robust"`` where these do not settle the pair
             (:mod:`masknet.registration.auto`; ``info["path"]`` says which ran).
@@ -122,9 +127,11 @@ def register(
             pair), a learned network: ``"pointnetlk"``, ``"dcp"``, ``"prnet"``,
             ``"pcrnet"`` or ``"rpmnet"`` (the shipped weights unless ``network=`` is
             given), ``"open3d-ransac"`` or ``"open3d-fgr"`` (Open3D's global registration
-            on FPFH features). ``"auto"`` and ``"robust"`` run whole pipelines: they ignore
-            ``k``, ``threshold`` and ``init``, and refuse ``refine_iterations``; with
-            ``iterations`` > 1 their answer is round 1 and refined rounds follow.
+            on FPFH features). ``"auto"`` and ``"robust"`` run whole pipelines: they refuse
+            ``k``, ``mask_threshold`` and ``refine_iterations``, search from the source as
+            given (moved by an ``init`` matrix), and cut ICP's pairs at
+            ``max_correspondence_distance``; with ``iterations`` > 1 their answer is round 1
+            and refined rounds follow.
         options: the method's typed options (:mod:`masknet.registration.options`):
             ``ICPCriteria`` (``"icp"``), ``Open3DICPOptions``, ``PointNetLKOptions``,
             ``NetworkOptions`` (DCP, PRNet, PCRNet, RPM-Net), ``RANSACOptions``,
@@ -148,18 +155,22 @@ def register(
             method then sees only the source points it keeps. Any object with
             ``predict_masks(template, source, *, k, threshold, precision) -> (template_mask,
             source_mask or None)`` serves (masks given in advance, another network).
-        k, threshold: inlier selection, as :meth:`MaskNet.predict_mask` (default
-            top-k with k = M); only with ``use_mask=True``.
+        k, mask_threshold: round 1's inlier selection, as :meth:`MaskNet.predict_mask`'s
+            ``k`` and ``threshold`` (default top-k with k = M); only with ``use_mask=True``,
+            for the rounds' methods.
         precision: MaskNet's inference precision, as :meth:`MaskNet.predict`
             (``"auto"``: bf16 where the hardware runs it natively).
         init: ``"centroid"`` (default: translate the centroid of the source points in use
             onto the centroid of the template points in use, i.e. the masked ones for
-            Mask-X) or ``"identity"``. PointNetLK centres both clouds itself either way.
+            Mask-X) or ``"identity"`` (None: the default). PointNetLK centres both clouds
+            itself either way.
             Or Open3D's ``init``: a (4, 4) or (B, 4, 4) source -> template transform to
             start from, for every method. The source is moved by it, the method runs as
             with ``"identity"`` (the pipelines, which search globally, include it as the
             pose as given), and every returned pose is composed with it, so
-            ``result.transform`` maps the source as given.
+            ``result.transform`` maps the source as given. ``np.eye(4)`` is the same start
+            as ``"identity"``; the pipelines start from the source as given whatever its
+            name (a matrix moves it first).
         max_points: single pairs larger than this are subsampled for the method
             (farthest point sampling); batches must already fit.
         scene: find the template, a small object, in a large source scan first
@@ -189,9 +200,12 @@ def register(
         drop_nonfinite: drop template and source rows holding NaN or inf (one pair
             only) instead of refusing them, as ``masknet register --drop-nonfinite``;
             ``mask`` and ``source_mask`` still cover every input row, False where dropped.
+        threshold: deprecated name of ``mask_threshold`` (DeprecationWarning): Open3D's
+            ``threshold`` is the pair cut-off, ``max_correspondence_distance`` here.
         **method_options: the fields of the method's options class, spelled inline
             (``register(a, b, method="icp", max_iterations=30)``); Open3D's
-            ``max_iteration`` is taken as ``max_iterations``. Distances
+            ``max_iteration`` is taken as ``max_iterations`` by the rounds' methods (ICP's
+            iteration cap; the pipelines refuse it). Distances
             (``max_correspondence_distance``) are in the clouds' units.
 
     Returns:
@@ -201,23 +215,18 @@ def register(
         MaskNetError: bad clouds (shape, batch sizes, or what
             :func:`masknet.io_checks.check_cloud` refuses: NaN/inf, fewer than 3 points,
             a transposed array, identical or collinear points, overflowing coordinates),
-            an unknown method, option or init, bad iterations/k/threshold or option
+            an unknown method, option or init, a keyword the method does not take, bad
+            iterations/k/mask_threshold or option
             values, or (for the Open3D methods) no Open3D.
     """
     start = time.perf_counter()
-    method_options = open3d_spelling(method_options)  # max_iteration: Open3D's name
-    method = default_method(
-        method,
-        options,
-        {
-            "k": k is not None,
-            "threshold": threshold is not None,
-            "refine_iterations": refine_iterations != 0,
-            "init": isinstance(init, str) and init != "centroid",
-            "icp options": any(f in method_options for f in _ICP_FIELDS),
-        },
-    )
+    cut_off = {"threshold": threshold, "mask_threshold": mask_threshold}  # as spelled
+    threshold = mask_threshold_of(mask_threshold, threshold)
+    named, method = method is not None, default_method(method, options)
     check_arguments(method, iterations, k, threshold, use_mask, init, refine_iterations, max_points)
+    given = [n for n, v in (("k", k), *cut_off.items()) if v is not None]
+    check_pipeline_keywords(method, named, given + list(method_options))
+    method_options = open3d_spelling(method_options)  # max_iteration: Open3D's name
     init, start_pose = split_init(init)
     plan = plan_call(
         method,
@@ -251,8 +260,22 @@ def register(
         result = leave_frame(pair, found, plan, times)
     if start_pose is not None:
         result = result.started_from(start_pose)
+    _say_unused_cut(plan, result)
     times["total"] = time.perf_counter() - start
     return result
+
+
+def _say_unused_cut(plan: Any, result: RegistrationResult) -> None:
+    """Warn where a given ``max_correspondence_distance`` cut no pair: ``"auto"``'s
+    consensus front end refines at its own cuts, in voxels, and it ended the call."""
+    paths = np.atleast_1d(result.info.get("path", []))
+    cut = getattr(plan.options, "max_correspondence_distance", None)
+    if plan.method == "auto" and cut is not None and any("consensus" in p for p in paths):
+        warn(
+            "max_correspondence_distance was not used: the consensus front end ended the "
+            "call, refining at its own cuts (consensus_points=0 turns it off)",
+            stacklevel=6,  # register's caller, past the decorators
+        )
 
 
 # Moved to the stages of a call.

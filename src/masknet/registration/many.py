@@ -7,15 +7,19 @@ pair it registers. A pair that fails (a bad file, a refusal) is recorded as its 
 its place, and the others go on. With ``scheduler`` (``"tcp://host:8786"``, the ``cluster``
 extra: ``pip install 'masknet[cluster]'``) the same jobs run on a Dask cluster's workers.
 
-Example::
+Example (as written in a script too, on Linux: see :func:`start_method`)::
 
     results = register_many([(model, scan) for scan in scans])
     poses = [r.transform for r in results if not isinstance(r, MaskNetError)]
+
+A worker process that dies (killed, out of memory) stops the call with a
+:class:`MaskNetError`: the pairs it held have no result to put in their place.
 """
 
 from __future__ import annotations
 
 import os
+import sys
 import time
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
@@ -26,7 +30,7 @@ import numpy as np
 
 from masknet.errors import MaskNetError
 
-__all__ = ["PairJob", "PairOutcome", "executor", "register_many", "run_jobs"]
+__all__ = ["PairJob", "PairOutcome", "executor", "register_many", "run_jobs", "start_method"]
 
 
 class PairJob(NamedTuple):
@@ -141,11 +145,64 @@ def executor(workers: int | None = None, scheduler: str | None = None) -> Iterat
     import multiprocessing
 
     workers = workers or os.cpu_count() or 1
-    # spawn: a fresh interpreter per worker; forking a process whose torch and OpenMP
-    # threads already run can hang.
-    context = multiprocessing.get_context("spawn")
+    context = multiprocessing.get_context(start_method())
     with ProcessPoolExecutor(workers, mp_context=context, initializer=_one_thread) as pool:
         yield pool
+
+
+def _main_is_reimported() -> bool:
+    """Whether a spawned worker would run the caller's ``__main__`` again: a script file or
+    a ``python -m`` module (an interactive interpreter or a notebook has neither)."""
+    main = sys.modules.get("__main__")
+    spec = getattr(main, "__spec__", None)
+    return getattr(main, "__file__", None) is not None or getattr(spec, "name", None) is not None
+
+
+def start_method() -> str:
+    """How :func:`executor` starts its worker processes: ``"fork"`` or ``"spawn"``.
+
+    "spawn" and "forkserver" start each worker by running the caller's ``__main__`` again,
+    so a script that calls :func:`register_many` without an ``if __name__ == "__main__":``
+    guard would start a pool in every worker (Python refuses it). "fork" copies the caller
+    instead and runs nothing again, so the call works in a script as written. Forking is
+    unsafe where another thread holds a lock at that moment: the pool forks every worker
+    before its own threads start, and the idle pools of torch (OpenMP) and Open3D do not
+    hold one (a caller that had run torch on 2 OpenMP threads, Open3D's ICP, RANSAC and FGR
+    and the robust pipeline, 6 threads in all, then forked the pool: every pair registered
+    in 6 of 6 runs, the shipped networks already loaded). So: "fork" where the caller's
+    ``__main__`` would run again, on Linux, and CUDA has not started (a forked child
+    cannot use it); "spawn" elsewhere: in an interactive interpreter (nothing runs again),
+    on macOS and Windows (fork is unsafe or absent; a script there needs the guard, and a
+    pool that breaks says so)."""
+    import multiprocessing
+
+    if (
+        not sys.platform.startswith("linux")
+        or "fork" not in multiprocessing.get_all_start_methods()
+    ):
+        return "spawn"
+    torch = sys.modules.get("torch")
+    if torch is not None and torch.cuda.is_initialized():
+        return "spawn"
+    return "fork" if _main_is_reimported() else "spawn"
+
+
+def _broken(exc: BaseException) -> MaskNetError:
+    """The error of a call whose pool failed: one line, with the guard a spawned worker
+    needs where a dead worker is likely to have died of it."""
+    from concurrent.futures import BrokenExecutor
+
+    from masknet.errors import first_line
+
+    if not isinstance(exc, BrokenExecutor):  # e.g. an option that cannot be sent (pickled)
+        return MaskNetError(f"the batch stopped: {type(exc).__name__}: {first_line(str(exc))}")
+    line = f"a worker process of the batch stopped before it finished ({type(exc).__name__})"
+    if start_method() == "spawn" and _main_is_reimported():
+        line += (
+            "; the workers run this script again: call register_many under "
+            '`if __name__ == "__main__":`'
+        )
+    return MaskNetError(line + "; no result is returned for the batch")
 
 
 def run_jobs(
@@ -156,7 +213,8 @@ def run_jobs(
 ) -> list[PairOutcome]:
     """Run ``jobs`` on ``pool``; ``done`` sees each outcome as it finishes (in finishing
     order); returns the outcomes in the jobs' order. On Ctrl-C the jobs not started are
-    cancelled and KeyboardInterrupt propagates."""
+    cancelled and KeyboardInterrupt propagates. A pair's own failure is its outcome's
+    error; a worker that dies (a broken pool) raises :class:`MaskNetError` for the call."""
     futures: dict[Future, int] = {}
     jobs = list(jobs)
     try:
@@ -164,11 +222,10 @@ def run_jobs(
             futures[pool.submit(run_job, job, options)] = index
         outcomes: list[PairOutcome | None] = [None] * len(jobs)
         for future in as_completed(futures):
-            job = jobs[futures[future]]
             try:
                 outcome = future.result()
-            except Exception as exc:  # the worker itself died (memory, a broken pool)
-                outcome = PairOutcome(job.name, None, "", "", f"worker failed: {exc!r}", 0.0)
+            except Exception as exc:  # the worker itself died: no pair failed, the call did
+                raise _broken(exc) from exc
             outcomes[futures[future]] = outcome
             if done is not None:
                 done(outcome)
@@ -198,6 +255,10 @@ def register_many(
     Returns:
         One entry per pair, in order: its :class:`RegistrationResult`, or the
         :class:`MaskNetError` that refused it (the other pairs go on).
+
+    Raises:
+        MaskNetError: a worker process died (killed, out of memory, or, where workers are
+            spawned, a script without an ``if __name__ == "__main__":`` guard).
     """
     jobs = [PairJob(str(i), t, s) for i, (t, s) in enumerate(pairs)]
     with executor(workers, scheduler) as pool:

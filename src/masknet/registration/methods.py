@@ -39,6 +39,7 @@ __all__ = [
     "PIPELINES",
     "Method",
     "adapter",
+    "check_pipeline_keywords",
     "default_method",
     "method_options",
 ]
@@ -144,7 +145,7 @@ def method_options(name: str, given: Any | None, keywords: dict[str, Any]) -> An
     unknown = sorted(set(keywords) - set(fields))
     if unknown:
         raise MaskNetError(
-            f"unknown option(s) for method {name!r}: {', '.join(unknown)} "
+            f"unknown option(s) for method {name!r}: {', '.join(unknown)}{_takers(unknown)} "
             f"(accepted: {', '.join(fields)})"
         )
     if given is not None and keywords:
@@ -159,12 +160,25 @@ def method_options(name: str, given: Any | None, keywords: dict[str, Any]) -> An
     return options
 
 
-def default_method(method: str | None, options: Any | None, round_options: dict) -> str:
+def _takers(names: list[str]) -> str:
+    """Where the methods that take option ``names`` are, for a refusal: ``"; it applies to
+    method="icp", ...: name the method to use it"``, or "" where none does."""
+    takers = [m for m, entry in METHOD_TABLE.items() if set(names) <= _fields(entry.options)]
+    if not takers:
+        return ""
+    listed = ", ".join(f'"{m}"' for m in takers)
+    return f"; {'it applies' if len(names) == 1 else 'they apply'} to method={listed}: name it"
+
+
+def _fields(kind: type) -> set[str]:
+    return {f.name for f in dataclasses.fields(kind)}
+
+
+def default_method(method: str | None, options: Any | None) -> str:
     """``method``, or for None the default: the method whose options class ``options`` is
-    (``ICPCriteria`` -> ``"icp"``); else ``"auto"``, unless ``round_options`` (the arguments
-    only Mask-ICP's rounds take: ``k``, ``threshold``, ``refine_iterations``,
-    ``init="identity"``, ICP's options) ask for Mask-ICP itself, which is then what runs.
-    ``iterations`` does not: ``auto``'s answer is then the loop's first round."""
+    (``ICPCriteria`` -> ``"icp"``), else ``"auto"``. The other arguments never choose the
+    method: one that the default does not take is refused
+    (:func:`check_pipeline_keywords`), not run by another method."""
     if method is not None:
         return method
     if options is not None:
@@ -178,4 +192,40 @@ def default_method(method: str | None, options: Any | None, round_options: dict)
                 f"{type(options).__name__} serves {', '.join(names)}: name the method"
             )
         return names[0]  # RobustOptions: "auto", the default that escalates to "robust"
-    return "icp" if any(round_options.values()) else "auto"
+    return "auto"
+
+
+# The keywords the pipelines ("auto", "robust") do not take as the rounds' methods do, and
+# what each sets there. Open3D's ``max_iteration`` is ICP's iteration cap; the pipelines' own
+# ``max_iterations`` (RobustOptions) is the hypotheses' short ICP, another thing, so Open3D's
+# spelling is refused there, and masknet's is taken as RobustOptions' only where the
+# pipeline is named (with no method named it most likely means ICP's cap).
+ROUNDS_ONLY = {
+    "k": "the size of round 1's MaskNet mask",
+    "mask_threshold": "round 1's MaskNet score cut-off",
+    "threshold": "mask_threshold's deprecated name, round 1's MaskNet score cut-off; Open3D's "
+    "threshold is max_correspondence_distance",
+    "max_iteration": "ICP's iteration cap, Open3D's ICPConvergenceCriteria",
+    "max_iterations": "ICP's updates per round",
+}
+
+
+def check_pipeline_keywords(method: str, named: bool, given: list[str]) -> None:
+    """Refuse, in one line naming the method that takes it, a keyword of ``given`` (those the
+    caller set) that the pipeline ``method`` would not honour as Mask-ICP and Open3D mean it
+    (:data:`ROUNDS_ONLY`); ``named``: the caller named the method. Nothing for the rounds'
+    methods, which take them all: no keyword changes the method that runs."""
+    from masknet.errors import MaskNetError
+
+    if METHOD_TABLE[method].kind != "pipeline":
+        return
+    for name in given:
+        if name not in ROUNDS_ONLY or (name == "max_iterations" and named):
+            continue
+        also = ""
+        if name == "max_iterations":
+            also = f" (method=\"{method}\" with max_iterations sets RobustOptions' hypotheses' ICP)"
+        raise MaskNetError(
+            f'{name} ({ROUNDS_ONLY[name]}) applies to method="icp" (--method icp), not to the '
+            f'"{method}" pipeline: pass method="icp" to use it{also}'
+        )

@@ -106,7 +106,8 @@ def plan_call(method: str, options: Any, model: Any, **arguments: Any) -> CallPl
     if entry.kind == "pipeline" and arguments["refine_iterations"]:
         raise MaskNetError(
             f"refine_iterations is for the rounds' methods; {method!r} refines itself "
-            "(ICP with a pair cut-off on the source points it keeps)"
+            '(ICP with a pair cut-off on the source points it keeps): pass method="icp" '
+            "(--method icp) to use it"
         )
     return CallPlan(method, entry, options, model=model, **arguments)
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from typing import Any
 
 import numpy as np
@@ -16,6 +17,7 @@ __all__ = [
     "as_rigid_transforms",
     "check_arguments",
     "finite_rows",
+    "mask_threshold_of",
     "spread_rows",
 ]
 
@@ -44,17 +46,37 @@ def check_arguments(
             raise MaskNetError(f"{name} must be an integer >= {low}, got {value!r}")
     split_init(init)
     if k is not None and threshold is not None:
-        raise MaskNetError("give either k or threshold, not both")
+        raise MaskNetError("give either k or mask_threshold, not both")
     if k is not None and (isinstance(k, bool) or not isinstance(k, int | np.integer) or k < 1):
         raise MaskNetError(f"k must be an integer >= 1, got {k!r}")
     if not use_mask and (k is not None or threshold is not None):
-        raise MaskNetError("k and threshold select MaskNet's inliers; they need use_mask=True")
+        raise MaskNetError("k and mask_threshold select MaskNet's inliers; they need use_mask=True")
+
+
+def mask_threshold_of(mask_threshold: float | None, threshold: float | None) -> float | None:
+    """The mask's score cut-off a caller gave: ``mask_threshold``, or the deprecated
+    ``threshold`` with a DeprecationWarning (not both). Renamed because Open3D's
+    ``threshold`` is the pair cut-off, masknet's ``max_correspondence_distance``."""
+    if threshold is None:
+        return mask_threshold
+    if mask_threshold is not None:
+        raise MaskNetError("give mask_threshold only (threshold is its deprecated name)")
+    warnings.warn(
+        "register(threshold=...) is deprecated; it is mask_threshold=, MaskNet's score "
+        "cut-off (Open3D's threshold, the pair cut-off, is max_correspondence_distance=)",
+        DeprecationWarning,
+        stacklevel=5,  # the caller of register, past its two decorators
+    )
+    return threshold
 
 
 def split_init(init: Any) -> tuple[str, np.ndarray | None]:
     """``init`` as a named start and a starting pose: a name of :data:`INITS` gives
-    (name, None); a (4, 4) or (B, 4, 4) array, Open3D's ``init``, gives ("identity", the
-    array as float64), the source then moved by it before the method runs."""
+    (name, None), None the default (``"centroid"``); a (4, 4) or (B, 4, 4) array, Open3D's
+    ``init``, gives ("identity", the array as float64), the source then moved by it before
+    the method runs (the identity matrix is the same start as ``"identity"``)."""
+    if init is None:
+        return "centroid", None
     if isinstance(init, str):
         if init not in INITS:
             raise MaskNetError(f"unknown init {init!r}; choose from {INITS} or a (4, 4) matrix")

@@ -47,7 +47,7 @@ def test_check_template_points_advises_on_what_the_caller_set():
         check_template_points(1)
     with pytest.raises(MaskNetError, match="top-k with k=2; give k of at least 3") as top_k:
         check_template_points(2, k=2)
-    with pytest.raises(MaskNetError, match="threshold 0.9; lower the threshold"):
+    with pytest.raises(MaskNetError, match="mask_threshold 0.9; lower it"):
         check_template_points(0, threshold=0.9)
     with pytest.raises(MaskNetError, match=r"\(the refiner's mask\)"):
         check_template_points(1, rule="the refiner's mask")

@@ -122,10 +122,9 @@ def test_robust_options_are_checked(far_pair):
         register(template, source, method="robust", voxel_size=0.05)
 
 
-def test_options_of_mask_icp_choose_mask_icp():
-    assert default_method(None, None, {"iterations": False, "k": False}) == "auto"
-    assert default_method(None, None, {"iterations": True, "k": False}) == "icp"
-    assert default_method("robust", None, {"iterations": True}) == "robust"
+def test_a_named_method_is_the_method():
+    assert default_method(None, None) == "auto"
+    assert default_method("robust", None) == "robust"
 
 
 def test_auto_and_robust_take_the_robust_options():

@@ -98,7 +98,7 @@ def check_template_points(
     if rule is not None:
         how = rule
     elif threshold is not None:
-        how = f"threshold {threshold:g}; lower the threshold, or give k instead"
+        how = f"mask_threshold {threshold:g}; lower it, or give k instead"
     elif k is not None:
         how = f"top-k with k={k}; give k of at least {MIN_POINTS}"
     else:
