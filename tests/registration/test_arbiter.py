@@ -115,6 +115,13 @@ def test_the_search_chooses_the_best_when_none_fits_alike():
     assert (winner.stage, rival.stage, ambiguous) == ("a", "b", False)
 
 
+def test_answers_that_met_in_one_basin_are_one_answer():
+    """Two refined answers a degree apart fit alike, but are one: nothing to re-refine."""
+    finals = [_cand(0.90, 30, "a"), _cand(0.899, 31, "its twin"), _cand(0.80, 5, "b")]
+    winner, rival, ambiguous = arbiter.search_choice(finals, 0.02, 10.0, 0.1, _no_refinement)
+    assert (winner.stage, rival.stage, ambiguous) == ("a", "b", False)
+
+
 def test_the_search_merges_one_basin_then_prefers_the_least_turned_alike():
     finals = [_cand(0.90, 30, "turned"), _cand(0.905, 31, "its twin"), _cand(0.89, 5, "near")]
     reached = {"its twin": 0.95, "near": 0.94, "turned": 0.0}

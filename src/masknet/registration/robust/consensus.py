@@ -52,6 +52,7 @@ from masknet.geometry.open3d_clouds import to_open3d
 from masknet.geometry.sampling import random_subset
 from masknet.io import has_open3d
 from masknet.registration import arbiter
+from masknet.registration.arbiter import Candidate
 from masknet.registration.assessment import (
     Assessment,
     PreparedCheck,
@@ -250,7 +251,8 @@ def _consensus(o3d: Any, grids: _Grids, options: RobustOptions, start: str) -> C
         near_check = judge(grids.prepared, near)
         if arbiter.settles(near_check):
             return run(near, near_check)
-    pose, check = _best_judged(grids, _ransac_poses(o3d, grids), options)
+    best = _best_judged(grids, _ransac_poses(o3d, grids), options)
+    pose, check = best.pose, best.check
     if near is not None:
         pose, check = _start_competes(pose, check, near, grids.prepared, options, near_check)
     return run(pose, check)
@@ -329,24 +331,22 @@ def _sure(agreeing: float) -> bool:
     return 1.0 - (1.0 - agreeing**3) ** RANSAC_ITERATIONS >= RANSAC_CONFIDENCE
 
 
-def _best_judged(
-    grids: _Grids, found: list[np.ndarray], options: RobustOptions
-) -> tuple[np.ndarray, Assessment]:
-    """The pose of ``found`` (each (4, 4)) that the verdict ranks highest, with its check;
-    a pose within ``distinct_deg`` and one voxel of the best so far is not judged
+def _best_judged(grids: _Grids, found: list[np.ndarray], options: RobustOptions) -> Candidate:
+    """The pose of ``found`` (each (4, 4)) that the verdict ranks highest, judged (a
+    :class:`~masknet.registration.arbiter.Candidate` with its check); a pose within
+    ``distinct_deg`` and one voxel of the best so far is not judged
     (:func:`~masknet.registration.arbiter.same_place`), and another replaces the best so
     far only where it :func:`~masknet.registration.arbiter.displaces` it by
     ``ambiguity_margin``."""
-    pose = found[0]
-    check = judge(grids.prepared, pose)
+    best = Candidate(found[0], "ransac", check=judge(grids.prepared, found[0]))
     centre = grids.source_grid.mean(0)
     for other in found[1:]:
-        if arbiter.same_place(other, pose, centre, options.distinct_deg, grids.voxel):
+        if arbiter.same_place(other, best.pose, centre, options.distinct_deg, grids.voxel):
             continue
-        other_check = judge(grids.prepared, other)
-        if arbiter.displaces(other_check, check, options.ambiguity_margin):
-            pose, check = other, other_check
-    return pose, check
+        judged = Candidate(other, "ransac", check=judge(grids.prepared, other))
+        if arbiter.displaces(judged.check, best.check, options.ambiguity_margin):
+            best = judged
+    return best
 
 
 def _point_to_plane(grids: _Grids, start: np.ndarray) -> np.ndarray:
