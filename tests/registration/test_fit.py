@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 
 from masknet.geometry.knn import cloud_tree
+from masknet.registration.arbiter import fits_worse
 from masknet.registration.fit import (
     FIT_SLACK,
     SCORE_TRUNCATION,
     RoundFits,
-    fits_worse,
     inlier_fit,
     overlap_fit,
     pose_fit,

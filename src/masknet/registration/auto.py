@@ -60,15 +60,16 @@ from masknet.geometry.sampling import NetworkClouds, spread_labels
 from masknet.geometry.se3 import transform_points
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
+from masknet.registration import arbiter
+from masknet.registration.arbiter import Candidate
 from masknet.registration.assessment import judge
 from masknet.registration.backends.base import MaskModels, PipelineRun
 from masknet.registration.fit import FIT_SPACINGS, PoseFit, covered_points, pose_fit
-from masknet.registration.hypotheses import rotation_between_deg
 from masknet.registration.icp import icp
 from masknet.registration.options import ICPCriteria, RobustOptions
 from masknet.registration.prepared import PreparedPair, check_points, prepare_pair
 from masknet.registration.robust import NetworkMasks, pipeline_run
-from masknet.registration.robust.consensus import ConsensusRun, consensus_register, verdict_rank
+from masknet.registration.robust.consensus import ConsensusRun, consensus_register
 from masknet.registration.robust.search import REFINE_TOLERANCE, coarse_to_fine
 from masknet.registration.rounds import mask_and_register
 
@@ -145,7 +146,7 @@ def _one(
         large = len(template) >= CONSENSUS_FIRST * options.consensus_from
         start = "never" if large else "first"
         consensus = consensus_register(template, source, options, times, start)
-        if consensus is not None and consensus.check.verdict == "likely correct":
+        if consensus is not None and arbiter.settles(consensus.check):
             return _consensus_run(consensus, template, source, model, "consensus")
     if _turned(template, source, options):  # the fast path starts from the pose as given
         return _escalate(
@@ -155,12 +156,12 @@ def _one(
     if fast.accepted is not None:
         return fast.accepted
     run = _escalate(template, source, nets, fast, model, search_model, options, times, precision)
-    if scan and consensus is not None and consensus.check.verdict == "uncertain":
+    if scan and consensus is not None and arbiter.may_compete(consensus.check):
         # The search's one-way score can prefer a pose slid along a wall that the verdict
         # sees through. Not on sparse clouds: there the verdict called right search answers
         # worse than consensus poses 60-180 degrees off.
         searched = judge(consensus.prepared, run.transform[0])
-        if verdict_rank(consensus.check) > verdict_rank(searched):
+        if arbiter.ranks_higher(consensus.check, searched):
             escalated = float(run.info["escalated_fitness"][0])
             path = "robust/consensus"
             return _consensus_run(consensus, template, source, model, path, escalated)
@@ -252,16 +253,16 @@ def _fast_path(
 
     transform, fit, right, converged = refined(fast.transform[0])
     accept = options.fast_accept(len(template))
-    if right >= accept and not converged and options.inlier_iterations:
+    if arbiter.accepts(right, accept) and not converged and options.inlier_iterations:
         # Still moving when its iterations ran out, from a start far off: a pose that fits
         # is let settle (on a copy pair it stopped 0.23 degrees short, one step from exact),
         # and kept where it still fits.
         settled = refined(transform)
-        if settled[2] >= accept:
+        if arbiter.accepts(settled[2], accept):
             transform, fit, right, converged = settled
     times["fast"] = times.get("fast", 0.0) + time.perf_counter() - tic
     accepted = None
-    if right >= accept:
+    if arbiter.accepts(right, accept):
         mask = None
         if model is not None:  # the template points the moved source covers: every
             # source point a two-sided network keeps (the fine grid's surface drops a rim)
@@ -300,36 +301,45 @@ def _escalate(
         masks = NetworkMasks(search_model, template_net[0], source_net[0], precision)
     prepared = None if fast is None else fast.prepared
     run = pipeline_run([coarse_to_fine(template, source, masks, options, times, prepared)])
-    if fast is not None and run.info["score"][0] < fast.fit.score:  # the fast path fits better
-        return _fast_after_all(run, fast, options)
+    if fast is not None and arbiter.fits_better(_fast_candidate(fast), run.info["score"][0]):
+        return _fast_after_all(run, fast, options)  # the fast path fits better
     info = dict(run.info)
     info["path"] = np.array([f"robust/{run.info['path'][0]}"])
     info["escalated_fitness"] = np.array([np.nan if fast is None else fast.right])
     return PipelineRun(run.transform, run.mask, run.source_mask, info)
 
 
+def _fast_candidate(fast: _Fast) -> Candidate:
+    """The fast path's pose as a candidate, with its fit."""
+    return Candidate(fast.transform, "fast", fast.fit)
+
+
+def _searched(run: PipelineRun) -> list[Candidate]:
+    """The search's answer and, where it has one, its runner-up, as candidates (their
+    fitness and score from ``run.info``; the runner-up's RMSE is not reported: NaN)."""
+    info = run.info
+    fit = PoseFit(info["fitness"][0], info["inlier_rmse"][0], info["score"][0])
+    found = [Candidate(run.transform[0], "search", fit)]
+    if np.isfinite(info["runner_up"][0]).all():
+        fit = PoseFit(info["runner_up_fitness"][0], np.nan, info["runner_up_score"][0])
+        found.append(Candidate(info["runner_up"][0], "runner-up", fit))
+    return found
+
+
 def _fast_after_all(run: PipelineRun, fast: _Fast, options: RobustOptions) -> PipelineRun:
     """The fast path's pose, which fits better than the search's answer; ambiguous where
-    one of the search's answers lies elsewhere and fits about as well."""
+    one of the search's answers lies elsewhere and fits about as well
+    (:func:`~masknet.registration.arbiter.close_rival`)."""
     transform = fast.transform
     info = _info("fast", fast.fit, fast.right)
-    others = [(run.transform[0], run.info["fitness"][0], run.info["score"][0])]
-    if np.isfinite(run.info["runner_up"][0]).all():
-        others.append(
-            (
-                run.info["runner_up"][0],
-                run.info["runner_up_fitness"][0],
-                run.info["runner_up_score"][0],
-            )
-        )
-    for other, other_fitness, other_score in others:
-        apart = rotation_between_deg(other, transform) >= options.distinct_deg
-        if apart and other_score >= fast.fit.score - options.ambiguity_margin:
-            info["ambiguous"] = np.array([True])
-            info["runner_up"] = other[None].copy()
-            info["runner_up_fitness"] = np.array([other_fitness])
-            info["runner_up_score"] = np.array([other_score])
-            break
+    rival = arbiter.close_rival(
+        _fast_candidate(fast), _searched(run), options.distinct_deg, options.ambiguity_margin
+    )
+    if rival is not None:
+        info["ambiguous"] = np.array([True])
+        info["runner_up"] = rival.pose[None].copy()
+        info["runner_up_fitness"] = np.array([rival.fitness])
+        info["runner_up_score"] = np.array([rival.score])
     return PipelineRun(transform[None], run.mask, run.source_mask, info)
 
 

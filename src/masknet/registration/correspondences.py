@@ -32,6 +32,7 @@ from masknet.geometry.clouds import MIN_POINTS
 from masknet.geometry.open3d_clouds import to_open3d
 from masknet.geometry.se3 import transform_points
 from masknet.io import require_open3d
+from masknet.registration.arbiter import most_matched
 
 # Neighbours per FPFH, within 5 voxels. Open3D's tutorial takes 100; 50 costs a third
 # less on the finest grid and matched as well on ModelNet40 pairs (clean, turned to 180°).
@@ -221,16 +222,8 @@ def ransac_poses(
     poses, near = np.concatenate(all_poses), np.concatenate(all_near)
     counts = near.sum(1)
     # Greedy: the best pose, then the best of those not within distinct_deg and three
-    # thresholds of translation of one already chosen (vectorised over all poses).
-    open_ = np.ones(len(poses), bool)
-    chosen: list[int] = []
-    cos_limit = np.cos(np.radians(distinct_deg))
-    while len(chosen) < keep and open_.any():
-        i = int(np.flatnonzero(open_)[np.argmax(counts[open_])])
-        chosen.append(i)
-        cos = (np.einsum("hij,ij->h", poses[:, :3, :3], poses[i, :3, :3]) - 1) / 2
-        near_pose = np.linalg.norm(poses[:, :3, 3] - poses[i, :3, 3], axis=1) < 3 * threshold
-        open_ &= ~((cos > cos_limit) & near_pose)
+    # thresholds of translation of one already chosen.
+    chosen = most_matched(poses, counts, keep, distinct_deg, 3 * threshold)
     return PoseHypotheses(_refit(source, template, near[chosen]), counts[chosen])
 
 

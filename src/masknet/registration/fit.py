@@ -8,7 +8,8 @@ package measures it, and the guard that undoes a round that fits worse.
   ``score``, the one score the pipelines rank poses by.
 * :func:`overlap_fit`: the share of the implied overlap that fits, the verdict's measure
   (:mod:`masknet.registration.assessment`).
-* :func:`fits_worse` and :class:`RoundFits`: the guard of the refined rounds.
+* :class:`RoundFits`: the guard of the refined rounds (its rule,
+  :func:`~masknet.registration.arbiter.fits_worse`, is the arbiter's).
 * :func:`evaluate_registration`: the public verb, Open3D's ``evaluate_registration`` with
   named arguments (below), and :func:`given_cut`, the check of a caller's cut-off.
 
@@ -43,6 +44,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from masknet._moved import moved_names
 from masknet.errors import MaskNetError
 from masknet.geometry.clouds import SPACING_SAMPLE, median_spacing
 from masknet.geometry.knn import cloud_tree
@@ -61,7 +63,6 @@ __all__ = [
     "covered_points",
     "evaluate_registration",
     "given_cut",
-    "fits_worse",
     "inlier_fit",
     "overlap_fit",
     "pose_fit",
@@ -76,12 +77,6 @@ RESIDUAL_BAND = 3.0
 # A refined round whose pose fits worse than this below its start's (pose_fit's truncated
 # score, 0-1) is undone, and the rounds stop there.
 FIT_SLACK = 0.02
-
-
-def fits_worse(new_score: Any, start_score: Any) -> Any:
-    """The guard's rule: whether a pose's score (:class:`PoseFit`) is more than FIT_SLACK
-    below its start's; scalars or arrays alike."""
-    return new_score < start_score - FIT_SLACK
 
 
 class RegistrationQuality(NamedTuple):
@@ -188,6 +183,8 @@ class RoundFits:
     def keep_no_worse(self, start: np.ndarray, reached: np.ndarray) -> np.ndarray:
         """(B, 4, 4): ``reached`` (B, 4, 4) where it fits no worse than ``start`` (B, 4, 4)
         by more than FIT_SLACK, else ``start``; a pair kept at its start once stays there."""
+        from masknet.registration.arbiter import fits_worse
+
         if self.scores is None:  # the first guarded round: round 1's poses
             self.scores = self._scores(start)
         new = self._scores(reached)
@@ -299,3 +296,7 @@ def evaluate_registration(
     if single:
         return RegistrationQuality(*(a[0] for a in quality))
     return quality
+
+
+# Moved to the arbiter (masknet.registration.arbiter), with every rule between poses.
+__getattr__ = moved_names(__name__, {"fits_worse": "masknet.registration.arbiter"})

@@ -1,14 +1,19 @@
-"""Scored pose hypotheses of a global search: their fit, their ranking, and one per basin."""
+"""The angle between two poses. Scored hypotheses, their ranking and one per basin moved to
+:mod:`masknet.registration.arbiter` (:class:`~masknet.registration.arbiter.Candidate`,
+:func:`~masknet.registration.arbiter.rank`,
+:func:`~masknet.registration.arbiter.one_per_basin`); the old names work for one more
+release, with a ``DeprecationWarning``."""
 
 from __future__ import annotations
 
-from typing import NamedTuple
+import warnings
+from typing import Any
 
 import numpy as np
 
 from masknet.geometry.se3 import rotation_angle_deg
 
-__all__ = ["Scored", "distinct", "rank", "rotation_between_deg"]
+__all__ = ["rotation_between_deg"]
 
 
 def rotation_between_deg(a: np.ndarray, b: np.ndarray) -> float:
@@ -16,32 +21,35 @@ def rotation_between_deg(a: np.ndarray, b: np.ndarray) -> float:
     return float(rotation_angle_deg(a[:3, :3].T @ b[:3, :3]))
 
 
-class Scored(NamedTuple):
-    """A hypothesis: its fit (:class:`PoseFit`), pose (4, 4), and where it came from."""
+def _scored(fitness: float, rmse: float, score: float, pose: np.ndarray, kind: str) -> Any:
+    """The former ``Scored(fitness, rmse, score, pose, kind)``: a :class:`Candidate`."""
+    from masknet.registration.arbiter import Candidate
+    from masknet.registration.fit import PoseFit
 
-    fitness: float
-    rmse: float
-    score: float
-    pose: np.ndarray
-    kind: str
+    return Candidate(pose, kind, PoseFit(fitness, rmse, score))
 
 
-def rank(entry: Scored) -> tuple[float, float, float]:
-    """Higher score first, then fitness, then lower RMSE."""
-    return entry.score, entry.fitness, -entry.rmse
+# Old name -> (its new spelling, the object that answers it).
+_MOVED = {
+    "Scored": ("masknet.registration.arbiter.Candidate(pose, stage, fit)", lambda: _scored),
+    "rank": ("masknet.registration.arbiter.rank", lambda: _arbiter().rank),
+    "distinct": ("masknet.registration.arbiter.one_per_basin", lambda: _arbiter().one_per_basin),
+}
 
 
-def distinct(scored: list, count: int, limit: float, degrees: float = 2.0) -> list:
-    """The first ``count`` entries of ``scored`` (best first) whose poses differ from every
-    earlier one kept by ``degrees`` or ``limit`` of translation: the same basin once."""
-    out: list = []
-    for entry in scored:
-        if len(out) == count:
-            break
-        if all(
-            rotation_between_deg(entry.pose, other.pose) >= degrees
-            or np.linalg.norm(entry.pose[:3, 3] - other.pose[:3, 3]) >= limit
-            for other in out
-        ):
-            out.append(entry)
-    return out
+def _arbiter() -> Any:
+    from masknet.registration import arbiter
+
+    return arbiter
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _MOVED:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    new, value = _MOVED[name]
+    warnings.warn(
+        f"{__name__}.{name} has moved to {new}; use that (the old name goes in the next release)",
+        DeprecationWarning,
+        stacklevel=2,
+    )
+    return value()

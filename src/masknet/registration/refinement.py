@@ -207,7 +207,8 @@ def refine_pose(
     from masknet.geometry.knn import cloud_tree
     from masknet.geometry.normals import estimate_normals
     from masknet.geometry.sampling import nearest_sample
-    from masknet.registration.fit import fits_worse, pose_fit
+    from masknet.registration.arbiter import fits_worse
+    from masknet.registration.fit import pose_fit
     from masknet.registration.icp import icp
 
     template_index, source_index = sampled

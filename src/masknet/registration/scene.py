@@ -69,6 +69,7 @@ from masknet.geometry.normals import estimate_normals
 from masknet.geometry.sampling import farthest_point_sample, grid_subset
 from masknet.geometry.se3 import hypothesis_rotations, transform_points
 from masknet.geometry.trimmed import trimmed_fit, trimmed_mean, trimmed_order
+from masknet.registration import arbiter
 from masknet.registration.icp import icp
 from masknet.registration.options import DEFAULT_SPACINGS, SceneSearch
 from masknet.registration.scene_centres import candidate_centres, likely_centres, voxel_thin
@@ -352,8 +353,7 @@ class _Placement:
             facing = _facing(poses, moved, normals, sensor)
             if _drops(iteration):
                 # Placements that fit worst are dropped as they go: the right one fits early.
-                keep = np.argsort(_scores(d2, facing, opts.trim), kind="stable")
-                keep = keep[: max(len(keep) // 4, opts.candidates)]
+                keep = arbiter.lowest_quarter(_scores(d2, facing, opts.trim), opts.candidates)
                 poses, moved, matched, d2 = poses[keep], moved[keep], matched[keep], d2[keep]
                 facing = None if facing is None else facing[keep]
             # Trimmed ICP: only the best ``trim`` of each placement's pairs move it, so the
@@ -363,7 +363,7 @@ class _Placement:
         # Trimmed fit of every placement: the best few go on.
         moved, _, d2 = _nearest(poses, small, thin, thin_tree)
         scores = _scores(d2, _facing(poses, moved, small_normals, sensor), opts.trim)
-        return poses[np.argsort(scores, kind="stable")[: opts.candidates]], count
+        return poses[arbiter.lowest(scores, opts.candidates)], count
 
     def best_refined(self, poses: np.ndarray, thin: np.ndarray) -> np.ndarray:
         """(4, 4): the best of ``poses`` (K, 4, 4) after ICP at finer resolution against the
@@ -380,13 +380,13 @@ class _Placement:
             self._refined(pose, fine, fine_normals, thin, min(REFINE_FIRST, total))
             for pose in poses
         ]
-        first.sort(key=lambda item: item[0])
+        first = arbiter.least_first(first)
         if total > REFINE_FIRST:
             first = [
                 self._refined(pose, fine, fine_normals, thin, total - REFINE_FIRST)
-                for _, pose in first[: max(len(first) // 4, 1)]
+                for _, pose in arbiter.best_quarter(first)
             ]
-        return min(first, key=lambda item: item[0])[1]
+        return arbiter.least_trimmed(first)
 
     def _refined(
         self,
@@ -437,7 +437,7 @@ def polish(
     points = np.asarray(points, np.float64)
     radius = float(unit_radius(template))
     cut = radius * _inlier_distance((template - template.mean(0)) / radius, opts)
-    best, best_fit = starts[0], np.inf
+    refined = []
     for start in starts:
         run = icp(
             template,
@@ -448,6 +448,5 @@ def polish(
         )
         pose = run.transform[0]
         fit = trimmed_fit(transform_points(pose, points)[None], template[None], opts.trim)[0]
-        if fit < best_fit:
-            best, best_fit = pose, fit
-    return best
+        refined.append((fit, pose))
+    return arbiter.polished(refined, starts[0])

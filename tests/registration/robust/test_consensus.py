@@ -10,9 +10,10 @@ import pytest
 from masknet import assess_registration, register
 from masknet.errors import MaskNetError
 from masknet.evaluation.registration import pose_errors
+from masknet.registration.arbiter import verdict_rank
 from masknet.registration.assessment import Assessment
 from masknet.registration.options import RobustOptions
-from masknet.registration.robust.consensus import consensus_register, verdict_rank
+from masknet.registration.robust.consensus import consensus_register
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 

@@ -51,7 +51,7 @@ def _box_with_a_bump(rng: np.random.Generator) -> np.ndarray:
 def test_an_early_flip_gives_way_to_the_pose_the_clouds_are_near():
     """A flip that passed the early exit gives way to the clouds as given when they
     refine to a better fit; an early answer that is right gets nothing added."""
-    from masknet.registration.hypotheses import Scored
+    from masknet.registration.arbiter import Candidate
     from masknet.registration.options import RobustOptions
     from masknet.registration.prepared import FIT_SPACINGS, prepare_pair
     from masknet.registration.robust.search import (
@@ -72,16 +72,16 @@ def test_an_early_flip_gives_way_to_the_pose_the_clouds_are_near():
     kept = pair.source[pair.surface]
 
     def early(pose: np.ndarray) -> list:
-        return [Scored(*pose_fit(pair.tree, kept, pose, limit), pose, "fpfh")]
+        return [Candidate(pose, "fpfh", pose_fit(pair.tree, kept, pose, limit))]
 
     options = RobustOptions()
 
-    def refine(pose: np.ndarray, points: np.ndarray, kind: str) -> Scored:
+    def refine(pose: np.ndarray, points: np.ndarray, kind: str) -> Candidate:
         cut = options.cut(pair.spacing)
         tf = icp(
             pair.template, points, pose, 60, REFINE_TOLERANCE, cut, template_tree=pair.tree
         ).transform[0]
-        return Scored(*pose_fit(pair.tree, points, tf, limit), tf, kind)
+        return Candidate(tf, kind, pose_fit(pair.tree, points, tf, limit))
 
     start = _short_icp_from_identity(pair.template, kept, 128, options.max_iterations)
     found = _as_given(early(flip), start, kept, pair.tree, limit, options, refine)
@@ -92,13 +92,14 @@ def test_an_early_flip_gives_way_to_the_pose_the_clouds_are_near():
 
 
 def test_candidates_a_few_spacings_apart_are_one_basin():
-    from masknet.registration.hypotheses import Scored, distinct
+    from masknet.registration.arbiter import Candidate, one_per_basin
+    from masknet.registration.fit import PoseFit
 
     turned = np.eye(4)
     turned[:3, :3] = Rotation.from_euler("z", 30, degrees=True).as_matrix()
     shifted = np.eye(4)
     shifted[0, 3] = 0.05
     entries = [(np.eye(4), "a"), (shifted, "b"), (turned, "c")]
-    wrap = [Scored(1.0, 0.0, 1.0, pose, kind) for pose, kind in entries]
-    assert [e.kind for e in distinct(wrap, 3, 0.1, 10.0)] == ["a", "c"]
-    assert [e.kind for e in distinct(wrap, 3, 0.01, 10.0)] == ["a", "b", "c"]
+    wrap = [Candidate(pose, stage, PoseFit(1.0, 0.0, 1.0)) for pose, stage in entries]
+    assert [e.stage for e in one_per_basin(wrap, 3, 0.1, 10.0)] == ["a", "c"]
+    assert [e.stage for e in one_per_basin(wrap, 3, 0.01, 10.0)] == ["a", "b", "c"]

@@ -45,14 +45,15 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from masknet._moved import moved_names
 from masknet._open3d import open3d_threads
 from masknet.geometry.clouds import median_spacing, rms_radius
 from masknet.geometry.open3d_clouds import to_open3d
 from masknet.geometry.sampling import random_subset
-from masknet.geometry.se3 import transform_points
 from masknet.io import has_open3d
+from masknet.registration import arbiter
+from masknet.registration.arbiter import Candidate
 from masknet.registration.assessment import (
-    VERDICTS,
     Assessment,
     PreparedCheck,
     judge,
@@ -64,7 +65,6 @@ from masknet.registration.correspondences import (
     matches_within,
     voxel_for,
 )
-from masknet.registration.hypotheses import rotation_between_deg
 from masknet.registration.open3d_global import (
     RANSAC_INLIER_VOXELS,
     TUTORIAL_NEIGHBOURS,
@@ -73,7 +73,7 @@ from masknet.registration.open3d_global import (
 from masknet.registration.open3d_icp import point_to_plane_at_cuts
 from masknet.registration.options import RobustOptions
 
-__all__ = ["ConsensusRun", "consensus_register", "verdict_rank"]
+__all__ = ["ConsensusRun", "consensus_register"]
 
 MIN_SPACINGS = 2.0  # the grid's edge, at least, in the clouds' point spacings
 # Clouds larger than this are measured (voxel, spacing) on a random subset of this size.
@@ -144,20 +144,6 @@ class ConsensusRun(NamedTuple):
     template_grid: np.ndarray
     source_grid: np.ndarray
     prepared: PreparedCheck
-
-
-def verdict_rank(check: Assessment) -> tuple[int, float]:
-    """A sort key: better verdicts first, then the larger overlap fit."""
-    return -VERDICTS.index(check.verdict), check.overlap_fit
-
-
-def _beats(check: Assessment, held: Assessment, margin: float) -> bool:
-    """Whether a pose judged ``check`` displaces one judged ``held``: a better verdict, or
-    the same verdict and an overlap fit more than ``margin`` higher. The head start keeps
-    a tie from going either way with the last bits of Open3D's parallel sums (two calls on
-    one scan-view pair ended 0.2 degrees apart), and keeps the pose nearer the start where
-    a symmetric shape fits a flip as well."""
-    return verdict_rank(check) > (verdict_rank(held)[0], held.overlap_fit + margin)
 
 
 class _Grids(NamedTuple):
@@ -263,9 +249,10 @@ def _consensus(o3d: Any, grids: _Grids, options: RobustOptions, start: str) -> C
         # clouds: the consensus front end first", "Scans start with the front end").
         near = _point_to_plane(grids, _centroids_matched(o3d, *grids.coarse))
         near_check = judge(grids.prepared, near)
-        if near_check.verdict == "likely correct":
+        if arbiter.settles(near_check):
             return run(near, near_check)
-    pose, check = _best_judged(grids, _ransac_poses(o3d, grids), options)
+    best = _best_judged(grids, _ransac_poses(o3d, grids), options)
+    pose, check = best.pose, best.check
     if near is not None:
         pose, check = _start_competes(pose, check, near, grids.prepared, options, near_check)
     return run(pose, check)
@@ -317,7 +304,7 @@ def _slid_pose(
     candidates = np.repeat(pose[None], len(away), axis=0)
     candidates[:, :3, 3] = votes[away]
     agree = matches_within(candidates, source, template, reach)  # (V, K)
-    best = int(agree.sum(1).argmax())
+    best = arbiter.most_agreed(agree)
     if agree[best].sum() < 3:
         return None
     slid = pose.copy()
@@ -344,24 +331,22 @@ def _sure(agreeing: float) -> bool:
     return 1.0 - (1.0 - agreeing**3) ** RANSAC_ITERATIONS >= RANSAC_CONFIDENCE
 
 
-def _best_judged(
-    grids: _Grids, found: list[np.ndarray], options: RobustOptions
-) -> tuple[np.ndarray, Assessment]:
-    """The pose of ``found`` (each (4, 4)) that the verdict ranks highest, with its check;
-    a pose within ``distinct_deg`` and one voxel of the best so far is not judged, and
-    another replaces the best so far only where it :func:`_beats` it by
+def _best_judged(grids: _Grids, found: list[np.ndarray], options: RobustOptions) -> Candidate:
+    """The pose of ``found`` (each (4, 4)) that the verdict ranks highest, judged (a
+    :class:`~masknet.registration.arbiter.Candidate` with its check); a pose within
+    ``distinct_deg`` and one voxel of the best so far is not judged
+    (:func:`~masknet.registration.arbiter.same_place`), and another replaces the best so
+    far only where it :func:`~masknet.registration.arbiter.displaces` it by
     ``ambiguity_margin``."""
-    pose = found[0]
-    check = judge(grids.prepared, pose)
+    best = Candidate(found[0], "ransac", check=judge(grids.prepared, found[0]))
     centre = grids.source_grid.mean(0)
     for other in found[1:]:
-        shift = np.linalg.norm(transform_points(other, centre) - transform_points(pose, centre))
-        if rotation_between_deg(other, pose) < options.distinct_deg and shift < grids.voxel:
+        if arbiter.same_place(other, best.pose, centre, options.distinct_deg, grids.voxel):
             continue
-        other_check = judge(grids.prepared, other)
-        if _beats(other_check, check, options.ambiguity_margin):
-            pose, check = other, other_check
-    return pose, check
+        judged = Candidate(other, "ransac", check=judge(grids.prepared, other))
+        if arbiter.displaces(judged.check, best.check, options.ambiguity_margin):
+            best = judged
+    return best
 
 
 def _point_to_plane(grids: _Grids, start: np.ndarray) -> np.ndarray:
@@ -409,12 +394,17 @@ def _start_competes(
     given. On sparse clouds a symmetric shape fits a pose 180 degrees off as well as the
     right one, and the verdict cannot part them; the pose nearer the start wins where the
     verdict rates it as high (overlap fit within ``ambiguity_margin``), as the fast path's
-    pose does in the search: RANSAC's pose must :func:`_beats` it. On 60 re-sampled
+    pose does in the search: RANSAC's pose must
+    :func:`~masknet.registration.arbiter.displaces` it. On 60 re-sampled
     ModelNet40 pairs this turned five poses 30-180 degrees off into right ones, and on 98
     views of real scans (4,096 points) three flips and a pose 55 degrees off."""
-    if rotation_between_deg(near, pose) < options.distinct_deg:
+    if not arbiter.apart(near, pose, options.distinct_deg):
         return pose, check
     near_check = judge(prepared, near) if near_check is None else near_check
-    if _beats(check, near_check, options.ambiguity_margin):
+    if arbiter.displaces(check, near_check, options.ambiguity_margin):
         return pose, check
     return near, near_check
+
+
+# Moved to the arbiter (masknet.registration.arbiter), with every rule between poses.
+__getattr__ = moved_names(__name__, {"verdict_rank": "masknet.registration.arbiter"})

@@ -57,6 +57,8 @@ from masknet.geometry.knn import cloud_tree
 from masknet.geometry.sampling import spread_labels
 from masknet.geometry.se3 import hypothesis_rotations, transform_points
 from masknet.io import has_open3d
+from masknet.registration import arbiter
+from masknet.registration.arbiter import Candidate
 from masknet.registration.correspondences import (
     FeatureCloud,
     compatible_poses,
@@ -66,7 +68,6 @@ from masknet.registration.correspondences import (
     voxel_for,
 )
 from masknet.registration.fit import FIT_SPACINGS, covered_points, pose_fit, pose_fits
-from masknet.registration.hypotheses import Scored, distinct, rank, rotation_between_deg
 from masknet.registration.icp import icp, icp_from_starts
 from masknet.registration.options import RobustOptions
 
@@ -161,7 +162,7 @@ def coarse_to_fine(
         source_mask = spread_labels(source, search.source, source_mask)
     info = {
         "path": "correspondences" if early is not None else "search",
-        "source": winner.kind,
+        "source": winner.stage,
         "fitness": winner.fitness,
         "inlier_rmse": winner.rmse,
         "score": winner.score,
@@ -200,7 +201,7 @@ class _Search:
         self.small = options.hypothesis_size(len(self.source))  # the hypotheses' short ICP
         self.probe = random_subset(self.source[self.surface], self.small * 2)
         self.kept_source = self.source[self.surface]
-        self.scored: list[Scored] = []
+        self.scored: list[Candidate] = []
         # (source grid, template grid, their mutual matches), for the masked RANSAC
         self.grids: list[tuple[FeatureCloud, FeatureCloud, np.ndarray]] = []
 
@@ -212,7 +213,7 @@ class _Search:
 
     def refine(
         self, pose: np.ndarray, points: np.ndarray, kind: str, loose: bool = False
-    ) -> Scored:
+    ) -> Candidate:
         """ICP from ``pose`` with pairs cut at ``max_correspondence_distance`` (first at twice
         that with ``loose``), scored on ``points``. The tight cut-off alone can stop a few
         degrees short: from 3 degrees off a clean pair it settled 1.1 degrees off, where a
@@ -228,13 +229,13 @@ class _Search:
                 max_correspondence_distance=limit,
                 template_tree=self.tree,
             ).transform[0]
-        return Scored(*pose_fit(self.tree, points, tf, self.limit), tf, kind)
+        return Candidate(tf, kind, pose_fit(self.tree, points, tf, self.limit))
 
     def score(self, poses: np.ndarray, points: np.ndarray, kinds: list[str] | str) -> None:
         """Score ``poses`` (H, 4, 4) on ``points`` and add them to the hypotheses."""
         kinds = [kinds] * len(poses) if isinstance(kinds, str) else kinds
         fits = pose_fits(self.tree, points, poses, self.limit)
-        self.scored.extend(Scored(*f, p, k) for f, p, k in zip(fits, poses, kinds, strict=True))
+        self.scored.extend(Candidate(p, k, f) for f, p, k in zip(fits, poses, kinds, strict=True))
 
     def correspondence_poses(self, grid: tuple, pairs: np.ndarray, kind: str) -> None:
         """RANSAC's best poses from the matches ``pairs`` of ``grid`` (and, with enough
@@ -258,7 +259,7 @@ class _Search:
             poses = np.concatenate([poses, compatible.transform])
         self.score(poses, self.probe, kind)
 
-    def correspondences(self) -> list[Scored] | None:
+    def correspondences(self) -> list[Candidate] | None:
         """Correspondence hypotheses at each grid, in order, scored as RANSAC left them; the
         best two refined. The refined answers where one fits as a right pose does (the
         early exit), else None once every grid is done."""
@@ -286,20 +287,20 @@ class _Search:
                 return early
         return None
 
-    def _exit_at(self, found: list[Scored]) -> list[Scored] | None:
+    def _exit_at(self, found: list[Candidate]) -> list[Candidate] | None:
         """The two best distinct poses of one grid (``found``), refined, where one fits as a
         right pose does (``accept_fitness`` over the checked points); else None. A
         symmetric shape's flip can lead RANSAC's ranking, and a close second makes the
         answer ambiguous. A second that fits AS_GIVEN_GAP below the best is neither (it
         seldom climbs that far), and its refinement is skipped."""
-        tops = distinct(sorted(found, key=rank, reverse=True), 2, self.limit)
-        tops = [s for s in tops if s.score >= tops[0].score - AS_GIVEN_GAP]
+        tops = arbiter.one_per_basin(arbiter.best_first(found), 2, self.limit)
+        tops = arbiter.alike(tops, AS_GIVEN_GAP)
         refined = [self.refine(s.pose, self.kept_source, "fpfh") for s in tops]
         poses = np.stack([f.pose for f in refined])
         check = pose_fits(self.tree, self.source[self.checked], poses, self.limit)
-        return refined if max(f.fitness for f in check) >= self.options.accept_fitness else None
+        return refined if arbiter.exits(check, self.options.accept_fitness) else None
 
-    def as_given_after_exit(self, early: list[Scored]) -> list[Scored]:
+    def as_given_after_exit(self, early: list[Candidate]) -> list[Candidate]:
         """The clouds as they are, beside the early exit's answers (:func:`_as_given`)."""
         start = _short_icp_from_identity(
             self.template, self.kept_source, self.small, self.options.max_iterations
@@ -326,7 +327,7 @@ class _Search:
             self.clock("ransac")
         return mask, source_mask
 
-    def hypotheses(self, mask: np.ndarray | None) -> list[Scored]:
+    def hypotheses(self, mask: np.ndarray | None) -> list[Candidate]:
         """Every hypothesis through a short ICP at hypothesis resolution (the correspondence
         poses against the whole template, the rotations against the masked part), scored
         on the same kept points; the best few from different basins, refined."""
@@ -341,7 +342,7 @@ class _Search:
             )
             # Both as found and after the short ICP: on a large scene the ICP at
             # hypothesis resolution can move a good pose off.
-            kinds = [s.kind for s in self.scored] * 2
+            kinds = [s.stage for s in self.scored] * 2
             self.scored.clear()
             self.score(np.concatenate([found, poses]), points, kinds)
         # The clouds as they are: consecutive scans often start close.
@@ -363,57 +364,36 @@ class _Search:
         self.clock("hypotheses")
         # The best few, refined with the pair cut-off, rescored on all kept points;
         # candidates from different basins (CANDIDATE_BASIN): close poses refine into one.
-        self.scored.sort(key=rank, reverse=True)
-        best_few = distinct(
+        self.scored = arbiter.best_first(self.scored)
+        best_few = arbiter.one_per_basin(
             self.scored, options.candidates, CANDIDATE_BASIN * self.radius, options.distinct_deg
         )
-        finals = [self.refine(s.pose, self.kept_source, s.kind) for s in best_few]
+        finals = [self.refine(s.pose, self.kept_source, s.stage) for s in best_few]
         self.clock("refine")
         return finals
 
-    def choose(self, finals: list[Scored]) -> tuple[Scored, Scored | None, bool]:
+    def choose(self, finals: list[Candidate]) -> tuple[Candidate, Candidate | None, bool]:
         """The answer among the refined ``finals``, the runner-up (a pose ``distinct_deg``
         or more away), and whether the choice is ambiguous (the runner-up fits within
-        ``ambiguity_margin``)."""
+        ``ambiguity_margin``): :func:`~masknet.registration.arbiter.search_choice`.
+
+        Refined answers that met in one basin are one answer. Among answers that fit
+        alike, the least rotation from the pose as given wins: the data cannot choose, and
+        the input is the only other evidence. Before the input decides, the fits each
+        answer reaches when refined as far as it goes (a looser cut-off first) rank them;
+        the answers keep their poses and their own fits, as a looser cut-off can also move
+        a right pose on a partial scan."""
         options = self.options
         if not finals:  # no hypothesis at all (too few points for features): the identity
             fit = pose_fit(self.tree, self.kept_source, np.eye(4), self.limit)
-            finals = [Scored(*fit, np.eye(4), "identity")]
-        # Refined answers that met in one basin are one answer: only different poses that
-        # fit alike make the choice below (and its re-refinement) necessary.
-        finals = distinct(sorted(finals, key=rank, reverse=True), len(finals), self.limit)
-        # Among answers that fit alike (within the margin), the least rotation from the
-        # pose as given wins: the data cannot choose, and the input is the only other
-        # evidence. The result says so (ambiguous, with the runner-up).
-        alike = [f for f in finals if f.score >= finals[0].score - options.ambiguity_margin]
-        reached = {id(f): f.score for f in finals}
-        if len(alike) > 1:
-            # Before the input decides, the fits each answer reaches when refined as far
-            # as it goes (a looser cut-off first) rank them; the answers keep their poses
-            # and their own fits, as a looser cut-off can also move a right pose on a
-            # partial scan.
-            reached = {
-                id(f): self.refine(f.pose, self.kept_source, f.kind, loose=True).score
-                for f in finals
-            }
-            finals.sort(key=lambda f: reached[id(f)], reverse=True)
-            top = reached[id(finals[0])]
-            alike = [f for f in finals if reached[id(f)] >= top - options.ambiguity_margin]
-        winner = min(alike, key=lambda f: rotation_between_deg(f.pose, np.eye(4)))
-        rival = next(
-            (
-                f
-                for f in finals
-                if f is not winner
-                and rotation_between_deg(f.pose, winner.pose) >= options.distinct_deg
-            ),
-            None,
+            finals = [Candidate(np.eye(4), "identity", fit)]
+
+        def refined_score(f: Candidate) -> float:
+            return self.refine(f.pose, self.kept_source, f.stage, loose=True).score
+
+        return arbiter.search_choice(
+            finals, options.ambiguity_margin, options.distinct_deg, self.limit, refined_score
         )
-        ambiguous = (
-            rival is not None
-            and reached[id(rival)] >= reached[id(winner)] - options.ambiguity_margin
-        )
-        return winner, rival, ambiguous
 
 
 def _short_icp_from_identity(
@@ -429,14 +409,14 @@ def _short_icp_from_identity(
 
 
 def _as_given(
-    early: list[Scored],
+    early: list[Candidate],
     start: np.ndarray,
     kept_source: np.ndarray,
     tree: Any,
     limit: float,
     options: RobustOptions,
-    refine: Callable[[np.ndarray, np.ndarray, str], Scored],
-) -> list[Scored]:
+    refine: Callable[[np.ndarray, np.ndarray, str], Candidate],
+) -> list[Candidate]:
     """The clouds as they are (``start``, their short ICP from the identity), refined: one
     more answer beside the early exit's where it fits better than they do. A symmetric
     shape's flip can pass the early exit (a noisy ModelNet40 pair: the flip fit 0.992 of
@@ -445,10 +425,10 @@ def _as_given(
     ``AS_GIVEN_GAP`` below the best (it seldom climbs that far); not kept when it fits no
     better, since a nearby local fit within the ambiguity margin would otherwise win as
     the least rotation (with noise sigma 0.02, a mean of 2.84 degrees instead of 2.31)."""
-    if any(rotation_between_deg(start, e.pose) < options.distinct_deg for e in early):
+    if arbiter.in_basin_of(start, early, options.distinct_deg):
         return []  # the early exit's own basin
-    best = max(e.score for e in early)
-    if pose_fit(tree, kept_source, start, limit).score < best - AS_GIVEN_GAP:
+    best = arbiter.best_score(early)
+    if not arbiter.within_gap(pose_fit(tree, kept_source, start, limit).score, best, AS_GIVEN_GAP):
         return []
     found = refine(start, kept_source, "as given")
-    return [found] if found.score > best else []
+    return [found] if arbiter.fits_better(found, best) else []
