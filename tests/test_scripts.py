@@ -128,13 +128,22 @@ def test_the_resume_check_is_read_as_intended():
 def test_train_shipped_resumes_from_the_checkpoint_training_writes():
     """train_shipped.sh must look for the file the training loop writes every epoch, or
     a killed step restarts from scratch instead of resuming."""
-    loop = ast.parse((ROOT / "src" / "masknet" / "training" / "loop.py").read_text())
-    saves = [
+    training = ROOT / "src" / "masknet" / "training"
+    loop = ast.parse((training / "loop.py").read_text())
+    savers = [
         node
         for node in ast.walk(loop)
+        if isinstance(node, ast.Call) and getattr(node.func, "id", None) == "Saver"
+    ]
+    assert [ast.unparse(call.args[0]) for call in savers] == ["out / CHECKPOINT"]
+    # The saver writes to that path and nowhere else.
+    epoch = ast.parse((training / "epoch.py").read_text())
+    saves = [
+        node
+        for node in ast.walk(epoch)
         if isinstance(node, ast.Call) and getattr(node.func, "id", None) == "save_checkpoint"
     ]
-    assert [ast.unparse(call.args[0]) for call in saves] == ["out / CHECKPOINT"]
+    assert [ast.unparse(call.args[0]) for call in saves] == ["self.path"]
     script = (ROOT / "scripts" / "train_shipped.sh").read_text()
     assert f'[ -f "$1/{CHECKPOINT}" ]' in resume_check(script)
     assert checkpoint_files(script) == {CHECKPOINT}
@@ -163,3 +172,22 @@ def test_a_script_given_a_missing_folder_says_so_in_one_line(tmp_path):
     assert done.returncode == 2, done.stderr
     assert len(lines) == 1 and lines[0].startswith("rounds_on_real_pair.py: error: "), lines
     assert "nowhere" in lines[0]
+
+
+def test_the_relay_command_is_one_the_cli_takes():
+    """scripts/relay.sh resumes the run with a `masknet train` line the parser accepts, into
+    the folder the script names, with mid-epoch checkpoints and --resume."""
+    import shlex
+
+    from masknet.cli import build_parser
+
+    script = (ROOT / "scripts" / "relay.sh").read_text()
+    start = script.index('"$MASKNET" train')
+    line = script[start : script.index(">>", start)].replace("\\\n", " ")
+    words = shlex.split(line.replace('"$MASKNET"', "masknet").replace('"$DATA"', "data.npz"))
+    run = re.search(r"^RUN=(\S+)$", script, flags=re.M).group(1)
+    words = [run if word == "$RUN" else word for word in words[1:]]
+    args = build_parser().parse_args(words)
+    assert args.model == "crossmasknet" and args.resume and args.checkpoint_minutes
+    assert args.output == run == "relay/crossmasknet_modelnet40"
+    assert (ROOT / run / "README.md").exists()
