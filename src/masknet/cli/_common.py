@@ -341,11 +341,12 @@ def load_model(args: argparse.Namespace, two_sided: bool = False) -> MaskNet:
     """The MaskNet of the ``model`` options; resolves ``--precision auto``.
 
     ``two_sided``: shipped names are two-sided MaskNets (``masknet2_<name>``), and a
-    ``--weights`` file may hold either kind (its metadata says which). ``--weights``
-    unset: the kind's own shipped default.
+    ``--weights`` file may hold either kind (its metadata says which). A file of
+    CrossMaskNet weights (``masknet train --model crossmasknet``) gives a CrossMaskNet,
+    which answers MaskNet's calls. ``--weights`` unset: the kind's own shipped default.
     """
 
-    from masknet.models import MaskNet
+    from masknet.models import CrossMaskNet, MaskNet
     from masknet.models.two_sided import TwoSidedMaskNet
     from masknet.models.weights import read_metadata
     from masknet.runtime import default_precision
@@ -355,8 +356,11 @@ def load_model(args: argparse.Namespace, two_sided: bool = False) -> MaskNet:
     kind = TwoSidedMaskNet if two_sided else MaskNet
     if not args.weights:
         return kind.pretrained()
-    if is_weights_file(args.weights) and two_sided:
-        if TwoSidedMaskNet._config_key() not in read_metadata(args.weights):
+    if is_weights_file(args.weights):
+        held = read_metadata(args.weights)
+        if CrossMaskNet._config_key() in held:
+            kind = CrossMaskNet  # a template mask with MaskNet's calls
+        elif two_sided and TwoSidedMaskNet._config_key() not in held:
             kind = MaskNet  # a paper MaskNet file: it masks the template only
     return load_weights(kind, args.weights)
 
