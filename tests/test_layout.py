@@ -1,6 +1,6 @@
 """The shape of the source tree: one home per idea (docs/ARCHITECTURE.md's "One of each"
-table), short functions (registration's shortest), back-ends that do not import upward, and no pose
-compared with another outside the arbiter (registration/arbiter.py)."""
+table), short functions (registration's shortest), back-ends that do not import upward,
+and no pose compared with another outside the arbiter (registration/arbiter.py)."""
 
 from __future__ import annotations
 
