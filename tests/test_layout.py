@@ -1,6 +1,6 @@
 """The shape of the source tree: one home per idea (docs/ARCHITECTURE.md's "One of each"
-table), short registration functions, back-ends that do not import upward, and no pose
-compared with another outside the arbiter (registration/arbiter.py)."""
+table), short functions (registration's shortest), back-ends that do not import upward,
+and no pose compared with another outside the arbiter (registration/arbiter.py)."""
 
 from __future__ import annotations
 
@@ -166,10 +166,38 @@ def test_no_idea_is_defined_outside_its_home(detector):
 
 
 def body_lines(fn: ast.FunctionDef) -> int:
+    """Lines from the first statement after the docstring to the function's end line."""
     body = fn.body
     if body and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant):
         body = body[1:]  # the docstring
-    return 0 if not body else body[-1].end_lineno - body[0].lineno + 1
+    return 0 if not body else fn.end_lineno - body[0].lineno + 1
+
+
+def every_function(root: Path = SRC) -> list[tuple[str, ast.AST]]:
+    """("file:line:name", node) for every function under ``root``: top-level, methods,
+    and functions nested in either."""
+    found = []
+    for path in sorted(root.rglob("*.py")):
+        name = path.relative_to(root).as_posix()
+        found += [
+            (f"{name}:{node.lineno}:{node.name}", node)
+            for node in ast.walk(ast.parse(path.read_text()))
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef)
+        ]
+    return found
+
+
+def test_no_function_body_is_over_80_lines():
+    long = {where: n for where, fn in every_function() if (n := body_lines(fn)) > 80}
+    assert not long, f"function bodies over 80 lines (split them into named helpers): {long}"
+
+
+def test_the_length_check_sees_nested_functions_and_skips_docstrings(tmp_path):
+    lines = ["class C:", "    def f(self):", '        """A docstring', *["        line"] * 30]
+    lines += ['        """', "        def g():", *[f"            x{i} = {i}" for i in range(81)]]
+    (tmp_path / "m.py").write_text("\n".join(lines) + "\n")
+    lengths = {where: body_lines(fn) for where, fn in every_function(tmp_path)}
+    assert lengths == {"m.py:2:f": 82, "m.py:35:g": 81}  # the 32 docstring lines not counted
 
 
 def test_register_and_the_registration_functions_are_short():

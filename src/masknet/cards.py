@@ -337,20 +337,7 @@ def render_refine_card(card: dict) -> str:
     residual = task["residual"]
     corruption = task["corruption"]
     test = card["test"]
-    rows = "\n".join(
-        f"| {r['set']} | {r['residual_deg']:g} | {r['rule_precision']:.3f} | "
-        f"{r['learned_precision']:.3f} | {r['rule_recall']:.3f} | {r['learned_recall']:.3f} | "
-        f"{r['rule_real_kept']:.3f} | {r['learned_real_kept']:.3f} | "
-        f"{_maybe(r['rule_outliers_removed'])} | {_maybe(r['learned_outliers_removed'])} |"
-        for r in test["rows"]
-    )
-    curve = "\n".join(
-        f"| {r['epoch']} | {float(r['lr']):.2e} | {float(r['train_loss']):.4f} | "
-        f"{float(r['val_template_precision']):.4f} | {float(r['val_scans_template_precision']):.4f} | "
-        f"{float(r['val_source_f1']):.4f} | {float(r['val_outliers_removed']):.3f} | "
-        f"{float(r['val_score']):.4f} | {float(r['epoch_min']):.1f} |"
-        for r in card["log"]
-    )
+    rows, curve = _refine_tables(card)
     version = f" v{card['version']}" if card.get("version") else ""
     scans = ", ".join(task.get("scans", [])) or "none"
     held = ", ".join(task.get("val_scans", [])) or "none"
@@ -421,6 +408,25 @@ Trained on pairs within about 45° of each other; on a pair far from aligned it 
 more than the clouds' local shapes do. It is a refinement stage: round 1 of the loop still
 needs another mask (MaskNet or the two-sided network).
 """
+
+
+def _refine_tables(card: dict) -> tuple[str, str]:
+    """The refinement card's table rows: against the rule (per set), and the training curve."""
+    rows = "\n".join(
+        f"| {r['set']} | {r['residual_deg']:g} | {r['rule_precision']:.3f} | "
+        f"{r['learned_precision']:.3f} | {r['rule_recall']:.3f} | {r['learned_recall']:.3f} | "
+        f"{r['rule_real_kept']:.3f} | {r['learned_real_kept']:.3f} | "
+        f"{_maybe(r['rule_outliers_removed'])} | {_maybe(r['learned_outliers_removed'])} |"
+        for r in card["test"]["rows"]
+    )
+    curve = "\n".join(
+        f"| {r['epoch']} | {float(r['lr']):.2e} | {float(r['train_loss']):.4f} | "
+        f"{float(r['val_template_precision']):.4f} | {float(r['val_scans_template_precision']):.4f} | "
+        f"{float(r['val_source_f1']):.4f} | {float(r['val_outliers_removed']):.3f} | "
+        f"{float(r['val_score']):.4f} | {float(r['epoch_min']):.1f} |"
+        for r in card["log"]
+    )
+    return rows, curve
 
 
 def _note(card: dict) -> str:

@@ -61,6 +61,30 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "<stem>_transform.txt (4x4, source -> template) and, with a mask, "
         "<stem>_inliers<ext> (the template points used)",
     )
+    _add_method_options(p)
+    _add_round_options(p)
+    _add_mask_options(p)
+    p.add_argument(
+        "--exit-zero",
+        action="store_true",
+        help="exit 0 even when the verdict is likely wrong (default: exit 3)",
+    )
+    _add_scene_options(p)
+    add_file_options(p)
+    add_model_options(
+        p,
+        default_weights=None,
+        default_text="modelnet40_small for the default method's fast path, modelnet40 for "
+        "--method icp; with --two-sided, --iterations above 1 or --method robust the "
+        "two-sided scans; give it twice for a learned --method: the mask's and the "
+        "network's file (masknet train --model NAME)",
+        several=True,
+    )
+    add_old_spelling(p, "--network-weights", "--weights FILE", "weights", append=True)
+
+
+def _add_method_options(p: argparse.ArgumentParser) -> None:
+    """``--method``, ``--no-mask`` and ``--two-sided``: which registration, masked how."""
     p.add_argument(
         "--method",
         choices=list(METHODS),
@@ -83,6 +107,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "are dropped before registering; writes <stem>_source_mask.txt, one 0/1 per "
         "source point",
     )
+
+
+def _add_round_options(p: argparse.ArgumentParser) -> None:
+    """``--iterations``, ``--refine-masks``, ``--max-iterations`` and ``--option``: the
+    rounds and the method's own settings."""
     p.add_argument(
         "--iterations",
         type=positive_int,
@@ -117,6 +146,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "relative_rmse=1e-6 for icp (masknet.registration.options lists them); the flags "
         "above win over the same name here",
     )
+
+
+def _add_mask_options(p: argparse.ArgumentParser) -> None:
+    """Round 1's mask (``--k`` or ``--mask-threshold``; the former ``--threshold``), the
+    plain-ICP end (``--refine``), each round's start (``--init``) and the pair cut-off."""
     mask = p.add_mutually_exclusive_group()
     mask.add_argument(
         "--k",
@@ -134,6 +168,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     mask.add_argument(  # the former name, read as Open3D's threshold by some: one version more
         "--threshold", type=finite_float, dest="deprecated_threshold", help=argparse.SUPPRESS
     )
+
     p.add_argument(
         "--refine",
         type=int,
@@ -159,11 +194,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "max_correspondence_distance; default: 1.5 template spacings for the fit, the "
         "method's own rule for ICP)",
     )
-    p.add_argument(
-        "--exit-zero",
-        action="store_true",
-        help="exit 0 even when the verdict is likely wrong (default: exit 3)",
-    )
+
+
+def _add_scene_options(p: argparse.ArgumentParser) -> None:
+    """``--max-points``, ``--scene`` and ``--viewpoint``: large clouds and scene search."""
     p.add_argument(
         "--max-points",
         type=at_least_three,
@@ -189,17 +223,6 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "a depth frame in camera coordinates); then only the side of TEMPLATE facing it "
         "must lie on the scan, so a full 360-degree model can be found",
     )
-    add_file_options(p)
-    add_model_options(
-        p,
-        default_weights=None,
-        default_text="modelnet40_small for the default method's fast path, modelnet40 for "
-        "--method icp; with --two-sided, --iterations above 1 or --method robust the "
-        "two-sided scans; give it twice for a learned --method: the mask's and the "
-        "network's file (masknet train --model NAME)",
-        several=True,
-    )
-    add_old_spelling(p, "--network-weights", "--weights FILE", "weights", append=True)
 
 
 def scene_option(

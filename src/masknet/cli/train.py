@@ -64,6 +64,17 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="constant (default) or cosine decay over the epochs",
     )
     p.add_argument("--loss", choices=["mse", "bce"], default="mse", help="masknet only")
+    _add_network_options(p)
+    _add_pair_count_options(p)
+    _add_run_options(p)
+    _add_start_options(p)
+    add_pair_options(p)
+    _scans.add_train_options(p)
+
+
+def _add_network_options(p: argparse.ArgumentParser) -> None:
+    """``--feature-size``, ``--iterations``, ``--model-config`` and ``--precision``: the
+    network's shape and number format."""
     p.add_argument(
         "--feature-size",
         type=positive_int,
@@ -94,6 +105,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="autocast dtype; auto = bf16 where the hardware has it (masknet only: the "
         "registration networks train in fp32)",
     )
+
+
+def _add_pair_count_options(p: argparse.ArgumentParser) -> None:
+    """``--num-points``, ``--val-fraction``, ``--val-pairs`` and ``--seed``: how many points,
+    shapes and pairs, drawn how."""
     p.add_argument(
         "--num-points", type=positive_int, default=1024, help="template points per training pair"
     )
@@ -107,6 +123,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="validation pairs made from those shapes",
     )
     p.add_argument("--seed", type=seed, default=0, help="seed of pairs and weights (default 0)")
+
+
+def _add_run_options(p: argparse.ArgumentParser) -> None:
+    """``--device``, ``--threads``, the time limits and ``--resume``: where and how long
+    the run goes."""
     p.add_argument(
         "--device", default="auto", help="auto (default: a GPU if there is one), cpu, cuda, ..."
     )
@@ -123,6 +144,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "run stands and exits; --resume goes on from there)",
     )
     p.add_argument("--resume", action="store_true", help="continue the checkpoint in OUTDIR")
+
+
+def _add_start_options(p: argparse.ArgumentParser) -> None:
+    """``--init``, ``--template-mask`` and ``--distill``: the weights a run starts from or
+    learns beside."""
     p.add_argument(
         "--init",
         help="start from these weights, e.g. to fine-tune: a .safetensors file or the name "
@@ -148,8 +174,6 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         default=0.5,
         help="the teacher's share of the target with --distill, in [0, 1] (default 0.5)",
     )
-    add_pair_options(p)
-    _scans.add_train_options(p)
 
 
 class TrainSetup(NamedTuple):

@@ -219,16 +219,7 @@ def _fit(
         "shapes": {"train": len(train_idx), "val": len(val_idx)},
     }
 
-    torch.manual_seed(config.seed)
-    model = task.build_model().to(device)
-    if init_weights is not None:
-        _load_init(model, init_weights)
-    train_model: nn.Module = model
-    if world > 1:
-        if device.type == "cuda":
-            model = nn.SyncBatchNorm.convert_sync_batchnorm(model)
-        train_model = nn.parallel.DistributedDataParallel(model)
-    optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
+    model, train_model, optimizer = _build_model(task, config, init_weights, device, world)
     run = RunState()
     if resume and ckpt_path.exists():
         run = resume_run(ckpt_path, model, optimizer, device, run_info, config.epochs, lead)
@@ -283,6 +274,30 @@ def _fit(
             ):
                 break
     return run.history
+
+
+def _build_model(
+    task: Task,
+    config: TrainConfig,
+    init_weights: nn.Module | None,
+    device: torch.device,
+    world: int,
+) -> tuple[nn.Module, nn.Module, torch.optim.Optimizer]:
+    """(model, the module to train, its Adam): the task's model, seeded, on ``device`` and
+    started from ``init_weights``; with several processes the trained module wraps it in
+    DistributedDataParallel (and its BatchNorm syncs across GPUs), while the model itself
+    is what is saved and validated."""
+    torch.manual_seed(config.seed)
+    model = task.build_model().to(device)
+    if init_weights is not None:
+        _load_init(model, init_weights)
+    train_model: nn.Module = model
+    if world > 1:
+        if device.type == "cuda":
+            model = nn.SyncBatchNorm.convert_sync_batchnorm(model)
+        train_model = nn.parallel.DistributedDataParallel(model)
+    optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
+    return model, train_model, optimizer
 
 
 def _load_init(model: nn.Module, init_weights: nn.Module) -> None:
