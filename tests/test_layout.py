@@ -78,14 +78,54 @@ def counts_inliers(node: ast.AST) -> bool:
     return False
 
 
+def _norm_points(node: ast.AST) -> ast.AST | None:
+    """The points of a norm call (``np.linalg.norm(x, ...)``: x; ``x.norm(...)``: x), or
+    None where ``node`` is no norm call."""
+    if not (isinstance(node, ast.Call) and _called(node) == "norm"):
+        return None
+    func = node.func
+    numpy = isinstance(func, ast.Name) or (
+        isinstance(func.value, ast.Attribute | ast.Name)
+        and (func.value.attr if isinstance(func.value, ast.Attribute) else func.value.id)
+        in {"linalg", "np", "numpy"}
+    )
+    if numpy:
+        return node.args[0] if node.args else None
+    return func.value
+
+
+def _reduced(call: ast.Call) -> ast.AST | None:
+    """What a reduction reduces: its receiver (``x.max()``), or the first argument of a
+    module's function (``np.max(x)``); None for a builtin's ``max(a, b)``."""
+    func = call.func
+    if not isinstance(func, ast.Attribute):
+        return None
+    if isinstance(func.value, ast.Name) and func.value.id in {"np", "numpy", "torch"}:
+        return call.args[0] if call.args else None
+    return func.value
+
+
+def _less_its_mean(node: ast.AST) -> bool:
+    """``p - p.mean(...)``: points less their centroid."""
+    return (
+        isinstance(node, ast.BinOp)
+        and isinstance(node.op, ast.Sub)
+        and "mean" in called_names(node.right)
+    )
+
+
 def defines_radius(node: ast.AST) -> bool:
     """A cloud's radius: the largest or the RMS distance of its points from a centre
-    (``norm(p - c).max()``, ``sqrt(((p - c) ** 2).sum(-1).mean())``)."""
+    (``norm(p - c).max()``, ``sqrt(((p - c) ** 2).sum(-1).mean())``), also where the points
+    were centred before (``norm(centred, axis=1).max()``, ``x.norm(dim=-1).amax(1)``), and
+    their mean distance from their centroid (``norm(p - p.mean(0), axis=1).mean()``). The
+    largest norm of a difference of two clouds (an error) is none."""
     for n in ast.walk(node):
         if not (isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute | ast.Name)):
             continue
-        name = n.func.attr if isinstance(n.func, ast.Attribute) else n.func.id
-        for inner in [*n.args, *([n.func.value] if isinstance(n.func, ast.Attribute) else [])]:
+        name = _called(n)
+        receiver = [n.func.value] if isinstance(n.func, ast.Attribute) else []
+        for inner in [*n.args, *receiver]:
             called = called_names(inner)
             centred = any(
                 isinstance(b, ast.BinOp) and isinstance(b.op, ast.Sub) for b in ast.walk(inner)
@@ -93,6 +133,62 @@ def defines_radius(node: ast.AST) -> bool:
             if name in {"max", "amax"} and "norm" in called and centred:
                 return True
             if name == "sqrt" and "mean" in called and centred:
+                return True
+            if inner is not _reduced(n):
+                continue
+            points = _norm_points(inner)
+            if points is None or name not in {"max", "amax", "mean"}:
+                continue
+            if _less_its_mean(points):  # the mean distance too
+                return True
+            if name != "mean" and isinstance(points, ast.Name | ast.Attribute):
+                return True  # points centred before
+    return False
+
+
+def cosine_from_trace(node: ast.AST) -> bool:
+    """A rotation's cosine from its trace, ``(trace - 1) / 2`` (then an arccos, or a test
+    against a cosine): the trace a name ``trace``, or ``np.trace``, ``einsum``,
+    ``diagonal`` of the matrices."""
+    for n in ast.walk(node):
+        if not (isinstance(n, ast.BinOp) and isinstance(n.op, ast.Div)):
+            continue
+        left, right = n.left, n.right
+        if not (isinstance(right, ast.Constant) and right.value == 2):
+            continue
+        if not (isinstance(left, ast.BinOp) and isinstance(left.op, ast.Sub)):
+            continue
+        if not (isinstance(left.right, ast.Constant) and left.right.value == 1):
+            continue
+        names = called_names(left.left) | {
+            m.id for m in ast.walk(left.left) if isinstance(m, ast.Name)
+        }
+        if names & {"trace", "einsum", "diagonal", "diag"}:
+            return True
+    return False
+
+
+CUTOFF_SPACINGS = {"DEFAULT_SPACINGS", "FIT_SPACINGS"}
+
+
+def _named(node: ast.AST) -> str:
+    if isinstance(node, ast.Name):
+        return node.id
+    return node.attr if isinstance(node, ast.Attribute) else ""
+
+
+def sets_inlier_cutoff(node: ast.AST) -> bool:
+    """The inlier cut-off of a cloud: ``DEFAULT_SPACINGS`` (or its alias ``FIT_SPACINGS``)
+    times anything, or ``1.5`` times a spacing (a name holding "spacing", a call of
+    ``median_spacing``)."""
+    for n in ast.walk(node):
+        if not (isinstance(n, ast.BinOp) and isinstance(n.op, ast.Mult)):
+            continue
+        for factor, other in ((n.left, n.right), (n.right, n.left)):
+            if _named(factor) in CUTOFF_SPACINGS:
+                return True
+            spacing = any("spacing" in _named(m).lower() for m in ast.walk(other))
+            if isinstance(factor, ast.Constant) and factor.value == 1.5 and spacing:
                 return True
     return False
 
@@ -108,7 +204,9 @@ DETECTORS = {
             "turn about the vertical, in a report",
             "turn of the principal axes (a lower bound of a pair's rotation)",
         },
-        lambda fn: bool(called_names(fn) & {"arccos", "acos", "arctan2", "atan2"}),
+        lambda fn: (
+            bool(called_names(fn) & {"arccos", "acos", "arctan2", "atan2"}) or cosine_from_trace(fn)
+        ),
     ),
     "rigid solve": (
         {"rigid solve, torch (weighted Kabsch)", "rigid solve, numpy (the same solve)"},
@@ -130,9 +228,13 @@ DETECTORS = {
         {
             "radius of a cloud (the networks' scale)",
             "RMS radius (the frame's scale, the verdict's shifts)",
-            "largest distance from the centroid (the robust search's scale, the peers' voxels)",
+            "largest distance from the centroid (the robust search's scale)",
         },
         defines_radius,
+    ),
+    "inlier cut-off": (
+        {"the inlier cut-off of a cloud (1.5 of its spacings)"},
+        sets_inlier_cutoff,
     ),
     "Open3D cloud": (
         {"an Open3D point cloud from arrays (the one builder)"},
@@ -155,14 +257,71 @@ def test_every_home_in_the_table_exists(idea, file, name):
     assert hasattr(module, name), f"{idea}: {file} has no {name}"
 
 
+# (detector, file:function) -> why that definition stays outside the idea's home.
+ELSEWHERE = {
+    ("radius", "data/modelnet.py:normalize_unit_sphere"): (
+        "ModelNet40's shapes are float32: unit_radius's float64 radius moves them by up to "
+        "1.2e-7 (a float32 step), and every figure was measured on the shapes as they are"
+    ),
+    ("inlier cut-off", "registration/assessment.py:prepare_check"): (
+        "the verdict's cut-off, on the larger of the two clouds' spacings; it goes through "
+        "options.inlier_cutoff with the verdict's next change"
+    ),
+}
+
+
 @pytest.mark.parametrize("detector", sorted(DETECTORS))
 def test_no_idea_is_defined_outside_its_home(detector):
     ideas, marks = DETECTORS[detector]
     homes = {f"{file}:{name}" for idea, file, name in one_of_each() if idea in ideas}
     assert homes, f"no row of the table is a {detector}"
     found = {where for where, fn in top_level_functions() if marks(fn)}
-    assert found - homes == set(), f"a {detector} outside the table: {sorted(found - homes)}"
+    allowed = {where for kind, where in ELSEWHERE if kind == detector}
+    outside = found - homes - allowed
+    assert outside == set(), f"a {detector} outside the table: {sorted(outside)}"
+    assert allowed <= found, f"listed in ELSEWHERE but gone: {sorted(allowed - found)}"
     assert found, f"the {detector} detector finds nothing: it no longer sees its idea"
+
+
+def _marked(detector: str, code: str) -> bool:
+    return DETECTORS[detector][1](ast.parse(code).body[0])
+
+
+@pytest.mark.parametrize(
+    ("detector", "code"),
+    [
+        ("radius", "def f(p):\n    return np.linalg.norm(p - p.mean(0), axis=1).max()"),
+        ("radius", "def f(p):\n    c = p - p.mean(0)\n    return np.linalg.norm(c, axis=1).max()"),
+        ("radius", "def f(p):\n    return float(np.max(np.linalg.norm(p, axis=1)))"),
+        ("radius", "def f(p):\n    return p.norm(dim=-1).amax(1)"),
+        ("radius", "def f(p):\n    return np.linalg.norm(p - p.mean(0), axis=1).mean()"),
+        ("rotation angle", "def f(a, b):\n    return np.arccos((np.trace(a.T @ b) - 1) / 2)"),
+        (
+            "rotation angle",
+            "def f(p, r, c):\n    return (np.einsum('hij,ij->h', p, r) - 1) / 2 > c",
+        ),
+        ("inlier cut-off", "def f(t):\n    return FIT_SPACINGS * median_spacing(t)"),
+        ("inlier cut-off", "def f(pair):\n    return DEFAULT_SPACINGS * pair.spacing"),
+        ("inlier cut-off", "def f(t):\n    return 1.5 * median_spacing(t)"),
+        ("inlier cut-off", "def f(spacing):\n    return spacing * 1.5"),
+    ],
+)
+def test_each_detector_sees_a_planted_definition(detector, code):
+    assert _marked(detector, code)
+
+
+@pytest.mark.parametrize(
+    ("detector", "code"),
+    [
+        ("radius", "def f(v):\n    return v / max(np.linalg.norm(v), 1e-12)"),
+        ("radius", "def f(a, b):\n    return np.linalg.norm(a - b, axis=1).mean()"),
+        ("rotation angle", "def f(n, w):\n    return w * (n - 1) / 2"),
+        ("inlier cut-off", "def f(voxel):\n    return 1.5 * voxel"),
+        ("inlier cut-off", "def f(spacing):\n    return 2.0 * spacing"),
+    ],
+)
+def test_each_detector_passes_over_what_defines_nothing(detector, code):
+    assert not _marked(detector, code)
 
 
 def body_lines(fn: ast.FunctionDef) -> int:

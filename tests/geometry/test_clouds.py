@@ -8,13 +8,23 @@ import torch
 
 from masknet.errors import MaskNetError
 from masknet.geometry import MIN_POINTS, as_cloud_batch, median_spacing, unit_radius
-from masknet.geometry.clouds import principal_turn_deg
+from masknet.geometry.clouds import centroid_radius, principal_turn_deg
 
 
 def test_unit_radius():
     pts = torch.tensor([[[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [1.0, 3.0, 0.0], [1.0, -1.0, 0.0]]])
     # Bounding-box centre (1, 1, 0); farthest point (1, -1, 0) or (1, 3, 0) at distance 2.
     torch.testing.assert_close(unit_radius(pts), torch.tensor([2.0]))
+
+
+def test_centroid_radius_numpy_and_torch_alike():
+    pts = np.array([[[0.0, 0.0, 0.0], [4.0, 0.0, 0.0], [0.0, 4.0, 0.0], [0.0, 0.0, 4.0]]])
+    # Centroid (1, 1, 1): the corners (4, 0, 0) ... lie sqrt(9 + 1 + 1) from it.
+    np.testing.assert_allclose(centroid_radius(pts), [np.sqrt(11.0)])
+    torch.testing.assert_close(
+        centroid_radius(torch.from_numpy(pts)), torch.tensor([11.0]).sqrt().double()
+    )
+    assert centroid_radius(torch.from_numpy(pts).float()).dtype == torch.float32
 
 
 CLOUD = np.random.default_rng(0).random((2, 40, 3))  # usable clouds (3-D, no warning)

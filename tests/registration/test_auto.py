@@ -11,6 +11,7 @@ from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_
 from masknet.evaluation.registration import pose_errors
 from masknet.geometry.clouds import principal_turn_deg
 from masknet.registration.options import RobustOptions
+from masknet.registration.result import AUTO_INFO
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -95,3 +96,13 @@ def test_an_object_flip_that_fits_0_99_is_not_taken_by_the_fast_path():
         result = register(template, source, options=RobustOptions(object_accept_fitness=accept))
         errors[accept] = pose_errors(result.transform[None], truth[37:38])[0][0]
     assert errors[0.99] > 90 and errors[0.993] < 1e-3, errors
+
+
+def test_the_consensus_answer_reports_the_same_keys_as_the_other_paths():
+    """A sparse template (512 points) ends at the consensus front end; its info has the
+    keys of every other path of the default, in the same order."""
+    shape = load_modelnet40(bundled_sample_path(), "test").points[3, :512].astype(np.float64)
+    turn = np.array([[0.98, -0.17, 0.0], [0.17, 0.98, 0.0], [0.0, 0.0, 1.0]])
+    result = register(shape, shape @ turn.T + 0.1)
+    assert str(result.info["path"]) == "consensus"
+    assert list(result.info) == list(AUTO_INFO)

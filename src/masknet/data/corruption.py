@@ -24,6 +24,7 @@ from torch import Tensor
 
 from masknet.data.pairs import Pairs, uniform_outliers
 from masknet.geometry import random_rotation
+from masknet.geometry.clouds import centroid_radius
 
 __all__ = ["CorruptionConfig", "corrupt_source"]
 
@@ -88,10 +89,10 @@ def corrupt_source(pairs: Pairs, config: CorruptionConfig, generator: torch.Gene
         counts = torch.where(cluttered, (fraction * m).round().long(), 0)
         slots = _slots(b, m, counts, generator)
         other = pairs.template.roll(1, dims=0)  # another object of the batch
+        other_radius = centroid_radius(other).clamp_min(1e-9)[:, None, None]
         other = other - other.mean(1, keepdim=True)
         rot = random_rotation(b, 180.0, generator)
         scale = 0.5 + 0.5 * torch.rand(b, 1, 1, generator=generator)
-        other_radius = other.norm(dim=-1).amax(1).clamp_min(1e-9)[:, None, None]
         other = other @ rot.transpose(1, 2) / other_radius * radius * scale
         direction = torch.randn(b, 1, 3, generator=generator)
         direction = direction / direction.norm(dim=-1, keepdim=True).clamp_min(1e-9)

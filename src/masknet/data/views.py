@@ -35,6 +35,7 @@ from scipy.spatial import ConvexHull, QhullError
 from scipy.spatial.transform import Rotation
 
 from masknet.data.pairs import Pairs
+from masknet.geometry.clouds import unit_radius
 
 __all__ = [
     "ViewConfig",
@@ -106,9 +107,7 @@ def normalize_cloud(points: np.ndarray) -> np.ndarray:
     """
     points = np.asarray(points, dtype=np.float64)
     mid = (points.max(0) + points.min(0)) / 2
-    centred = points - mid
-    radius = max(float(np.linalg.norm(centred, axis=1).max()), 1e-12)
-    return (centred / radius).astype(np.float32)
+    return ((points - mid) / unit_radius(points)).astype(np.float32)
 
 
 def hidden_point_removal(points: np.ndarray, viewpoint: np.ndarray) -> np.ndarray:

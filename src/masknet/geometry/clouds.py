@@ -46,11 +46,14 @@ def unit_radius(points: Any) -> Any:
     return np.maximum(np.linalg.norm(points - mid, axis=-1).max(-1), 1e-12)
 
 
-def centroid_radius(points: np.ndarray) -> np.ndarray:
-    """The largest distance of points from their centroid: (..., N, 3) -> (...), float64.
-    The robust search's scale (its feature grids and basins), the peers' voxel sweep and
-    the success criteria are in it; :func:`unit_radius` (about the bounding-box centre) is
-    the networks' scale."""
+def centroid_radius(points: Any) -> Any:
+    """The largest distance of points from their centroid: (..., N, 3) -> (...), numpy
+    (float64) or torch (its dtype). The robust search's scale (its first feature grid and
+    its basins), the benchmark's voxel sweep of small_gicp, the success criteria, the
+    scene search's reach and the training clutter's size are in it; :func:`unit_radius`
+    (about the bounding-box centre) is the networks' scale."""
+    if isinstance(points, Tensor):
+        return (points - points.mean(-2, keepdim=True)).norm(dim=-1).amax(-1)
     points = np.asarray(points, dtype=np.float64)
     return np.linalg.norm(points - points.mean(-2, keepdims=True), axis=-1).max(-1)
 

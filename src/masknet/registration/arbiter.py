@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple, TypeVar
 
 import numpy as np
 
-from masknet.geometry.se3 import transform_points
+from masknet.geometry.se3 import rotation_angle_deg, transform_points
 from masknet.registration.fit import FIT_SLACK
 from masknet.registration.hypotheses import rotation_between_deg
 
@@ -321,13 +321,12 @@ def most_matched(
     one already chosen, at most ``keep`` (greedy, vectorised over all poses)."""
     open_ = np.ones(len(poses), bool)
     chosen: list[int] = []
-    cos_limit = np.cos(np.radians(degrees))
     while len(chosen) < keep and open_.any():
         i = int(np.flatnonzero(open_)[np.argmax(counts[open_])])
         chosen.append(i)
-        cos = (np.einsum("hij,ij->h", poses[:, :3, :3], poses[i, :3, :3]) - 1) / 2
+        turn = rotation_angle_deg(poses[:, :3, :3] @ poses[i, :3, :3].T)
         near_pose = np.linalg.norm(poses[:, :3, 3] - poses[i, :3, 3], axis=1) < reach
-        open_ &= ~((cos > cos_limit) & near_pose)
+        open_ &= ~((turn < degrees) & near_pose)
     return chosen
 
 

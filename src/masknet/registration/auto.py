@@ -1,50 +1,64 @@
-"""``method="auto"``, the default: a checked fast path for objects, the consensus front end
-first for scans and sparse clouds, and ``robust`` where they do not settle the pair.
+"""``method="auto"``, the default: the stages of one pair, in the order they run, each
+with the condition under which it runs. Each choice between poses is a rule of
+:mod:`masknet.registration.arbiter`.
 
-1. **Fast path.** One round of the paper's Mask-ICP (MaskNet's template mask, by default
-   the small ``masknet_modelnet40_small``; the source centroid onto the masked template's
-   centroid, 10 iterations of ICP), then ICP with pairs cut at
-   ``max_correspondence_distance`` (1.5 template spacings): a geometric inlier mask, once
-   the clouds are close (the nearest-neighbour refinement rule). A pose that fits but is
-   still moving when ICP's iterations run out gets them once more.
-2. **Check.** On even subsets of the clouds
-   (:func:`masknet.registration.prepared.prepare_pair`), the fit of the result: the share of
-   the source's surface points within 1.5 template spacings of the template
-   (:func:`masknet.registration.prepared.pose_fit`). Stray outliers do not count: points
-   without two others within 2 template spacings, and points beside a surface (no other
-   point within 1.5 spacings, off their neighbours' plane), each test unless it drops over
-   5% of the points (:func:`masknet.registration.prepared.check_points`).
-   A correct result fits at least ``accept_fitness`` (``object_accept_fitness`` on
-   templates between the sparse and the scans' sizes, where a near-symmetric shape's flip
-   fits 0.990); a result stopped at a wrong pose fits less.
-3. **Escalation.** Below that, the coarse-to-fine pipeline of ``method="robust"``
-   (:mod:`masknet.registration.robust.search`) runs, and the fast path's result takes
-   part as one more hypothesis (it wins if it fits best); on scans an ``uncertain``
-   consensus (below) replaces the search's answer where the verdict ranks it higher (the
-   search's one-way score can prefer a pose slid along a wall on sparse scans).
+0. **Scene search** (before this module, in :mod:`masknet.registration.pipeline`), for
+   one pair whose source is ``scene_ratio`` (3) times as spread out as the template
+   (:func:`~masknet.registration.scene.is_scene`): :func:`~masknet.registration.scene.locate`
+   finds the template in the scene, and Mask-ICP (``"icp"``) from the pose found, then
+   the polish at full resolution, run instead of the stages below: path
+   ``"scene search"``. Where it finds nothing to register, the stages below run.
+1. **Size.** A template of ``consensus_from`` points or more is a scan's, one of fewer
+   than ``consensus_below`` sparse, one between them an object
+   (:meth:`~masknet.registration.options.RobustOptions.is_scan`, ``is_sparse``,
+   ``is_object``).
+2. **Consensus front end**, for scans and sparse clouds (``consensus_points`` > 0)
+   (:mod:`masknet.registration.robust.consensus`: a voxel budget, RANSAC on FPFH matches,
+   point-to-plane ICP, the verdict). The pose as given is refined and judged first
+   (``start="first"``: a ``likely correct`` pose ends the call before the features and
+   RANSAC), except on scans of ``CONSENSUS_FIRST`` times ``consensus_from`` points or
+   more (that large it is seldom right, and its refinement costs what RANSAC does);
+   else it competes with RANSAC's poses (a symmetric shape fits a flip as well). A
+   ``likely correct`` answer (``arbiter.settles``) ends the call: path ``"consensus"``.
+   On views of objects in real scans the pose as given, refined, ends most calls at a
+   third of the fast path's cost; on sparse clouds the fast path holds on a fifth to a
+   third of the pairs and the search costs 4-6 times the front end.
+3. **Principal-axes gate**, for objects (``search_first_turn_deg`` not None): a source
+   whose principal axes are turned ``search_first_turn_deg`` or more from the
+   template's goes to the search (stage 5) without the fast path, which starts from the
+   pose as given and seldom holds that far off.
+4. **Fast path**, otherwise. One round of the paper's Mask-ICP on the networks' clouds
+   (MaskNet's template mask, by default the small ``masknet_modelnet40_small``; the
+   source centroid onto the masked template's centroid, 10 iterations of ICP), then ICP
+   with pairs cut at ``max_correspondence_distance`` (1.5 template spacings) on the
+   pair prepared once (:func:`masknet.registration.prepared.prepare_pair`: even subsets),
+   and the check: the share of the source's surface points within 1.5 template spacings
+   of the template (:func:`masknet.registration.fit.pose_fit`). Stray outliers do not
+   count: points without two others within 2 template spacings, and points beside a
+   surface (no other point within 1.5 spacings, off their neighbours' plane), each test
+   unless it drops over 5% of the points
+   (:func:`masknet.registration.prepared.check_points`). A fit of at least
+   ``accept_fitness`` (``object_accept_fitness`` on objects, where a near-symmetric
+   shape's flip fits 0.990) ends the call (``arbiter.accepts``): path ``"fast"``. A pose
+   that fits but was still moving when ICP's iterations ran out gets them once more.
+5. **Search**, where the fast path's fit is lower (or the gate sent the pair): the
+   coarse-to-fine pipeline of ``method="robust"``
+   (:mod:`masknet.registration.robust.search`) on the same prepared pair: path
+   ``"robust/correspondences"`` (its early exit) or ``"robust/search"``. The fast
+   path's pose takes part: where it fits better (``arbiter.fits_better``) it is the
+   answer after all (path ``"fast"``), ambiguous where one of the search's poses lies
+   elsewhere and fits about as well (``arbiter.close_rival``).
+6. **Scans' consensus**, on scans whose front end ended ``uncertain``
+   (``arbiter.may_compete``): the verdict judges the search's answer, and the consensus
+   pose replaces it where it ranks higher (``arbiter.ranks_higher``; the search's
+   one-way score can prefer a pose slid along a wall): path ``"robust/consensus"``. Not
+   on sparse clouds: there the verdict rated right search answers below consensus poses
+   60-180 degrees off.
 
-Scans (templates of ``consensus_from`` points or more) and sparse clouds (fewer than
-``consensus_below``) try the consensus front end
-(:mod:`masknet.registration.robust.consensus`: a voxel budget, RANSAC on FPFH matches,
-point-to-plane ICP, the verdict) before the fast path, and its ``likely correct`` pose ends
-the call; the networks' clouds are sampled only when a network runs. There the pose as
-given is refined and judged first (``start="first"``: `likely correct` ends the call before
-the features and RANSAC) and else competes with RANSAC's (a symmetric shape fits a flip as
-well); scans of ``CONSENSUS_FIRST`` times ``consensus_from`` points or more skip it. On
-sparse clouds the fast path holds on a fifth to a third of the pairs and the search costs
-4-6 times the front end; on views of objects in real scans the pose as given, refined,
-ends most calls at a third of the fast path's cost. On sparse clouds an ``uncertain``
-consensus does not compete with the search's answer (the verdict rated right search
-answers below consensus poses 60-180 degrees off).
-
-Between those sizes (objects), a source whose principal axes are turned
-``search_first_turn_deg`` or more from the template's goes to the search first: the fast
-path starts from the pose as given and seldom holds that far off.
-
-``info["path"]`` says which ran (:data:`PATHS`: ``"fast"``, ``"consensus"``,
-``"robust/consensus"``, ``"robust/correspondences"`` and ``"robust/search"``, or
-``"scene search"`` where :func:`masknet.register` found the template in a scan first), and
-``info["escalated_fitness"]`` the fast path's fit that sent it on (NaN when it did not).
+The networks' clouds are sampled on first use, so a call the consensus ends never
+samples them. ``info`` holds :data:`~masknet.registration.result.AUTO_INFO`: ``path``
+says which stage answered (:data:`PATHS`) and ``escalated_fitness`` the fast path's fit
+that sent the pair on (NaN where the fast path did not run or sufficed).
 """
 
 from __future__ import annotations
@@ -64,10 +78,11 @@ from masknet.registration import arbiter
 from masknet.registration.arbiter import Candidate
 from masknet.registration.assessment import judge
 from masknet.registration.backends.base import MaskModels, PipelineRun
-from masknet.registration.fit import FIT_SPACINGS, PoseFit, covered_points, pose_fit
+from masknet.registration.fit import PoseFit, covered_points, pose_fit
 from masknet.registration.icp import icp
-from masknet.registration.options import ICPCriteria, RobustOptions
+from masknet.registration.options import ICPCriteria, RobustOptions, inlier_cutoff
 from masknet.registration.prepared import PreparedPair, check_points, prepare_pair
+from masknet.registration.result import PipelineInfo, info_arrays
 from masknet.registration.robust import NetworkMasks, pipeline_run
 from masknet.registration.robust.consensus import ConsensusRun, consensus_register
 from masknet.registration.robust.search import REFINE_TOLERANCE, coarse_to_fine
@@ -213,8 +228,8 @@ def _fast_path(
     times: dict[str, float],
     precision: str,
 ) -> _Fast:
-    """Step 1 and 2 of the module docstring: Mask-ICP on the networks' clouds, ICP with
-    the pair cut-off at full resolution, and the check of its fit."""
+    """Stage 4 of the module docstring: Mask-ICP on the networks' clouds, ICP with the
+    pair cut-off at full resolution, and the check of its fit."""
     icp_options = ICPCriteria()  # the paper's Mask-ICP: 10 iterations, all pairs
     template_net, source_net = nets.clouds()
     fast = mask_and_register(
@@ -223,6 +238,7 @@ def _fast_path(
     tic = time.perf_counter()
     prepared = prepare_pair(template, source, options.fine_points)
     fine_template, tree, spacing, fine, surface = prepared[:5]
+    limit = inlier_cutoff(spacing)  # the fit's cut-off, on the prepared pair
     source_mask = None
     if fast.source_mask is not None:  # a two-sided network: its kept points, spread
         source_mask = spread_labels(source, source_net[0], fast.source_mask[0])
@@ -245,10 +261,10 @@ def _fast_path(
             template_tree=tree,
         )
         pose, converged = sol.transform[0], bool(sol.converged[0])
-        fit = pose_fit(tree, kept, pose, FIT_SPACINGS * spacing)
+        fit = pose_fit(tree, kept, pose, limit)
         right = fit.fitness
         if len(checked) >= 3:  # the verdict counts only points with neighbours enough
-            right = pose_fit(tree, checked, pose, FIT_SPACINGS * spacing).fitness
+            right = pose_fit(tree, checked, pose, limit).fitness
         return pose, fit, right, converged
 
     transform, fit, right, converged = refined(fast.transform[0])
@@ -269,7 +285,7 @@ def _fast_path(
             seen = source if source_mask is None else source[source_mask]
             seen = seen if len(seen) >= MIN_POINTS else kept
             moved = transform_points(transform, seen)
-            mask = covered_points(template, moved, FIT_SPACINGS * spacing)[None]
+            mask = covered_points(template, moved, limit)[None]
         info = _info("fast", fit, np.nan)
         accepted = PipelineRun(
             transform[None], mask, None if source_mask is None else source_mask[None], info
@@ -289,8 +305,8 @@ def _escalate(
     times: dict[str, float],
     precision: str,
 ) -> PipelineRun:
-    """Step 3 of the module docstring: the coarse-to-fine search, the fast path's pose one
-    more answer (``fast`` None: a pair sent to the search first)."""
+    """Stage 5 of the module docstring: the coarse-to-fine search, the fast path's pose one
+    more answer (``fast`` None: a pair the principal-axes gate sent to the search)."""
     reuse = fast is not None and fast.mask is not None
     if search_model is not None and search_model is model and reuse:
         # The fast path's network is the search's: its masks serve again.
@@ -358,7 +374,7 @@ def _consensus_run(
     with a two-sided one (a source mask asked for) the source points the pose lays on the
     template."""
     grid_template, grid_source = found.template_grid, found.source_grid
-    limit = FIT_SPACINGS * median_spacing(grid_template, sample=2048)
+    limit = inlier_cutoff(median_spacing(grid_template, sample=2048))
     fit = pose_fit(cloud_tree(grid_template), grid_source, found.transform, limit)
     mask = source_mask = None
     if model is not None:  # on the grid, each template point taking its grid point's label
@@ -374,20 +390,21 @@ def _consensus_run(
 
 
 def _info(path: str, fit: PoseFit, escalated: float) -> dict[str, np.ndarray]:
-    """The info of a fast-path result, with the keys of the robust pipeline's."""
-    return {
-        "path": np.array([path]),
-        "source": np.array(["fast"]),
-        "fitness": np.array([fit.fitness]),
-        "inlier_rmse": np.array([fit.rmse]),
-        "ambiguous": np.array([False]),
-        "runner_up_fitness": np.array([np.nan]),
-        "score": np.array([fit.score]),
-        "runner_up_score": np.array([np.nan]),
-        "hypotheses": np.array([1]),
-        "runner_up": np.full((1, 4, 4), np.nan),
-        "escalated_fitness": np.array([escalated]),
-    }
+    """The info (:data:`~masknet.registration.result.AUTO_INFO`) of a result that is not
+    the search's: one pose, no runner-up."""
+    pair = PipelineInfo(
+        path=path,
+        source="fast",
+        fitness=fit.fitness,
+        inlier_rmse=fit.rmse,
+        ambiguous=False,
+        runner_up_fitness=np.nan,
+        score=fit.score,
+        runner_up_score=np.nan,
+        hypotheses=1,
+        runner_up=None,
+    )
+    return {**info_arrays([pair]), "escalated_fitness": np.array([escalated])}
 
 
 class _GivenMasks:

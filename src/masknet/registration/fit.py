@@ -49,7 +49,7 @@ from masknet.errors import MaskNetError
 from masknet.geometry.clouds import SPACING_SAMPLE, median_spacing
 from masknet.geometry.knn import cloud_tree
 from masknet.geometry.se3 import transform_points
-from masknet.registration.options import DEFAULT_SPACINGS
+from masknet.registration.options import DEFAULT_SPACINGS, inlier_cutoff
 from masknet.registration.validation import as_numpy_batch, as_rigid_transforms
 
 __all__ = [
@@ -100,7 +100,7 @@ def inlier_fit(
     for tpl, src in zip(template, moved, strict=True):
         tree = cloud_tree(tpl)
         if max_correspondence_distance is None:
-            limit = DEFAULT_SPACINGS * median_spacing(tpl, tree, sample=SPACING_SAMPLE)
+            limit = inlier_cutoff(median_spacing(tpl, tree, sample=SPACING_SAMPLE))
         else:
             limit = float(max_correspondence_distance)
         d2 = tree.query(np.ascontiguousarray(src, dtype=np.float64), k=1, sqr_dists=True)[0]
@@ -163,7 +163,7 @@ class RoundFits:
     def __init__(self, template: np.ndarray, source: np.ndarray) -> None:
         self.trees = [cloud_tree(t) for t in template]
         self.limits = [
-            FIT_SPACINGS * (median_spacing(t, tree, SPACING_SAMPLE) or 1.0)
+            inlier_cutoff(median_spacing(t, tree, SPACING_SAMPLE) or 1.0)
             for t, tree in zip(template, self.trees, strict=True)
         ]
         self.source = source

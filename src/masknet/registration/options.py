@@ -33,6 +33,7 @@ __all__ = [
     "RobustOptions",
     "SceneSearch",
     "as_dict",
+    "inlier_cutoff",
 ]
 
 # The pair cut-off when none is given, in template point spacings (the median distance of
@@ -40,6 +41,15 @@ __all__ = [
 # fit most differently (docs/RESULTS.md, "Did a registration work?",
 # scripts/fit_calibration.py); at 3 spacings wrong results fit as well as right ones.
 DEFAULT_SPACINGS = 1.5
+
+
+def inlier_cutoff(spacing: float) -> float:
+    """The inlier cut-off of a cloud whose point spacing is ``spacing``
+    (:func:`masknet.geometry.clouds.median_spacing`), in the cloud's units:
+    ``DEFAULT_SPACINGS`` spacings. Every default cut-off of a fit, of ICP's pairs and of
+    a covered point is this one; the caller measures the spacing (of which cloud, on how
+    many points)."""
+    return DEFAULT_SPACINGS * spacing
 
 
 def as_dict(options: Any) -> dict[str, Any]:
@@ -142,7 +152,8 @@ class PointNetLKOptions(NetworkOptions):
 class RANSACOptions:
     """Open3D's RANSAC on FPFH features (``method="open3d-ransac"``).
 
-    voxel_size: feature scale as a fraction of the template's radius. max_iterations,
+    voxel_size: feature scale as a fraction of the template's radius
+    (:func:`~masknet.geometry.clouds.unit_radius`). max_iterations,
     confidence: Open3D's RANSAC criteria. seed: Open3D's random seed. repeatable: one
     thread, so that a seed gives one answer. orient_normals: turn each cloud's normals
     towards its centroid before the features (Open3D's tutorial does not)."""
@@ -164,7 +175,7 @@ class RANSACOptions:
 @dataclass(frozen=True)
 class FGROptions:
     """Open3D's fast global registration on FPFH features (``method="open3d-fgr"``):
-    ``voxel_size`` as a fraction of the template's radius; ``orient_normals`` as
+    ``voxel_size`` as a fraction of the template's radius (``unit_radius``); ``orient_normals`` as
     :class:`RANSACOptions`'."""
 
     voxel_size: float = 0.05
@@ -334,13 +345,15 @@ class RobustOptions:
         """The pair cut-off in the clouds' units, for a template of this point spacing."""
         if self.max_correspondence_distance is not None:
             return float(self.max_correspondence_distance)
-        return DEFAULT_SPACINGS * spacing
+        return inlier_cutoff(spacing)
 
 
 @dataclass(frozen=True)
 class SceneSearch:
-    """Options of the scene search (:func:`masknet.registration.scene.locate`); lengths are in template radii (the largest distance of a
-    template point from the template's centroid).
+    """Options of the scene search (:func:`masknet.registration.scene.locate`); lengths are
+    in template radii (:func:`~masknet.geometry.clouds.unit_radius`: the largest distance
+    of a template point from the centre of the template's bounding box), in a frame centred
+    on the template's centroid.
 
     voxel: grid of the thinned scene. spacing: grid of the candidate centres. crop: radius
     of a candidate's region. min_region_points: smaller regions are skipped.

@@ -17,7 +17,7 @@ an even one (0.46 against 0.76).
 Example::
 
     pair = prepare_pair(template, source, fine_points=4096)
-    pose_fit(pair.tree, pair.source[pair.surface], transform, FIT_SPACINGS * pair.spacing)
+    pose_fit(pair.tree, pair.source[pair.surface], transform, inlier_cutoff(pair.spacing))
 """
 
 from __future__ import annotations
@@ -32,6 +32,7 @@ from masknet.geometry.knn import cloud_tree
 from masknet.geometry.normals import plane_offsets
 from masknet.geometry.sampling import grid_subset, random_subset
 from masknet.registration.fit import FIT_SPACINGS
+from masknet.registration.options import inlier_cutoff
 
 __all__ = [
     "CHECK_MAX_DROP",
@@ -89,7 +90,7 @@ def surface_points(
         # than its template (a scan's subset is up to 8 times thinner) has gaps of several
         # template spacings everywhere, and its edges are no strays.
         own = np.median(one[one > 0]) if (one > 0).any() else 0.0
-        alone = one > FIT_SPACINGS * max(spacing, own)
+        alone = one > inlier_cutoff(max(spacing, own))
         # The plane of the others, not the point's: it would tilt the plane to itself.
         offsets = plane_offsets(points[alone], idx[alone, 1:].astype(np.int64), points)
         attached[alone] = offsets <= PLANE_SPACINGS * spacing

@@ -4,7 +4,7 @@ names (``transformation``, ``fitness``, ``inlier_rmse``) beside masknet's own.""
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypedDict
 
 import numpy as np
 
@@ -13,7 +13,44 @@ from masknet.geometry.se3 import rotation_angle_deg
 if TYPE_CHECKING:
     from masknet.registration.scene import SceneMatch
 
-__all__ = ["RegistrationResult"]
+__all__ = ["AUTO_INFO", "PIPELINE_INFO", "PipelineInfo", "RegistrationResult", "info_arrays"]
+
+
+class PipelineInfo(TypedDict):
+    """One pair's report of a pipeline (``"robust"``, ``"auto"``): the one list of its keys,
+    in the order :attr:`RegistrationResult.info` holds them. path: which stage answered;
+    source: the stage of the winning pose; fitness, inlier_rmse (input units), score: its
+    fit (:class:`~masknet.registration.fit.PoseFit`); ambiguous: a close runner-up lies
+    elsewhere; runner_up_fitness, runner_up_score: that runner-up's fit (NaN where none);
+    hypotheses: how many poses were scored; runner_up: its pose (4, 4), or None."""
+
+    path: str
+    source: str
+    fitness: float
+    inlier_rmse: float
+    ambiguous: bool
+    runner_up_fitness: float
+    score: float
+    runner_up_score: float
+    hypotheses: int
+    runner_up: np.ndarray | None
+
+
+# The keys of a pipeline's info, and of "auto"'s (the fast path's fit that sent it on, NaN
+# where it did not run or sufficed).
+PIPELINE_INFO: tuple[str, ...] = tuple(PipelineInfo.__annotations__)
+AUTO_INFO: tuple[str, ...] = (*PIPELINE_INFO, "escalated_fitness")
+
+
+def info_arrays(pairs: list[PipelineInfo]) -> dict[str, np.ndarray]:
+    """The info of a batch from each pair's: one array per key of :data:`PIPELINE_INFO`,
+    (B,) each, ``runner_up`` (B, 4, 4) with NaN where a pair has none."""
+    info = {key: np.array([p[key] for p in pairs]) for key in PIPELINE_INFO[:-1]}
+    none = np.full((4, 4), np.nan)
+    info["runner_up"] = np.stack(
+        [none if p["runner_up"] is None else p["runner_up"] for p in pairs]
+    )
+    return info
 
 
 @dataclass

@@ -5,8 +5,9 @@ where the source is mostly the template's object) nor ICP from the scene's centr
 can find it: the scene's centroid is metres away and almost every source point is
 clutter. :func:`locate` searches instead:
 
-1. Frame: everything is measured in template radii about the template's centroid, so
-   the result does not depend on the unit. The scene is thinned on a voxel grid of
+1. Frame: everything is measured in template radii
+   (:func:`~masknet.geometry.clouds.unit_radius`, about the bounding-box centre) from the
+   template's centroid, so the result does not depend on the unit. The scene is thinned on a voxel grid of
    ``voxel`` radii.
 2. Candidate centres: one scene point per occupied cell of a grid of ``spacing`` radii
    (every scene point lies within ``1.73 * spacing`` of one), kept where the scene holds
@@ -63,7 +64,13 @@ import numpy as np
 import torch
 
 from masknet.geometry.align import rigid_transforms_numpy
-from masknet.geometry.clouds import MIN_POINTS, median_spacing, median_spread, unit_radius
+from masknet.geometry.clouds import (
+    MIN_POINTS,
+    centroid_radius,
+    median_spacing,
+    median_spread,
+    unit_radius,
+)
 from masknet.geometry.knn import NearestField, cloud_tree, nearest_field_cells
 from masknet.geometry.normals import estimate_normals
 from masknet.geometry.sampling import farthest_point_sample, grid_subset
@@ -71,7 +78,7 @@ from masknet.geometry.se3 import hypothesis_rotations, transform_points
 from masknet.geometry.trimmed import trimmed_fit, trimmed_mean, trimmed_order
 from masknet.registration import arbiter
 from masknet.registration.icp import icp
-from masknet.registration.options import DEFAULT_SPACINGS, SceneSearch
+from masknet.registration.options import SceneSearch, inlier_cutoff
 from masknet.registration.scene_centres import candidate_centres, likely_centres, voxel_thin
 
 __all__ = ["SceneSearch", "SceneMatch", "is_scene", "locate", "polish"]
@@ -141,7 +148,7 @@ def _inlier_distance(unit_template: np.ndarray, options: SceneSearch) -> float:
     option, or 1.5 median nearest-neighbour spacings of the template if more, but never
     more than ``refine_distance`` (a template of a few points has huge spacings)."""
     spacing = median_spacing(unit_template)
-    return max(options.inlier_distance, min(DEFAULT_SPACINGS * spacing, options.refine_distance))
+    return max(options.inlier_distance, min(inlier_cutoff(spacing), options.refine_distance))
 
 
 def _nearest(
@@ -157,7 +164,10 @@ def _nearest(
 
 
 def _outward_normals(points: np.ndarray) -> np.ndarray:
-    """PCA normals (N, 3) of a cloud (N, 3), each turned away from the cloud's centroid."""
+    """PCA normals (N, 3) of a cloud (N, 3), each turned away from the cloud's centroid: a
+    point faces the sensor where its outward normal points towards it (:func:`_facing`).
+    The FPFH features' normals turn the other way, towards the centroid, where only their
+    sign's consistency matters (:func:`masknet.registration.correspondences.fpfh_features`)."""
     normals = estimate_normals(torch.from_numpy(points[None]))[0][0].numpy()
     flip = np.einsum("ij,ij->i", normals, points - points.mean(0)) < 0
     return np.where(flip[:, None], -normals, normals)
@@ -253,7 +263,7 @@ def locate(
     moved_tpl = transform_points(pose, tpl[_seen(pose, tpl, normals, sensor)])
     # Only scene points within the template's reach (plus the tolerance) of its centre can
     # lie within the tolerance of it: the fit and the mask need no tree of the whole scene.
-    reach = float(np.linalg.norm(tpl, axis=1).max()) + tolerance
+    reach = float(centroid_radius(tpl)) + tolerance
     nearby = np.flatnonzero(np.linalg.norm(scn - pose[:3, 3], axis=1) <= reach)
     dist = np.full(len(moved_tpl), np.inf)
     source_mask = np.zeros(len(scn), bool)  # (P,) bool: scene points on the moved template

@@ -11,6 +11,7 @@ from masknet.data import bundled_sample_path, load_modelnet40
 from masknet.evaluation.registration import pose_errors
 from masknet.geometry.se3 import hypothesis_rotations
 from masknet.registration.methods import default_method
+from masknet.registration.result import AUTO_INFO, PIPELINE_INFO
 
 
 def _pair(shape: np.ndarray, degrees: float, outliers: int, seed: int = 0):
@@ -65,6 +66,7 @@ def test_the_default_is_auto_and_takes_the_fast_path_on_an_easy_pair(shapes):
     rot, trans = pose_errors(result.transform[None], truth[None])
     assert rot[0] < 0.01 and trans[0] < 1e-3
     assert str(result.info["path"]) == "fast" and np.isnan(result.info["escalated_fitness"])
+    assert list(result.info) == list(AUTO_INFO)  # the one list of the keys, in its order
 
 
 def test_escalation_says_why(far_pair):
@@ -72,6 +74,15 @@ def test_escalation_says_why(far_pair):
     result = register(template, source)
     assert str(result.info["path"]).startswith("robust/")
     assert result.info["escalated_fitness"] < 0.99 <= result.info["fitness"] + 0.02
+    assert list(result.info) == list(AUTO_INFO)
+
+
+def test_robust_reports_the_pipeline_info_and_auto_adds_one_key(shapes):
+    template, source, _ = _pair(shapes[3], 10.0, 0)
+    result = register(template, source, method="robust")
+    assert list(result.info) == list(PIPELINE_INFO)
+    assert AUTO_INFO == (*PIPELINE_INFO, "escalated_fitness")
+    assert result.info["runner_up"].shape == (4, 4)  # NaN where there is none
 
 
 def _box_surface(seed: int, count: int) -> np.ndarray:

@@ -19,7 +19,7 @@ def run_ransac(
     options: RANSACOptions,
 ) -> BackendRun:
     """Open3D's RANSAC on FPFH features, pair by pair; ``voxel_size`` is relative to each
-    template's radius."""
+    template's radius (:func:`~masknet.geometry.clouds.unit_radius`, the networks' scale)."""
     from masknet.registration.open3d_global import open3d_fpfh_ransac
 
     return _run(open3d_fpfh_ransac, template, source, mask, source_mask, options)
@@ -33,7 +33,7 @@ def run_fgr(
     options: FGROptions,
 ) -> BackendRun:
     """Open3D's fast global registration on FPFH features, pair by pair; ``voxel_size``
-    is relative to each template's radius."""
+    is relative to each template's radius (:func:`~masknet.geometry.clouds.unit_radius`)."""
     from masknet.registration.open3d_global import open3d_fgr
 
     return _run(open3d_fgr, template, source, mask, source_mask, options)

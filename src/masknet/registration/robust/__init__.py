@@ -19,6 +19,7 @@ from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
 from masknet.registration.backends.base import MaskModels, PipelineRun
 from masknet.registration.options import RobustOptions
+from masknet.registration.result import info_arrays
 from masknet.registration.robust.search import CoarseRun, coarse_to_fine
 
 __all__ = ["NetworkMasks", "pipeline_run", "robust_register"]
@@ -83,29 +84,9 @@ def pipeline_run(runs: list[CoarseRun]) -> PipelineRun:
     """The :class:`PipelineRun` of a batch from each pair's :class:`CoarseRun`."""
     masks = [r.mask for r in runs]
     source_masks = [r.source_mask for r in runs]
-    info: dict[str, np.ndarray] = {
-        key: np.array([r.info[key] for r in runs])
-        for key in (
-            "path",
-            "source",
-            "fitness",
-            "inlier_rmse",
-            "ambiguous",
-            "runner_up_fitness",
-            "score",
-            "runner_up_score",
-            "hypotheses",
-        )
-    }
-    info["runner_up"] = np.stack(
-        [
-            np.full((4, 4), np.nan) if r.info["runner_up"] is None else r.info["runner_up"]
-            for r in runs
-        ]
-    )
     return PipelineRun(
         np.stack([r.transform for r in runs]),
         None if any(m is None for m in masks) else np.stack(masks),
         None if any(m is None for m in source_masks) else np.stack(source_masks),
-        info,
+        info_arrays([r.info for r in runs]),
     )

@@ -205,6 +205,8 @@ def _grids(
     # over a million points costs more than the rest of the front end.
     small = [random_subset(c, SUBSET_POINTS) for c in (template, source)]
     spacing = max(median_spacing(c, sample=2048) for c in small)
+    # The RMS radius: a random subset's is close to the whole cloud's, and a scan's few far
+    # points barely move it (the robust search gives voxel_for the centroid radius).
     radius = float(rms_radius(small[0]))
     voxel = max(voxel_for(small[0], options.consensus_points, radius), MIN_SPACINGS * spacing)
     clouds = to_open3d(template), to_open3d(source)

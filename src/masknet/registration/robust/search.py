@@ -67,9 +67,10 @@ from masknet.registration.correspondences import (
     ransac_poses,
     voxel_for,
 )
-from masknet.registration.fit import FIT_SPACINGS, covered_points, pose_fit, pose_fits
+from masknet.registration.fit import covered_points, pose_fit, pose_fits
 from masknet.registration.icp import icp, icp_from_starts
-from masknet.registration.options import RobustOptions
+from masknet.registration.options import RobustOptions, inlier_cutoff
+from masknet.registration.result import PipelineInfo
 
 if TYPE_CHECKING:
     from masknet.registration.refinement import MaskPredictor
@@ -96,7 +97,7 @@ COMPATIBILITY_MIN_MATCHES = 150
 
 
 # Candidates for refinement lie in different basins: at least distinct_deg or this share
-# of the template's radius apart. Poses closer than that refine into one answer, and a
+# of the template's radius (centroid_radius) apart. Poses closer than that refine into one answer, and a
 # tighter test (1.5 template spacings) let three copies of one symmetric flip, a few
 # spacings apart, fill every candidate place on a scan view whose true pose ranked fourth
 # (returned 180 degrees off; with this test 5.8 degrees, refined to 0.1 by the loop).
@@ -112,17 +113,15 @@ AS_GIVEN_GAP = 0.1
 class CoarseRun(NamedTuple):
     """transform: (4, 4) source -> template. mask: (N,) bool template points within the
     inlier distance of the moved kept source, or None without masks. source_mask: (M,)
-    bool source points kept, or None without a two-sided network. info: ``path`` (``"correspondences"``: the
-    early exit; ``"search"``: the learned side ran), ``source`` of the winning hypothesis
-    (``"fpfh"``, ``"fpfh-masked"``, ``"rotation"``), ``fitness`` and ``inlier_rmse`` (the
-    score's, input units), ``ambiguous`` (bool), ``runner_up`` ((4, 4) or None) and
-    ``runner_up_fitness``, ``score`` and ``runner_up_score`` (:class:`PoseFit`),
-    ``hypotheses`` (how many were scored)."""
+    bool source points kept, or None without a two-sided network. info: the pair's
+    :class:`~masknet.registration.result.PipelineInfo`; its ``path`` is
+    ``"correspondences"`` (the early exit) or ``"search"`` (the learned side ran), its
+    ``source`` ``"fpfh"``, ``"fpfh-masked"``, ``"rotation"``, ...)."""
 
     transform: np.ndarray
     mask: np.ndarray | None
     source_mask: np.ndarray | None
-    info: dict
+    info: PipelineInfo
 
 
 def coarse_to_fine(
@@ -160,18 +159,18 @@ def coarse_to_fine(
     if source_mask is not None and len(search.source) < len(source):
         # Each point of the whole source takes the label of its nearest subset point.
         source_mask = spread_labels(source, search.source, source_mask)
-    info = {
-        "path": "correspondences" if early is not None else "search",
-        "source": winner.stage,
-        "fitness": winner.fitness,
-        "inlier_rmse": winner.rmse,
-        "score": winner.score,
-        "ambiguous": bool(ambiguous),
-        "runner_up": None if rival is None else rival.pose,
-        "runner_up_fitness": float("nan") if rival is None else rival.fitness,
-        "runner_up_score": float("nan") if rival is None else rival.score,
-        "hypotheses": len(search.scored),
-    }
+    info = PipelineInfo(
+        path="correspondences" if early is not None else "search",
+        source=winner.stage,
+        fitness=winner.fitness,
+        inlier_rmse=winner.rmse,
+        ambiguous=bool(ambiguous),
+        runner_up_fitness=float("nan") if rival is None else rival.fitness,
+        score=winner.score,
+        runner_up_score=float("nan") if rival is None else rival.score,
+        hypotheses=len(search.scored),
+        runner_up=None if rival is None else rival.pose,
+    )
     return CoarseRun(transform, mask, source_mask, info)
 
 
@@ -193,7 +192,7 @@ class _Search:
         self.full_template, self.full_source = template, source
         self.template, self.tree, self.spacing, self.source = prepared[:4]
         self.options, self.times = options, times
-        self.limit = FIT_SPACINGS * self.spacing
+        self.limit = inlier_cutoff(self.spacing)
         self.radius = float(centroid_radius(self.template))
         # Isolated source points (uniform outliers, stray returns) would cap every pose's
         # fitness below what a correct pose reaches: the score counts the rest.
@@ -267,7 +266,9 @@ class _Search:
         if not (has_open3d() and options.correspondence_hypotheses):
             return None
         # A larger template gets finer grids: features of a room at an object's
-        # resolution would see walls and little else.
+        # resolution would see walls and little else. voxel_for's first try is in the
+        # centroid radius, the consensus front end's in the RMS radius: one radius for both
+        # would move both pipelines' voxels (docs/ARCHITECTURE.md, "One of each").
         growth = float(np.clip(np.sqrt(len(self.full_template) / 1024), 1, 8))
         voxels = [
             max(voxel_for(self.full_template, int(count * growth), self.radius), self.spacing)
