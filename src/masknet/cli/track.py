@@ -154,7 +154,6 @@ def _transforms(rows: list[dict]):
 def run(args: argparse.Namespace) -> int:
     """Track; write poses.csv after every frame and trajectory.png at the end."""
     from masknet.io import read_points
-    from masknet.registration.options import SceneSearch
     from masknet.tracking import Tracker
 
     frames = frame_paths(args.frames)
@@ -168,13 +167,12 @@ def run(args: argparse.Namespace) -> int:
     init = args.init
     if rows and rows[-1]["state"] != "lost":
         init = _transforms(rows[-1:]).reshape(4, 4)
-    options = {} if args.viewpoint is None else {"scene": SceneSearch(viewpoint=args.viewpoint)}
     tracker = Tracker(
         template,
         init=init if rows or args.init is not None else None,
         seed=args.seed,
         drop_nonfinite=args.drop_nonfinite,
-        register_options=options,
+        viewpoint=args.viewpoint,
     )
     try:
         for index in range(len(rows), len(frames)):

@@ -98,9 +98,12 @@ class Tracker:
         max_uncertain: ``uncertain`` verdicts in a row that a track survives.
         drop_nonfinite: drop frame rows holding NaN or inf (organised depth frames)
             instead of refusing the frame.
-        register_options: keywords for :func:`masknet.register` where it searches a frame
-            (e.g. ``scene=SceneSearch(viewpoint=(0, 0, 0))`` for frames in camera
-            coordinates).
+        viewpoint: (3,) the sensor's position in frame coordinates (``(0, 0, 0)`` for depth
+            frames in camera coordinates): the searches then place the template as the
+            sensor sees it (``register(..., scene=SceneSearch(viewpoint=...))``), which finds
+            a full model in a one-sided view more often.
+        register_options: other keywords for :func:`masknet.register` where it searches a
+            frame.
 
     Raises:
         MaskNetError: a bad template, or a bad ``init``.
@@ -116,6 +119,7 @@ class Tracker:
         min_points: int = 30,
         max_uncertain: int = 3,
         drop_nonfinite: bool = False,
+        viewpoint: tuple[float, float, float] | None = None,
         register_options: dict[str, Any] | None = None,
     ) -> None:
         from masknet.geometry.normals import estimate_normals
@@ -130,6 +134,10 @@ class Tracker:
         self.seed, self.margin, self.min_points = seed, margin, min_points
         self.max_uncertain, self.drop_nonfinite = max_uncertain, drop_nonfinite
         self.register_options = dict(register_options or {})
+        if viewpoint is not None:
+            from masknet.registration.options import SceneSearch
+
+            self.register_options["scene"] = SceneSearch(viewpoint=tuple(viewpoint))
         self.centre = self.template.mean(0)
         self.radius = float(centroid_radius(self.template))
         self.spacing = median_spacing(self.template, sample=2048)
@@ -334,7 +342,7 @@ def track(
     ``init``: (4, 4) frame -> template transform of the first frame (None: the first
     frame is searched with :func:`masknet.register`). ``seed`` and ``options``: those of
     :class:`Tracker` (``margin``, ``min_points``, ``max_uncertain``, ``drop_nonfinite``,
-    ``register_options``). Poses are in ``register``'s convention, frame -> template;
+    ``viewpoint``, ``register_options``). Poses are in ``register``'s convention, frame -> template;
     :attr:`TrackResult.pose` is the object's pose in the frame. The states are described
     in :mod:`masknet.tracking.tracker`.
 
