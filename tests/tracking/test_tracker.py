@@ -46,6 +46,17 @@ def test_a_hidden_object_is_lost_then_refound_and_the_jump_followed(sequence):
     assert results[0].pose @ results[0].transform == pytest.approx(np.eye(4))
 
 
+def test_a_jump_too_large_for_icp_is_refound_near_the_last_pose(sequence):
+    shapes = load_modelnet40(bundled_sample_path(), "test").points
+    config = SequenceConfig(frames=5, occlusion_frames=0, jump_at=0.6, jump_deg=180, clutter=2)
+    seq = make_sequence(shapes[24], [shapes[40], shapes[60]], config, seed=0)
+    results = list(track(seq.template, seq.frames, init=seq.truth[0]))
+    assert [r.state for r in results] == ["tracked"] * 3 + ["refound", "tracked"]
+    assert "the track slipped" in results[3].reason and "near the last pose" in results[3].reason
+    for r in results:  # the frame after the jump is not predicted to turn 180 degrees again
+        assert _errors(seq, r.transform, r.frame)[0] < 2
+
+
 def test_an_empty_frame_is_lost_and_the_next_is_searched(sequence):
     tracker = Tracker(sequence.template, init=sequence.truth[0])
     empty = tracker.update(np.empty((0, 3)))
@@ -89,8 +100,14 @@ def test_the_prediction_repeats_the_last_motion():
     for _ in range(3):
         poses.append(poses[-1] @ step)
     transforms = [np.linalg.inv(p) for p in poses]  # register's convention
-    assert _predicted(transforms[:3]) == pytest.approx(transforms[3])
-    assert _predicted(transforms[:1]) is transforms[0]
+    centre = np.zeros(3)
+    assert _predicted(transforms[:3], centre, 1.0) == pytest.approx(transforms[3])
+    assert _predicted(transforms[:1], centre, 1.0) is transforms[0]
+    jump = np.eye(4)
+    jump[:3, :3] = Rotation.from_rotvec([0, 0, np.pi / 2]).as_matrix()  # not a velocity
+    assert _predicted([transforms[0], jump @ transforms[0]], centre, 1.0)[:3, :3] == pytest.approx(
+        jump[:3, :3]
+    )
 
 
 def test_tracker_refuses_bad_options(sequence):

@@ -193,7 +193,7 @@ class Tracker:
         """The state and the answer for a checked frame (P, 3)."""
         why, followed = "", None
         if self._history:
-            followed = self._follow(points, _predicted(self._history))
+            followed = self._follow(points, _predicted(self._history, self.centre, self.radius))
             holds = followed.verdict == "likely correct" or (
                 followed.verdict == "uncertain" and self._uncertain < self.max_uncertain
             )
@@ -309,6 +309,9 @@ def _turned(transform: np.ndarray, centre: np.ndarray) -> list[np.ndarray]:
     return starts
 
 
+# Frame-to-frame motions beyond these are jumps, not velocities (the sequences move a few
+# degrees and per cent of the radius a frame).
+MAX_STEP_DEG, MAX_STEP_SHIFT = 10.0, 0.1
 RANKS = {"likely correct": 0, "uncertain": 1, "likely wrong": 2, "": 3}
 
 
@@ -317,15 +320,25 @@ def _best(candidates: Iterable[_Found]) -> _Found:
     return min(candidates, key=lambda c: (RANKS[c.verdict], -c.fitness))
 
 
-def _predicted(history: list[np.ndarray]) -> np.ndarray:
+def _predicted(history: list[np.ndarray], centre: np.ndarray, radius: float) -> np.ndarray:
     """The next transform (frame -> template) at constant velocity in SE(3): the last
     frame-to-frame motion of the object, in its own frame, repeated. From transforms T
     (the object's poses P = T^-1), P_next = P_k P_(k-1)^-1 P_k, so
-    T_next = T_k T_(k-1)^-1 T_k. With one pose, that pose."""
+    T_next = T_k T_(k-1)^-1 T_k. With one pose, or after a motion larger than
+    :data:`MAX_STEP_DEG` or :data:`MAX_STEP_SHIFT` template radii (of ``centre`` (3,)),
+    the last pose: a jump is not a velocity, and repeating it would throw the next
+    prediction as far off."""
     if len(history) < 2:
         return history[-1]
+    from masknet.geometry.se3 import rotation_angle_deg
+
     previous, last = history[-2:]
-    return last @ np.linalg.inv(previous) @ last
+    step = last @ np.linalg.inv(previous)  # in template coordinates
+    point = np.append(centre, 1.0)
+    shift = np.linalg.norm(np.linalg.solve(step, point) - point)
+    if rotation_angle_deg(step[:3, :3]) > MAX_STEP_DEG or shift > MAX_STEP_SHIFT * radius:
+        return last
+    return step @ last
 
 
 def track(
