@@ -17,6 +17,7 @@ from masknet.cli._common import (
     EXIT_REFUSED,
     finite_float,
     init_option,
+    positive_int,
     refuse_inputs,
     seed,
     start_files,
@@ -72,7 +73,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "depth frames in camera coordinates)",
     )
     p.add_argument(
-        "--every", type=int, default=None, help=f"{TRAJECTORY}: the template at every k-th pose"
+        "--every",
+        type=positive_int,
+        metavar="K",
+        help=f"{TRAJECTORY}: the template at every K-th pose (default: about 12 poses)",
     )
     p.add_argument(
         "--drop-nonfinite",
@@ -164,12 +168,12 @@ def run(args: argparse.Namespace) -> int:
     refuse_inputs([poses, picture], [args.template, *frames, *start_files(args)])
     template = read_points(args.template, drop_nonfinite=args.drop_nonfinite)
     rows = _earlier_rows(poses, frames) if args.resume else []
-    init = args.init
-    if rows and rows[-1]["state"] != "lost":
-        init = _transforms(rows[-1:]).reshape(4, 4)
+    init = args.init  # the first frame's; a resumed run starts from its last pose
+    if rows:
+        init = _transforms(rows[-1:]).reshape(4, 4) if rows[-1]["state"] != "lost" else None
     tracker = Tracker(
         template,
-        init=init if rows or args.init is not None else None,
+        init=init,
         seed=args.seed,
         drop_nonfinite=args.drop_nonfinite,
         viewpoint=args.viewpoint,
