@@ -10,13 +10,16 @@ Each frame is one of four states:
   times ``margin`` of the predicted centre (clutter and far surfaces do not pull the fit);
   point-to-plane ICP (Open3D) refines the prediction on them; the verdict on those points
   keeps the track (``likely correct``, or ``uncertain`` for at most ``max_uncertain``
-  frames in a row);
+  frames in a row; then the frame is searched, and where no search finds a ``likely
+  correct`` pose the track goes on, ``uncertain``, and searches again after as many);
 * ``"refound"``: the track slipped (too few points near the prediction, a ``likely
-  wrong`` verdict, too many ``uncertain`` ones) and the full default found the object
-  again, ``likely correct``;
-* ``"lost"``: nothing was found that the verdict calls ``likely correct``; the pose is
-  the best guess, never to be trusted (the verdict says how bad). The next frame runs the
-  full default again.
+  wrong`` verdict, too many ``uncertain`` ones) and a search found the object again,
+  ``likely correct``: first ICP from the last trusted pose turned about the template's
+  axes (a sudden turn, or the object back where it was hidden: a few dozen short ICPs),
+  then the full default on the whole frame;
+* ``"lost"``: no search found a pose that the verdict calls ``likely correct``; the pose
+  is the best guess, never to be trusted (the verdict says how bad). The next frame is
+  searched again.
 
 Every pose is a (4, 4) transform in :func:`masknet.register`'s convention
 (:mod:`masknet.geometry.se3`): it maps **frame points into the template frame**,
@@ -95,7 +98,8 @@ class Tracker:
             centroid) times this, around the predicted centre.
         min_points: fewer frame points than this in that ball: the object left the
             view or is hidden, and the full default searches the frame.
-        max_uncertain: ``uncertain`` verdicts in a row that a track survives.
+        max_uncertain: ``uncertain`` verdicts in a row before a frame is searched (the
+            track goes on, ``uncertain``, where the search finds nothing better).
         drop_nonfinite: drop frame rows holding NaN or inf (organised depth frames)
             instead of refusing the frame.
         viewpoint: (3,) the sensor's position in frame coordinates (``(0, 0, 0)`` for depth
