@@ -79,6 +79,14 @@ def test_a_frame_in_another_unit_or_with_nan_rows_is_refused(sequence):
     assert dropping.update(frame).state == "tracked"
 
 
+def test_integer_frames_in_millimetres_are_tracked(sequence):
+    start = sequence.truth[0].copy()
+    start[:3, 3] *= 1000  # the same pose, in millimetres
+    tracker = Tracker(sequence.template * 1000, init=start, drop_nonfinite=True)
+    result = tracker.update(np.round(sequence.frames[0] * 1000).astype(np.int32))
+    assert (result.state, result.verdict) == ("tracked", "likely correct")
+
+
 def test_the_generator_and_update_give_the_same_poses_from_one_seed(sequence):
     frames, start = sequence.frames[:3], sequence.truth[0]
     first = [r.transform for r in track(sequence.template, frames, init=start, seed=3)]

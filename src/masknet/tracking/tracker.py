@@ -92,7 +92,8 @@ class Tracker:
         template: (N, 3) the object's points, any unit (the frames' unit).
         init: (4, 4) frame -> template transform of the first frame, to track from it
             instead of searching the first frame; None searches.
-        seed: the seed of the even subsets the ICP and verdict see: a stream run twice
+        seed: the seed of the even subset that ICP sees of a cut-out frame of over 4,096
+            points (:func:`~masknet.geometry.sampling.grid_subset`): a stream run twice
             with one seed gives the same poses.
         margin: the frame is cut to the ball of the template's radius (about its
             centroid) times this, around the predicted centre.
@@ -183,7 +184,9 @@ class Tracker:
 
         array = np.asarray(frame)
         if array.ndim == 2 and array.shape[1] >= 3:
-            finite = np.isfinite(array[:, :3]).all(1).sum() if array.dtype.kind == "f" else 0
+            finite = (
+                np.isfinite(array[:, :3]).all(1).sum() if array.dtype.kind == "f" else len(array)
+            )
             if len(array) < MIN_POINTS or (self.drop_nonfinite and finite < MIN_POINTS):
                 return None
         hint = "pass drop_nonfinite=True (masknet track --drop-nonfinite) to drop them"
@@ -227,12 +230,14 @@ class Tracker:
     def _refind(self, points: np.ndarray, why: str) -> _Found:
         """Search the frame: first around the last trusted pose (the object turned or
         moved suddenly, or came back where it was hidden), then the full default."""
+        near = None
         if self._last is not None:
             near = _best(self._follow(points, start) for start in _turned(self._last, self.centre))
+            near = near._replace(reason=f"{why}searched near the last pose: {near.reason}")
             if near.verdict == "likely correct":
-                return near._replace(reason=f"{why}searched near the last pose: {near.reason}")
+                return near
         found = self._find(points, why)
-        return found
+        return found if near is None else _best([found, near])  # the better guess, if lost
 
     def _near(self, points: np.ndarray, transform: np.ndarray) -> np.ndarray:
         """The frame points (K, 3) within the template's radius times ``margin`` of
