@@ -23,10 +23,10 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from masknet.data.views import hidden_point_removal
+from masknet.geometry.clouds import unit_radius
 
 __all__ = ["Sequence", "SequenceConfig", "make_sequence", "sequences_from_shapes"]
 
@@ -223,7 +223,7 @@ def make_sequence(
         occluded,
         config.jump_frame,
         np.zeros(3),
-        float(np.linalg.norm(template - (template.max(0) + template.min(0)) / 2, axis=1).max()),
+        float(unit_radius(template)),
     )
 
 
@@ -251,7 +251,9 @@ def sequences_from_shapes(
 
 
 def _neighbours(shape: np.ndarray) -> np.ndarray:
-    return cKDTree(shape).query(shape, k=NEIGHBOURS)[1]
+    from masknet.geometry.knn import cloud_tree
+
+    return cloud_tree(shape).query(shape, k=NEIGHBOURS)[1].astype(np.int64)
 
 
 def _moved(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
