@@ -139,10 +139,12 @@ def _objects(ctx: BenchmarkContext, count: int) -> list[int]:
 
 
 def run(ctx: BenchmarkContext) -> ExperimentResult:
-    """Every method on every sequence: one row per method and object."""
+    """Every method on every sequence: one row per method and object. Five objects of 100
+    frames; ``--quick`` two of 60; ``--pairs N`` at most 3N frames each."""
     count, frames = (2, 60) if ctx.quick else (5, 100)
+    frames = min(frames, max(12, 3 * ctx.pairs))  # --pairs N: at most 3N frames (smoke runs)
     objects = _objects(ctx, count)
-    config = SequenceConfig(frames=frames)
+    config = SequenceConfig(frames=frames, occlusion_frames=min(8, max(2, frames // 7)))
     names = [str(n) for n in ctx.test_set.names]
     sequences = sequences_from_shapes(ctx.points, names, objects, config, ctx.seed)
     rows = []
