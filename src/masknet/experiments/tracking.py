@@ -50,6 +50,8 @@ def _tracker(seq: Sequence) -> Iterator[Answer]:
 
 def _register_each(seq: Sequence) -> Iterator[Answer]:
     from masknet import assess_registration, register
+    from masknet.geometry.clouds import centroid_radius
+    from masknet.tracking.tracker import MARGIN, MIN_NEAR, points_near
 
     for frame in seq.frames:
         tic = time.perf_counter()
@@ -57,11 +59,10 @@ def _register_each(seq: Sequence) -> Iterator[Answer]:
         seconds = time.perf_counter() - tic
         # The verdict on the frame points near the object found (timed apart: a user may
         # skip it).
-        centre = np.linalg.solve(transform, np.append(seq.template.mean(0), 1))[:3]
-        near = frame[np.linalg.norm(frame - centre, axis=1) <= 1.5 * seq.radius]
-        verdict = (
-            assess_registration(seq.template, near, transform).verdict if len(near) >= 30 else ""
-        )
+        reach = MARGIN * centroid_radius(seq.template)  # as the tracker judges its poses
+        near = points_near(frame, transform, seq.template.mean(0), reach)
+        enough = len(near) >= MIN_NEAR
+        verdict = assess_registration(seq.template, near, transform).verdict if enough else ""
         yield transform, verdict == "likely correct", seconds
 
 

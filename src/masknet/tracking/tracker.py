@@ -40,7 +40,7 @@ from masknet.errors import MaskNetError
 from masknet.geometry.clouds import MIN_POINTS, centroid_radius, median_spacing
 from masknet.io_checks import ARRAY_NONFINITE_HINT, check_cloud
 
-__all__ = ["STATES", "TrackResult", "Tracker", "track"]
+__all__ = ["STATES", "TrackResult", "Tracker", "points_near", "track"]
 
 STATES = ("found", "tracked", "refound", "lost")
 # ICP's pair cut-offs, in template spacings, in turn: the prediction lies within a few
@@ -49,6 +49,8 @@ ICP_CUTS = (3.0, 1.5)
 ICP_ITERATIONS = 30
 MAX_POINTS = 4096  # the cut-out frame is brought to this many points (evenly) for ICP
 NO_POSE = np.full((4, 4), np.nan)
+MARGIN = 1.5  # the frame is cut to this many template radii around the predicted centre
+MIN_NEAR = 30  # fewer frame points near the object: it is hidden or out of view
 
 
 class TrackResult(NamedTuple):
@@ -120,8 +122,8 @@ class Tracker:
         *,
         init: np.ndarray | None = None,
         seed: int = 0,
-        margin: float = 1.5,
-        min_points: int = 30,
+        margin: float = MARGIN,
+        min_points: int = MIN_NEAR,
         max_uncertain: int = 3,
         drop_nonfinite: bool = False,
         viewpoint: tuple[float, float, float] | None = None,
@@ -242,9 +244,7 @@ class Tracker:
     def _near(self, points: np.ndarray, transform: np.ndarray) -> np.ndarray:
         """The frame points (K, 3) within the template's radius times ``margin`` of
         the template's centre placed by ``transform`` (frame -> template)."""
-        centre = np.linalg.solve(transform, np.append(self.centre, 1.0))[:3]
-        near = np.linalg.norm(points - centre, axis=1) <= self.margin * self.radius
-        return points[near]
+        return points_near(points, transform, self.centre, self.margin * self.radius)
 
     def _judged(self, near: np.ndarray, transform: np.ndarray, how: str) -> _Found:
         """The verdict on the frame points ``near`` (K, 3) the object at ``transform``."""
@@ -280,6 +280,16 @@ class Tracker:
         result = register(self.template, points, **self.register_options)
         transform = np.asarray(result.transform, dtype=np.float64)
         return self._judged(self._near(points, transform), transform, why + "searched: ")
+
+
+def points_near(
+    points: np.ndarray, transform: np.ndarray, centre: np.ndarray, reach: float
+) -> np.ndarray:
+    """The frame points (K, 3) of ``points`` (P, 3) within ``reach`` (input units) of the
+    template point ``centre`` (3,) placed in the frame by ``transform`` (4, 4), frame ->
+    template: the object's surroundings, where its verdict is asked."""
+    placed = np.linalg.solve(transform, np.append(centre, 1.0))[:3]
+    return points[np.linalg.norm(points - placed, axis=1) <= reach]
 
 
 class _Found(NamedTuple):
