@@ -161,6 +161,13 @@ def test_readme_python_example_runs(index, one_thread, tmp_path, monkeypatch, ca
         assert mask.shape == (len(noisy_scan),)
         assert (mask & ~real).sum() <= 10 and mask[real].mean() > 0.985
         checked.append("denoised")
+    if "tracked" in namespace:  # tracking: found in the first frame, then followed
+        seq = namespace["seq"]
+        assert printed[0] == "0 found likely correct"
+        assert [line.split()[1] for line in printed[1:]] == ["tracked"] * 5
+        rot, trans = pose_errors(np.stack(namespace["tracked"]), seq.truth)
+        assert rot.max() < 2 and trans.max() < 0.2, (rot, trans)  # translation: template frame
+        checked.append("tracked")
     if "pairs" in namespace:  # pairs to try: the truth moves the source onto the template
         assert namespace["pairs"].template.shape == (8, 1024, 3)
         moved = namespace["source"] @ namespace["truth"][:3, :3].T + namespace["truth"][:3, 3]

@@ -50,6 +50,8 @@ __all__ = [
     "register",
     "register_many",
     "select_mask",
+    "track",
+    "Tracker",
     "__version__",
 ]
 
@@ -65,6 +67,8 @@ _LAZY = {
     "evaluate_registration": "masknet.registration",
     "register": "masknet.registration",
     "register_many": "masknet.registration.many",
+    "track": "masknet.tracking",
+    "Tracker": "masknet.tracking",
     **dict.fromkeys(_OPTIONS, "masknet.registration.options"),
 }
 
@@ -77,6 +81,7 @@ if TYPE_CHECKING:
         evaluate_registration,
         register,
     )
+    from masknet.tracking import Tracker, track
 
 
 def __getattr__(name: str):

@@ -94,7 +94,7 @@ def test_help_does_not_import_torch_and_names_agree():
 
 
 def test_help_lists_what_to_run_first_one_line_each(monkeypatch):
-    from masknet.cli import build_parser
+    from masknet.cli import COMMANDS, build_parser
 
     monkeypatch.setenv("COLUMNS", "80")  # argparse wraps at the terminal's width
     text = build_parser().format_help()
@@ -104,7 +104,7 @@ def test_help_lists_what_to_run_first_one_line_each(monkeypatch):
     assert names.index("train") > names.index("demo") and names[-1] == "make-sample"
     # One line each, a description beside every name (none wraps onto its own line).
     assert all(line.startswith("    ") and len(line.split()) > 2 for line in listed)
-    assert len(listed) == 10 and "masknet register TEMPLATE SOURCE" in text
+    assert len(listed) == len(COMMANDS) == 11 and "masknet register TEMPLATE SOURCE" in text
 
 
 def test_an_unwritable_viewer_path_fails_before_anything_is_written(tmp_path, pair_files, capsys):

@@ -29,6 +29,7 @@ from masknet.cli import (
     register,
     register_many,
     show,
+    track,
     train,
 )
 from masknet.errors import MaskNetError, MaskNetWarning
@@ -41,6 +42,7 @@ COMMANDS = {
     "register": register,
     "mask": mask,
     "register-many": register_many,
+    "track": track,
     "denoise": denoise,
     "show": show,
     "demo": demo,

@@ -25,7 +25,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "experiment",
         help="registration, networks, iterations, masks-per-round, refine-masks, "
         "precision-vs-missing, protocols, rotation-sweep, noise, generalization, timing, denoising, "
-        "outliers, scans, robust, real-pairs, methods, success, startup, or all",
+        "outliers, scans, robust, real-pairs, methods, success, startup, tracking, or all",
     )
     p.add_argument("--data", help="ModelNet40 folder or .npz (default: $MASKNET_DATA)")
     p.add_argument("--pairs", type=positive_int, help="pairs per setting (default 1000)")

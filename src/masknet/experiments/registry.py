@@ -31,6 +31,7 @@ from masknet.experiments import (
     startup,
     success,
     timing,
+    tracking,
 )
 from masknet.experiments.context import BenchmarkContext, ExperimentResult
 from masknet.experiments.report import csv_text, markdown_table, update_results
@@ -59,6 +60,7 @@ EXPERIMENTS: dict[str, Callable[[BenchmarkContext], ExperimentResult]] = {
     "methods": methods.run,
     "success": success.run,
     "startup": startup.run,
+    "tracking": tracking.run,
 }
 
 

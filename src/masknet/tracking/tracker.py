@@ -1,0 +1,389 @@
+"""Follow a known object through a stream of frames: :class:`Tracker` and :func:`track`.
+
+Each frame is one of four states:
+
+* ``"found"``: the first frame (without ``init``) ran the full default,
+  :func:`masknet.register` (the scene search where the frame is a scene), and the verdict
+  (:func:`masknet.assess_registration`) called the pose ``likely correct``;
+* ``"tracked"``: the pose came from the last ones. Constant velocity in SE(3) predicts
+  it from the last two poses; the frame is cut to the points within the template's radius
+  times ``margin`` of the predicted centre (clutter and far surfaces do not pull the fit);
+  point-to-plane ICP (Open3D) refines the prediction on them; the verdict on those points
+  keeps the track (``likely correct``, or ``uncertain`` for at most ``max_uncertain``
+  frames in a row; then the frame is searched, and where no search finds a ``likely
+  correct`` pose the track goes on, ``uncertain``, and searches again after as many);
+* ``"refound"``: the track slipped (too few points near the prediction, a ``likely
+  wrong`` verdict, too many ``uncertain`` ones) and a search found the object again,
+  ``likely correct``: first ICP from the last trusted pose turned about the template's
+  axes (a sudden turn, or the object back where it was hidden: a few dozen short ICPs),
+  then the full default on the whole frame;
+* ``"lost"``: no search found a pose that the verdict calls ``likely correct``; the pose
+  is the best guess, never to be trusted (the verdict says how bad). The next frame is
+  searched again.
+
+Every pose is a (4, 4) transform in :func:`masknet.register`'s convention
+(:mod:`masknet.geometry.se3`): it maps **frame points into the template frame**,
+``template ~= frame_points @ R.T + t`` on the object's points. The object's pose in the
+frame (template -> frame, where a robot would grasp it) is its inverse,
+:attr:`TrackResult.pose`.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterable, Iterator
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from masknet.errors import MaskNetError
+from masknet.geometry.clouds import MIN_POINTS, centroid_radius, median_spacing
+from masknet.io_checks import ARRAY_NONFINITE_HINT, check_cloud
+
+__all__ = ["STATES", "TrackResult", "Tracker", "points_near", "track"]
+
+STATES = ("found", "tracked", "refound", "lost")
+# ICP's pair cut-offs, in template spacings, in turn: the prediction lies within a few
+# degrees and per cent of the radius of the pose, a spacing or two at the surface.
+ICP_CUTS = (3.0, 1.5)
+ICP_ITERATIONS = 30
+MAX_POINTS = 4096  # the cut-out frame is brought to this many points (evenly) for ICP
+NO_POSE = np.full((4, 4), np.nan)
+MARGIN = 1.5  # the frame is cut to this many template radii around the predicted centre
+MIN_NEAR = 30  # fewer frame points near the object: it is hidden or out of view
+
+
+class TrackResult(NamedTuple):
+    """One frame's answer.
+
+    frame: the frame's index in the stream (from 0). transform: (4, 4) float64 frame ->
+    template (``register``'s convention); NaN where the frame held no points. fitness: the
+    share of the judged frame points within the verdict's inlier distance of the template
+    at that pose. verdict: ``"likely correct"``, ``"uncertain"`` or ``"likely wrong"``
+    (:func:`masknet.assess_registration` on the frame's points near the object); ``""``
+    for an empty frame. state: one of :data:`STATES`. seconds: the frame's wall time.
+    points: how many frame points the pose was judged on (those near the object).
+    reason: one line saying why the state is what it is.
+    """
+
+    frame: int
+    transform: np.ndarray
+    fitness: float
+    verdict: str
+    state: str
+    seconds: float
+    points: int
+    reason: str
+
+    @property
+    def pose(self) -> np.ndarray:
+        """(4, 4) the object's pose in the frame, template -> frame: the inverse of
+        :attr:`transform`."""
+        return np.linalg.inv(self.transform) if np.isfinite(self.transform).all() else NO_POSE
+
+    @property
+    def trusted(self) -> bool:
+        """Whether the pose is one to act on: any state but ``"lost"``."""
+        return self.state != "lost"
+
+
+class Tracker:
+    """Follow ``template`` through frames given one at a time (a live stream).
+
+    Args:
+        template: (N, 3) the object's points, any unit (the frames' unit).
+        init: (4, 4) frame -> template transform of the first frame, to track from it
+            instead of searching the first frame; None searches.
+        seed: the seed of the even subset that ICP sees of a cut-out frame of over 4,096
+            points (:func:`~masknet.geometry.sampling.grid_subset`): a stream run twice
+            with one seed gives the same poses.
+        margin: the frame is cut to the ball of the template's radius (about its
+            centroid) times this, around the predicted centre.
+        min_points: fewer frame points than this in that ball: the object left the
+            view or is hidden, and the full default searches the frame.
+        max_uncertain: ``uncertain`` verdicts in a row before a frame is searched (the
+            track goes on, ``uncertain``, where the search finds nothing better).
+        drop_nonfinite: drop frame rows holding NaN or inf (organised depth frames)
+            instead of refusing the frame.
+        viewpoint: (3,) the sensor's position in frame coordinates (``(0, 0, 0)`` for depth
+            frames in camera coordinates): the searches then place the template as the
+            sensor sees it (``register(..., scene=SceneSearch(viewpoint=...))``), which finds
+            a full model in a one-sided view more often.
+        register_options: other keywords for :func:`masknet.register` where it searches a
+            frame.
+
+    Raises:
+        MaskNetError: a bad template, or a bad ``init``.
+    """
+
+    def __init__(
+        self,
+        template: np.ndarray,
+        *,
+        init: np.ndarray | None = None,
+        seed: int = 0,
+        margin: float = MARGIN,
+        min_points: int = MIN_NEAR,
+        max_uncertain: int = 3,
+        drop_nonfinite: bool = False,
+        viewpoint: tuple[float, float, float] | None = None,
+        register_options: dict[str, Any] | None = None,
+    ) -> None:
+        from masknet.geometry.normals import estimate_normals
+        from masknet.geometry.open3d_clouds import to_open3d
+
+        self.template, _ = check_cloud(template, "template", nonfinite_hint=ARRAY_NONFINITE_HINT)
+        if margin <= 0 or min_points < MIN_POINTS or max_uncertain < 0:
+            raise MaskNetError(
+                f"margin must be > 0, min_points >= {MIN_POINTS} and max_uncertain >= 0; got "
+                f"{margin}, {min_points} and {max_uncertain}"
+            )
+        self.seed, self.margin, self.min_points = seed, margin, min_points
+        self.max_uncertain, self.drop_nonfinite = max_uncertain, drop_nonfinite
+        self.register_options = dict(register_options or {})
+        if viewpoint is not None:
+            from masknet.registration.options import SceneSearch
+
+            self.register_options["scene"] = SceneSearch(viewpoint=tuple(viewpoint))
+        self.centre = self.template.mean(0)
+        self.radius = float(centroid_radius(self.template))
+        self.spacing = median_spacing(self.template, sample=2048)
+        normals = estimate_normals(self.template)[0]
+        self._target = to_open3d(self.template, normals, feature="tracking")
+        self._start = None if init is None else _as_pose(init)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the track: the next frame starts over (from ``init`` where given)."""
+        self._history: list[np.ndarray] = [] if self._start is None else [self._start]
+        self._uncertain = 0
+        self._frame = 0
+        self._last = None  # the last trusted pose: a later search is a re-find, near it first
+
+    def update(self, frame: np.ndarray, name: str | None = None) -> TrackResult:
+        """The object's pose in the next frame (P, 3), any number of points.
+
+        ``name`` (default ``"frame <index>"``) names the frame in errors. An empty frame
+        (or one of fewer than 3 points) is ``"lost"``, not an error: sensors drop frames.
+
+        Raises:
+            MaskNetError: a frame with NaN or inf rows (without ``drop_nonfinite``), of
+                the wrong shape, or in another unit than the template.
+        """
+        start = time.perf_counter()
+        index, self._frame = self._frame, self._frame + 1
+        points = self._checked(frame, name or f"frame {index}")
+        if points is None:
+            self._history = []
+            found = _Found(NO_POSE, 0.0, "", 0, "the frame holds fewer than 3 points")
+            state = "lost"
+        else:
+            state, found = self._step(points)
+        return TrackResult(index, *found[:3], state, time.perf_counter() - start, *found[3:])
+
+    def _checked(self, frame: np.ndarray, name: str) -> np.ndarray | None:
+        from masknet.registration.units import check_units
+
+        array = np.asarray(frame)
+        if array.ndim == 2 and array.shape[1] >= 3:
+            finite = (
+                np.isfinite(array[:, :3]).all(1).sum() if array.dtype.kind == "f" else len(array)
+            )
+            if len(array) < MIN_POINTS or (self.drop_nonfinite and finite < MIN_POINTS):
+                return None
+        hint = "pass drop_nonfinite=True (masknet track --drop-nonfinite) to drop them"
+        points, _ = check_cloud(array, name, self.drop_nonfinite, hint)
+        units = check_units(self.template, points)
+        if units.mixed:
+            raise MaskNetError(f"{name}: {units.message}")
+        return points
+
+    def _step(self, points: np.ndarray) -> tuple[str, _Found]:
+        """The state and the answer for a checked frame (P, 3)."""
+        why, followed = "", None
+        if self._history:
+            followed = self._follow(points, _predicted(self._history, self.centre, self.radius))
+            holds = followed.verdict == "likely correct" or (
+                followed.verdict == "uncertain" and self._uncertain < self.max_uncertain
+            )
+            if holds:
+                return "tracked", self._keep(followed)
+            why = f"the track slipped ({followed.reason}); "
+        found = self._refind(points, why)
+        if found.verdict != "likely correct":
+            if followed is not None and followed.verdict == "uncertain":
+                # No better pose anywhere: the track goes on, uncertain, and searches
+                # again after max_uncertain more frames.
+                self._uncertain = 0
+                return "tracked", self._keep(followed)
+            self._history = []
+            return "lost", found
+        state = "refound" if self._last is not None else "found"
+        self._history, self._uncertain, self._last = [found.transform], 0, found.transform
+        return state, found
+
+    def _keep(self, followed: _Found) -> _Found:
+        """Take a tracked pose: it joins the history that predicts the next."""
+        self._uncertain = 0 if followed.verdict == "likely correct" else self._uncertain + 1
+        self._history = [*self._history[-1:], followed.transform]
+        self._last = followed.transform
+        return followed
+
+    def _refind(self, points: np.ndarray, why: str) -> _Found:
+        """Search the frame: first around the last trusted pose (the object turned or
+        moved suddenly, or came back where it was hidden), then the full default."""
+        near = None
+        if self._last is not None:
+            near = _best(self._follow(points, start) for start in _turned(self._last, self.centre))
+            near = near._replace(reason=f"{why}searched near the last pose: {near.reason}")
+            if near.verdict == "likely correct":
+                return near
+        found = self._find(points, why)
+        return found if near is None else _best([found, near])  # the better guess, if lost
+
+    def _near(self, points: np.ndarray, transform: np.ndarray) -> np.ndarray:
+        """The frame points (K, 3) within the template's radius times ``margin`` of
+        the template's centre placed by ``transform`` (frame -> template)."""
+        return points_near(points, transform, self.centre, self.margin * self.radius)
+
+    def _judged(self, near: np.ndarray, transform: np.ndarray, how: str) -> _Found:
+        """The verdict on the frame points ``near`` (K, 3) the object at ``transform``."""
+        from masknet.registration.assessment import assess_registration
+
+        if len(near) < self.min_points:
+            reason = f"{how}only {len(near)} frame points near the object"
+            return _Found(transform, 0.0, "likely wrong", len(near), reason)
+        check = assess_registration(self.template, near, transform)
+        return _Found(transform, check.fitness, check.verdict, len(near), how + check.reason)
+
+    def _follow(self, points: np.ndarray, predicted: np.ndarray) -> _Found:
+        """Point-to-plane ICP from ``predicted`` (4, 4) on the frame's points near it."""
+        from masknet.geometry.open3d_clouds import to_open3d
+        from masknet.geometry.sampling import grid_subset
+        from masknet.registration.open3d_icp import point_to_plane_at_cuts
+
+        near = self._near(points, predicted)
+        if len(near) < self.min_points:
+            return self._judged(near, predicted, "")
+        even = near[grid_subset(near, MAX_POINTS, self.seed)]
+        cuts = tuple(c * self.spacing for c in ICP_CUTS)
+        pose, _ = point_to_plane_at_cuts(
+            self._target, to_open3d(even, feature="tracking"), predicted, cuts, ICP_ITERATIONS
+        )
+        # Judged on the points near where ICP ended: a pose that moved keeps its object.
+        return self._judged(self._near(points, pose), pose, "")
+
+    def _find(self, points: np.ndarray, why: str) -> _Found:
+        """The full default, :func:`masknet.register`, on the whole frame."""
+        from masknet.registration.api import register
+
+        result = register(self.template, points, **self.register_options)
+        transform = np.asarray(result.transform, dtype=np.float64)
+        return self._judged(self._near(points, transform), transform, why + "searched: ")
+
+
+def points_near(
+    points: np.ndarray, transform: np.ndarray, centre: np.ndarray, reach: float
+) -> np.ndarray:
+    """The frame points (K, 3) of ``points`` (P, 3) within ``reach`` (input units) of the
+    template point ``centre`` (3,) placed in the frame by ``transform`` (4, 4), frame ->
+    template: the object's surroundings, where its verdict is asked."""
+    placed = np.linalg.solve(transform, np.append(centre, 1.0))[:3]
+    return points[np.linalg.norm(points - placed, axis=1) <= reach]
+
+
+class _Found(NamedTuple):
+    """A pose and its verdict, before the state is decided."""
+
+    transform: np.ndarray
+    fitness: float
+    verdict: str
+    points: int
+    reason: str
+
+
+def _as_pose(value: Any) -> np.ndarray:
+    from masknet.registration.validation import as_rigid_transforms
+
+    return np.asarray(as_rigid_transforms(value, 1)[0], dtype=np.float64)
+
+
+# The starts of a search near the last pose: turns about the template's axes through its
+# centre, by these angles (degrees); ICP from each reaches a jump of tens of degrees.
+NEAR_TURNS_DEG = (0.0, 30.0, 60.0, 90.0, 135.0, 180.0)
+
+
+def _turned(transform: np.ndarray, centre: np.ndarray) -> list[np.ndarray]:
+    """``transform`` (4, 4) followed by turns of the template about ``centre`` (3,): the
+    identity and each of :data:`NEAR_TURNS_DEG` about the x, y and z axes, both ways."""
+    from scipy.spatial.transform import Rotation
+
+    starts = [transform]
+    for angle in NEAR_TURNS_DEG[1:]:
+        for axis in np.concatenate([np.eye(3), -np.eye(3)]):
+            turn = np.eye(4)
+            turn[:3, :3] = Rotation.from_rotvec(np.deg2rad(angle) * axis).as_matrix()
+            turn[:3, 3] = centre - turn[:3, :3] @ centre
+            starts.append(turn @ transform)
+    return starts
+
+
+# Frame-to-frame motions beyond these are jumps, not velocities (the sequences move a few
+# degrees and per cent of the radius a frame).
+MAX_STEP_DEG, MAX_STEP_SHIFT = 10.0, 0.1
+RANKS = {"likely correct": 0, "uncertain": 1, "likely wrong": 2, "": 3}
+
+
+def _best(candidates: Iterable[_Found]) -> _Found:
+    """The candidate with the best verdict, then the best fitness."""
+    return min(candidates, key=lambda c: (RANKS[c.verdict], -c.fitness))
+
+
+def _predicted(history: list[np.ndarray], centre: np.ndarray, radius: float) -> np.ndarray:
+    """The next transform (frame -> template) at constant velocity in SE(3): the last
+    frame-to-frame motion of the object, in its own frame, repeated. From transforms T
+    (the object's poses P = T^-1), P_next = P_k P_(k-1)^-1 P_k, so
+    T_next = T_k T_(k-1)^-1 T_k. With one pose, or after a motion larger than
+    :data:`MAX_STEP_DEG` or :data:`MAX_STEP_SHIFT` template radii (of ``centre`` (3,)),
+    the last pose: a jump is not a velocity, and repeating it would throw the next
+    prediction as far off."""
+    if len(history) < 2:
+        return history[-1]
+    from masknet.geometry.se3 import rotation_angle_deg
+
+    previous, last = history[-2:]
+    step = last @ np.linalg.inv(previous)  # in template coordinates
+    point = np.append(centre, 1.0)
+    shift = np.linalg.norm(np.linalg.solve(step, point) - point)
+    if rotation_angle_deg(step[:3, :3]) > MAX_STEP_DEG or shift > MAX_STEP_SHIFT * radius:
+        return last
+    return step @ last
+
+
+def track(
+    template: np.ndarray,
+    frames: Iterable[np.ndarray],
+    *,
+    init: np.ndarray | None = None,
+    seed: int = 0,
+    **options: Any,
+) -> Iterator[TrackResult]:
+    """Follow ``template`` (N, 3) through ``frames`` (each (P_f, 3), the template's unit):
+    one :class:`TrackResult` per frame, as each is computed (a generator).
+
+    ``init``: (4, 4) frame -> template transform of the first frame (None: the first
+    frame is searched with :func:`masknet.register`). ``seed`` and ``options``: those of
+    :class:`Tracker` (``margin``, ``min_points``, ``max_uncertain``, ``drop_nonfinite``,
+    ``viewpoint``, ``register_options``). Poses are in ``register``'s convention, frame -> template;
+    :attr:`TrackResult.pose` is the object's pose in the frame. The states are described
+    in :mod:`masknet.tracking.tracker`.
+
+    Example::
+
+        for result in track(template, frames):
+            if result.trusted:
+                print(result.frame, result.state, result.pose[:3, 3])
+    """
+    tracker = Tracker(template, init=init, seed=seed, **options)
+    for frame in frames:
+        yield tracker.update(frame)
