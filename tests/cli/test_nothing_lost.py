@@ -305,3 +305,61 @@ def test_an_interrupt_as_the_command_returns_still_gets_its_line(capsys, monkeyp
         pytest.fail("the interrupt escaped the CLI's guard")
     assert code == EXIT_INTERRUPTED
     assert capsys.readouterr().err == "masknet: interrupted\n"
+
+
+# A path through a folder not made yet, and back: the writer makes the folder and lands on
+# the input, so the rule resolves the path before it compares.
+
+
+@pytest.mark.parametrize("through", ["new/../", "have/a/b/../../../"])
+def test_an_output_through_a_missing_folder_and_back_is_refused(
+    saved, capsys, sha256_of, monkeypatch, through
+):
+    (saved / "have").mkdir()
+    before = sha256_of(saved)
+    monkeypatch.chdir(saved)
+    for command in (
+        ["register", "t.npy", "s.npy", "-o", f"{through}s.npy"],
+        ["mask", "t.npy", "s.npy", "-o", f"{through}s.npy"],
+        ["denoise", "t.npy", "s.npy", "-o", f"{through}t.npy"],
+    ):
+        _refused(main(command), capsys.readouterr().err, CLASH)
+    assert sha256_of(saved) == before  # nothing written, no folder made
+
+
+def test_a_batch_through_a_missing_folder_and_back_is_refused(
+    saved, capsys, sha256_of, no_batch_work, monkeypatch
+):
+    (saved / "summary.csv").write_text("t.npy s.npy y\n")
+    before = sha256_of(saved)
+    monkeypatch.chdir(saved)
+    _refused(main(["register-many", "--list", "summary.csv", "-o", "new/.."]), capsys.readouterr().err, CLASH)  # fmt: skip
+    assert sha256_of(saved) == before
+
+
+@pytest.mark.parametrize("output", [".", "..", "", "/", "out/"])
+def test_an_output_that_names_no_file_is_refused_in_one_line(saved, capsys, output):
+    for command in ("register", "mask"):
+        code = main([command, str(saved / "t.npy"), str(saved / "s.npy"), "-o", output])
+        _refused(code, capsys.readouterr().err, "names a folder")
+
+
+def test_a_batch_into_a_dangling_link_is_refused_before_any_work(saved, capsys, no_batch_work):
+    (saved / "dangling").symlink_to(saved / "nowhere")
+    code = main(_batch(saved, "-o", str(saved / "dangling")))
+    _refused(code, capsys.readouterr().err, "a link to nothing")
+
+
+def test_evaluate_refuses_a_folder_or_a_file_as_parent_before_it_evaluates(
+    saved, capsys, monkeypatch
+):
+    import masknet.evaluation.evaluate as evaluation
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("the evaluation ran before the refusal")
+
+    monkeypatch.setattr(evaluation, "evaluate_masknet", no_work)
+    data = str(bundled_sample_path())
+    for output in (str(saved), str(saved / "t.npy" / "e.json")):
+        code = main(["evaluate", "--data", data, "--pairs", "2", "-o", output])
+        _refused(code, capsys.readouterr().err, str(saved))

@@ -101,3 +101,14 @@ def test_a_run_saved_within_an_epoch_may_change_its_checkpoint_interval(tmp_path
     fit(_task(at=2), shapes, _config(tmp_path, epochs=1))
     history = fit(_task(), shapes, _config(tmp_path, epochs=1, checkpoint_minutes=5), resume=True)
     assert [row["epoch"] for row in history] == [1]
+
+
+def test_a_run_stopped_before_it_saved_anything_leaves_no_folder(tmp_path, shapes):
+    class Interrupted(_StopsAt):
+        def step(self, model, batch, device):
+            raise KeyboardInterrupt
+
+    task = Interrupted(network="crossmasknet", loss="bce", num_points=128, model_config=CROSS_TINY)
+    with pytest.raises(KeyboardInterrupt):
+        fit(task, shapes, _config(tmp_path / "run"))
+    assert not (tmp_path / "run").exists()

@@ -450,12 +450,31 @@ def refuse_inputs(
 
 def _identity(path: Path) -> tuple[int, int] | str:
     """What names one file whatever the path: (device, inode) where it exists (symbolic
-    and hard links), else the path with its links resolved (a file not made yet)."""
-    try:
-        info = path.stat()  # follows a symbolic link: its target is what gets written
-    except OSError:
-        return os.path.realpath(path)
-    return (info.st_dev, info.st_ino)
+    and hard links), else the path with its links resolved (a file not made yet).
+
+    A path through a folder not made yet (``new/../scan.ply``) cannot be stat'ed as given,
+    but the writer makes that folder and lands on ``scan.ply``: such a path is resolved
+    first (``..`` after a missing folder taken lexically, as the folder made will be a
+    real one) and stat'ed again."""
+    resolved = os.path.realpath(path)
+    for candidate in (path, Path(resolved)):
+        try:
+            info = candidate.stat()  # follows a symbolic link: its target is what gets written
+        except OSError:
+            continue
+        return (info.st_dev, info.st_ino)
+    return resolved
+
+
+def output_file(text: str) -> Path:
+    """``-o/--output`` of a command that writes one file and its side files: refused in one
+    line where it names no file (``.``, ``..``, a path ending in ``/``, an empty string)."""
+    path = Path(text)
+    if not text or text.endswith(("/", os.sep)) or path.name in ("", ".", ".."):
+        raise MaskNetError(
+            f"-o {text!r}: names a folder, not a file; give a file name such as out.ply"
+        )
+    return path
 
 
 def _can_create_in(folder: Path) -> bool:

@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from masknet._atomic import write_all
-from masknet.cli._common import check_html, check_outputs
+from masknet.cli._common import check_html, check_outputs, output_file
 
 if TYPE_CHECKING:
     import numpy as np
@@ -18,7 +18,7 @@ if TYPE_CHECKING:
 def mask_outputs(args: argparse.Namespace, inputs: list[str]) -> tuple[Path, Path]:
     """``--output`` and its ``<stem>_mask.txt``, refused (with ``--html``'s files) before
     any computing if they cannot be written or would overwrite one of ``inputs``."""
-    out = Path(args.output)
+    out = output_file(args.output)
     mask_path = out.with_name(out.stem + "_mask.txt")
     check_outputs([out, mask_path] + check_html(args.html), inputs=inputs)
     return out, mask_path

@@ -4,16 +4,17 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 from masknet.cli import _scans
 from masknet.cli._common import (
     add_model_options,
     add_output_option,
     add_pair_options,
+    check_outputs,
     load_model,
     pair_config,
     positive_int,
-    refuse_inputs,
     seed,
 )
 from masknet.errors import MaskNetError
@@ -50,8 +51,9 @@ def run(args: argparse.Namespace) -> None:
     from masknet.evaluation.evaluate import evaluate_masknet, format_table
     from masknet.io import write_text_atomic
 
-    if args.output:  # refused now, not after the evaluation
-        refuse_inputs([args.output], filter(None, (args.data, args.weights)))
+    if args.output:  # refused now, not after the evaluation: an input, a folder, no way in
+        inputs = filter(None, (args.data, args.weights))
+        check_outputs([Path(args.output)], (".json",), inputs)
     model = load_model(args)
     if args.scans:
         _run_scans(args, model)

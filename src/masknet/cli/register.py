@@ -22,6 +22,7 @@ from masknet.cli._common import (
     finite_float,
     init_option,
     load_model,
+    output_file,
     positive_int,
     progress,
     start_files,
@@ -250,7 +251,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.refine < 0:
         raise MaskNetError(f"--refine must be >= 0, got {args.refine}")
-    out = Path(args.output)
+    out = output_file(args.output)
     # The side files a run owns: the transform always, the inliers with a mask, the source
     # mask when the result masks the source (a loop, two-sided MaskNet, robust, scene
     # search). Those a run does not write are removed with its outputs, so that an earlier

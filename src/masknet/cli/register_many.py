@@ -260,6 +260,8 @@ def _check_results(args: argparse.Namespace, jobs, out: Path, started_from: list
     inputs (the list file, a pair's files, ``--init``'s file), through a link neither."""
     if out.exists() and not out.is_dir():
         raise MaskNetError(f"{out}: is a file; the results of a batch go into a folder")
+    if out.is_symlink() and not out.exists():
+        raise MaskNetError(f"{out}: is a link to nothing; the results of a batch go into a folder")
     inputs = [args.list] if args.list else []
     inputs += started_from
     inputs += [path for job in jobs for path in (job.template, job.source)]

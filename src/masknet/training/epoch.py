@@ -147,7 +147,16 @@ class Saver:
             self.within and self.every is not None and time.perf_counter() - self.last >= self.every
         )
 
+    def open_folder(self) -> None:
+        """The run's folder and its ``run.json``, made with the first file the run saves:
+        a run stopped before it saved anything leaves nothing behind."""
+        folder = self.path.parent
+        folder.mkdir(parents=True, exist_ok=True)
+        with atomic_target(folder / "run.json") as tmp:
+            Path(tmp).write_text(json.dumps(self.run_info, indent=2))
+
     def save(self) -> None:
+        self.open_folder()
         run = self.run
         state = {
             "epoch": run.epoch,
@@ -303,6 +312,7 @@ def end_epoch(
         run.history.append(row)
         score = row[f"val_{task.metric}"] if val_batches else row[f"train_{task.metric}"]
         score = score if task.maximize else -score
+        saver.open_folder()
         meta = {"epoch": epoch + 1, **saver.run_info, "val": row}
         if score > run.best:
             run.best = score

@@ -29,7 +29,6 @@ state, running means and torch RNG state as the run that stopped.
 
 from __future__ import annotations
 
-import json
 import os
 import sys
 import time
@@ -232,9 +231,6 @@ def _fit(
         if len(val_idx) or (config.val_fraction > 0 and not len(train_points))
         else []
     )
-    if lead:
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "run.json").write_text(json.dumps(run_info, indent=2))
     autocast = torch.autocast(device.type, dtype=torch.bfloat16, enabled=precision == "bf16")
     saver = Saver(out / CHECKPOINT, model, optimizer, run, run_info, config, lead and world == 1)
     with stop_on_sigterm(enabled=world == 1) as stop:
