@@ -203,3 +203,21 @@ def test_colour_and_normals_pass_through_to_the_outputs(tmp_path, capsys, o3d):
         read_point_attributes(tmp_path / "d.pcd").colors, colors, atol=1 / 255
     )
     capsys.readouterr()
+
+
+def test_the_command_exits_with_mains_code_and_ignores_a_late_ctrl_c(monkeypatch):
+    """Once main has returned (outputs written, code decided), a Ctrl-C in the exit must not
+    turn the run into a silent 130."""
+    import signal
+
+    import masknet.cli as cli
+
+    monkeypatch.setattr(cli, "main", lambda: 3)
+    before = signal.getsignal(signal.SIGINT)
+    try:
+        with pytest.raises(SystemExit) as done:
+            cli.entry()
+        assert done.value.code == 3
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGINT, before)

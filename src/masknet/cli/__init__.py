@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import sys
 import warnings
 from collections.abc import Callable
@@ -120,6 +121,16 @@ def main(argv: list[str] | None = None) -> int:
     # The guard holds the warnings' setup and teardown too: Ctrl-C landing there, once the
     # outputs are written, still gets its one line and exit 130.
     return _guarded(run, "masknet")
+
+
+def entry() -> None:
+    """The ``masknet`` command (and ``python -m masknet.cli``): :func:`main`, then the exit
+    with its code. Once ``main`` has returned, the outputs are written and the code is
+    decided: a Ctrl-C landing in the interpreter's exit would only turn a finished run into
+    exit 130 without a word, so it is ignored from there."""
+    code = main()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    raise SystemExit(code)
 
 
 def run_script(main: Callable[[], object]) -> None:
