@@ -109,7 +109,7 @@ REFUSALS = {
     "evaluate --data @sample --weights @weights --keep-ratio 1.5": (
         "keep_ratio must be in (0, 1], got 1.5"
     ),
-    # _common.check_outputs and check_html: outputs refused before any computing
+    # _outputs.check_outputs and _common.check_html: outputs refused before any computing
     "register old_inliers.xyz source.npy -o old.xyz": (
         "old_inliers.xyz: is the input old_inliers.xyz; an output never overwrites an "
         "input, give it another name"

@@ -10,7 +10,11 @@ import numpy as np
 import pytest
 
 from masknet.cli import build_parser, main
-from masknet.cli._common import EXIT_CODES, _can_create_in, progress
+from masknet.cli._common import (
+    EXIT_CODES,
+    progress,
+)
+from masknet.cli._outputs import _can_create_in
 from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
 
 ROOT = Path(__file__).resolve().parents[2]

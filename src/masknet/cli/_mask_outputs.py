@@ -9,7 +9,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from masknet._atomic import write_all
-from masknet.cli._common import check_html, check_outputs, output_file
+from masknet.cli._common import (
+    check_html,
+)
+from masknet.cli._outputs import check_outputs, output_file
 
 if TYPE_CHECKING:
     import numpy as np

@@ -12,9 +12,9 @@ from masknet.cli._common import (
     add_output_option,
     load_model,
     positive_int,
-    refuse_inputs,
     seed,
 )
+from masknet.cli._outputs import refuse_inputs
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:

@@ -11,12 +11,12 @@ from masknet.cli._common import (
     add_model_options,
     add_output_option,
     add_pair_options,
-    check_outputs,
     load_model,
     pair_config,
     positive_int,
     seed,
 )
+from masknet.cli._outputs import check_outputs
 from masknet.errors import MaskNetError
 
 

@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import argparse
 
-from masknet.cli._common import positive_int, refuse_inputs
+from masknet.cli._common import (
+    positive_int,
+)
+from masknet.cli._outputs import refuse_inputs
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:

@@ -17,16 +17,15 @@ from masknet.cli._common import (
     add_old_spelling,
     at_least_three,
     check_html,
-    check_outputs,
     exit_codes_text,
     finite_float,
     init_option,
     load_model,
-    output_file,
     positive_int,
     progress,
     start_files,
 )
+from masknet.cli._outputs import check_outputs, output_file
 from masknet.cli._pictures import registration_views
 from masknet.cli._report import print_result, report_path, shown_numbers
 from masknet.errors import MaskNetError

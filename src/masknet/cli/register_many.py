@@ -15,13 +15,13 @@ from masknet.cli._common import (
     EXIT_LIKELY_WRONG,
     EXIT_SOME_FAILED,
     add_output_option,
-    check_outputs,
     exit_codes_text,
     finite_float,
     init_option,
     positive_int,
     start_files,
 )
+from masknet.cli._outputs import check_outputs
 from masknet.errors import MaskNetError
 from masknet.registration.methods import METHODS
 

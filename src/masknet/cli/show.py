@@ -5,7 +5,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from masknet.cli._common import add_file_options, check_html, check_outputs
+from masknet.cli._common import (
+    add_file_options,
+    check_html,
+)
+from masknet.cli._outputs import check_outputs
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:

@@ -18,10 +18,10 @@ from masknet.cli._common import (
     finite_float,
     init_option,
     positive_int,
-    refuse_inputs,
     seed,
     start_files,
 )
+from masknet.cli._outputs import refuse_inputs
 from masknet.errors import MaskNetError
 
 POSES, TRAJECTORY = "poses.csv", "trajectory.png"

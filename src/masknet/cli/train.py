@@ -13,9 +13,9 @@ from masknet.cli._common import (
     json_object,
     pair_config,
     positive_int,
-    refuse_inputs,
     seed,
 )
+from masknet.cli._outputs import refuse_inputs
 from masknet.errors import MaskNetError
 from masknet.registration.methods import NETWORK_METHODS
 
