@@ -7,7 +7,7 @@ import torch
 
 from masknet.data import bundled_sample_path, load_modelnet40
 from masknet.geometry.knn import cloud_tree
-from masknet.geometry.normals import estimate_normals
+from masknet.geometry.normals import estimate_normals, normals_at
 
 
 def test_numpy_normals_equal_the_torch_ones_up_to_sign():
@@ -25,3 +25,12 @@ def test_numpy_normals_of_a_plane_and_a_given_tree():
     plane = np.concatenate([g.uniform(-1, 1, (500, 2)), np.zeros((500, 1))], 1)
     normals, _ = estimate_normals(plane, tree=cloud_tree(plane))
     np.testing.assert_allclose(np.abs(normals[:, 2]), 1.0, atol=1e-9)
+
+
+def test_normals_at_a_few_points_are_those_of_the_whole_cloud():
+    """normals_at takes a few points' normals as estimate_normals takes every point's."""
+    cloud = np.random.default_rng(0).normal(size=(500, 3)) * [1.0, 1.0, 0.2]
+    every = estimate_normals(cloud, k=10)[0]
+    at = np.array([3, 70, 499])
+    few = normals_at(cloud, at, cloud_tree(cloud), k=10)
+    np.testing.assert_allclose(np.abs((few * every[at]).sum(1)), 1.0, atol=1e-9)

@@ -10,7 +10,7 @@ from torch import Tensor
 
 from masknet.geometry.knn import knn_points
 
-__all__ = ["estimate_normals", "plane_offsets"]
+__all__ = ["estimate_normals", "normals_at", "plane_offsets"]
 
 
 def estimate_normals(points: Tensor | np.ndarray, k: int = 16, tree: Any | None = None) -> tuple:
@@ -43,6 +43,16 @@ def estimate_normals(points: Tensor | np.ndarray, k: int = 16, tree: Any | None 
         cov = centred.transpose(-1, -2) @ centred  # (B, N, 3, 3)
         _, vectors = torch.linalg.eigh(cov)  # ascending eigenvalues
         return vectors[..., 0].to(points.dtype), idx
+
+
+def normals_at(cloud: np.ndarray, at: np.ndarray, tree: Any, k: int = 16) -> np.ndarray:
+    """Unit normals (A, 3), float64, of ``cloud`` (N, 3) at its points ``at`` (A,) indices:
+    the covariance's smallest eigenvector over each point's ``k`` nearest (itself
+    included), as :func:`estimate_normals` takes them, for a few points of a large cloud.
+    ``tree``: :func:`masknet.geometry.knn.cloud_tree` of ``cloud``. Signs are arbitrary."""
+    k = min(k, len(cloud))
+    idx = tree.query(cloud[at], k=k)[1].astype(np.int64).reshape(len(at), k)
+    return _pca_normals(np.asarray(cloud, np.float64)[idx])[0]
 
 
 def plane_offsets(

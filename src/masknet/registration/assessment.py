@@ -46,6 +46,13 @@ import numpy as np
 from masknet.geometry.clouds import median_spacing, rms_radius
 from masknet.geometry.sampling import grid_subset
 from masknet.geometry.se3 import transform_points
+from masknet.registration.constraints import (
+    best_slide,
+    describe_free,
+    direction_text,
+    least_pinned,
+    pose_constraint,
+)
 from masknet.registration.fit import given_cut
 from masknet.registration.fit import overlap_fit as implied_overlap_fit
 from masknet.registration.hypotheses import rotation_between_deg
@@ -68,6 +75,13 @@ NEAR_ITERATIONS = 20  # the short ICP that finds the nearest fit
 CORRECT_FIT, WRONG_FIT = 0.6, 0.5  # overlap fit: likely correct at or above, wrong below
 CORRECT_DEG, WRONG_DEG = 3.0, 8.0  # the nearest fit's turn: correct within, wrong from
 CORRECT_SHIFT, WRONG_SHIFT = 0.075, 0.15  # its shift, in RMS radii of the moved source
+# A motion is free where the inlier pairs' point-to-plane normal matrix weighs it under this
+# share of its firmest motion (masknet.registration.constraints): the fit does not pin the
+# pose along it, and a pose slid that way fits as well.
+FREE_RATIO = 2e-4
+# A pose slid along its least pinned motions that fits this much more of the source's
+# overlap (masknet.registration.constraints.best_slide) makes the pose likely wrong.
+SLIDE_GAIN = 0.035
 MAX_POINTS = 8192  # points asked per cloud (an even subset of larger clouds)
 # Larger clouds are first brought to this many points, evenly (grid_subset): a scanner's
 # crowd at its feet otherwise sets the spacing and the fit. On two room scans 2 m apart,
@@ -88,21 +102,34 @@ NEAREST_FITS = ("point", "plane")  # the nearest fit's ICP: point-to-point, gene
 RULE_VERDICTS = {
     "overlap": "likely wrong",  # under WRONG_FIT of the overlap fits
     "nearby": "likely wrong",  # a fit WRONG_DEG or WRONG_SHIFT away
+    "slid": "likely wrong",  # a slide along a least pinned motion fits SLIDE_GAIN better
+    "free": "uncertain",  # "correct", but a motion is free (FREE_RATIO): not pinned
     "correct": "likely correct",  # CORRECT_FIT, within CORRECT_DEG and CORRECT_SHIFT
     "between": "uncertain",  # none of the above
 }
 
 
-def verdict_rule(overlap_fit: float, nearby_deg: float, nearby_shift: float) -> str:
+def verdict_rule(
+    overlap_fit: float,
+    nearby_deg: float,
+    nearby_shift: float,
+    constraint: float = 1.0,
+    slide_gain: float = 0.0,
+) -> str:
     """The rule that decides the verdict (a key of :data:`RULE_VERDICTS`), from the overlap
-    fit at the nearest fit, and how far that fit lies: degrees, and the source centroid's
-    shift over its RMS radius. The rules apply in this order."""
+    fit at the nearest fit, how far that fit lies (degrees, and the source centroid's
+    shift over its RMS radius), how firmly it pins its least pinned motion
+    (``constraint``, :attr:`Assessment.constraint`) and how much better a pose slid along
+    such motions fits (``slide_gain``, :attr:`Assessment.slide_gain`). The rules apply in
+    this order."""
     if overlap_fit < WRONG_FIT:
         return "overlap"
     if nearby_deg >= WRONG_DEG or nearby_shift >= WRONG_SHIFT:
         return "nearby"
+    if slide_gain >= SLIDE_GAIN:
+        return "slid"
     if overlap_fit >= CORRECT_FIT and nearby_deg <= CORRECT_DEG and nearby_shift <= CORRECT_SHIFT:
-        return "correct"
+        return "free" if constraint < FREE_RATIO else "correct"
     return "between"
 
 
@@ -115,7 +142,15 @@ class Assessment(NamedTuple):
     overlap (within 3 times that distance). nearby_deg, nearby_shift: how far a short ICP
     from the pose moves it, as a rotation in degrees and as the shift of the source's
     centroid over its RMS radius. max_correspondence_distance: the inlier distance, input
-    units."""
+    units. constraint: how firmly the fit at the pose pins its least pinned motion, the
+    smallest eigenvalue of its inlier pairs' point-to-plane normal matrix over the largest
+    (:func:`~masknet.registration.constraints.pose_constraint`; 1.0 where under a dozen
+    pairs fit). free_directions: the motions it leaves free (under :data:`FREE_RATIO`) in
+    words, e.g. ``("slide along (0.71, 0.70, 0.00)",)``; empty where the fit pins the
+    pose. least_pinned: the motion it pins least, in those words, free or not (empty where
+    under a dozen pairs fit). slide_gain: how much more of the overlap (both ways) fits at
+    the pose slid along its two least pinned motions (up to a quarter of the radius) than
+    at the pose or its nearest fit (:func:`~masknet.registration.constraints.best_slide`)."""
 
     verdict: str
     reason: str
@@ -125,6 +160,10 @@ class Assessment(NamedTuple):
     nearby_deg: float
     nearby_shift: float
     max_correspondence_distance: float
+    constraint: float = 1.0
+    free_directions: tuple[str, ...] = ()
+    slide_gain: float = 0.0
+    least_pinned: str = ""
 
 
 def _subset(points: np.ndarray, count: int, seed: int) -> np.ndarray:
@@ -321,7 +360,15 @@ def judge(prepared: PreparedCheck, transform: np.ndarray) -> Assessment:
         f"{overlap_fit:.0%} of the overlap fits within {limit:.3g} (input units; the worse "
         f"of the two directions)"
     )
-    rule = verdict_rule(overlap_fit, nearby_deg, nearby_shift)
+    # How firmly the fit pins the pose: on a plane, a crease or a corridor a slid pose fits
+    # the surfaces it lies on as well as the right one. Measured at the pose, not at the
+    # nearest fit: on scans a point-to-point nearest fit slides off a right pose, and a
+    # slide back from there fits better.
+    pinned = pose_constraint(prepared.template, template_tree, moved, limit)
+    constraint = 1.0 if pinned is None else float(pinned.ratios[0])
+    free = describe_free(pinned, FREE_RATIO)
+    slide = best_slide(template_tree, prepared.template_points, moved, limit, pinned, overlap_fit)
+    rule = verdict_rule(overlap_fit, nearby_deg, nearby_shift, constraint, slide.gain)
     verdict = RULE_VERDICTS[rule]
     if rule == "overlap":
         reason = (
@@ -329,8 +376,32 @@ def judge(prepared: PreparedCheck, transform: np.ndarray) -> Assessment:
         )
     elif rule == "nearby":
         reason = f"a pose {away} fits better"
+    elif rule == "slid":
+        offset = np.linalg.norm(slide.offset)
+        reason = (
+            f"a pose slid {offset:.3g} (input units) along {direction_text(slide.offset)} from "
+            f"the nearest fit ({away}) fits {slide.gain:.0%} more of the overlap"
+        )
+    elif rule == "free":
+        reason = (
+            f"at the nearest fit ({away}), {fits}, but the fit does not pin the pose: free "
+            f"to {' and to '.join(free)}"
+        )
     else:
         reason = f"at the nearest fit ({away}), {fits}"
+    if free and rule != "free":
+        reason += f"; the fit leaves the pose free to {' and to '.join(free)}"
     return Assessment(
-        verdict, reason, overlap_fit, fitness, overlap, nearby_deg, nearby_shift, limit
+        verdict,
+        reason,
+        overlap_fit,
+        fitness,
+        overlap,
+        nearby_deg,
+        nearby_shift,
+        limit,
+        constraint,
+        free,
+        slide.gain,
+        least_pinned(pinned),
     )
