@@ -273,6 +273,6 @@ def plot_learning_curve(history: list[dict], path: str | os.PathLike, metric: st
         ax.legend()
     if history:
         hours = history[-1].get("elapsed_min", 0.0) / 60
-        epochs = f"{len(history)} epoch{'s' if len(history) != 1 else ''}"
-        fig.suptitle(f"{epochs}, {hours:.1f} h of training", fontsize=10)
+        count = f"{len(history)} epoch{'s' if len(history) != 1 else ''}"
+        fig.suptitle(f"{count}, {hours:.1f} h of training", fontsize=10)
     return _save(fig, path)
