@@ -56,7 +56,9 @@ def test_benchmark_rows_and_more_iterations_help(pairs):
 
 
 def test_iteration_rows_follow_the_rounds(pairs):
-    rows = iteration_errors(pairs, rounds=3, progress=False, use_mask=False, max_iterations=2)
+    rows = iteration_errors(
+        pairs, rounds=3, progress=False, use_mask=False, method="icp", max_iterations=2
+    )
     assert [r["round"] for r in rows] == [1, 2, 3]
     # Plain ICP continued: each round is two more iterations, so errors do not grow.
     assert rows[2]["rot_mean"] <= rows[0]["rot_mean"] + 1e-9
