@@ -73,3 +73,11 @@ def test_the_training_task_builds_either_network():
     assert "network" not in MaskNetTask().describe()  # earlier runs' settings unchanged
     with pytest.raises(ValueError, match="network must be one of"):
         MaskNetTask(network="pointnet")
+
+
+def test_auto_precision_is_fp32_on_a_cpu_where_bf16_is_slower():
+    from masknet.runtime import default_precision
+
+    cpu = torch.device("cpu")
+    assert CrossMaskNet(**SMALL).auto_precision(cpu) == "fp32"
+    assert MaskNet().auto_precision(cpu) == default_precision(cpu)

@@ -130,6 +130,12 @@ class CrossMaskNet(MaskPredictionMixin, SafetensorsWeights, nn.Module):
         x = mlp(self.head, torch.cat([t, pooled], dim=-1)).squeeze(-1)
         return x if logits else torch.sigmoid(x)
 
+    def auto_precision(self, device: torch.device) -> Precision:
+        """fp32 on CPUs: at batch 1 (1,024 / 717 points, 2 threads) bf16 autocast runs this
+        network's many small layers slower than fp32, even with AVX512-BF16 (20.9 ms against
+        17.5 ms, ``scripts/mask_speed.py``); bf16 on GPUs."""
+        return "fp32" if device.type == "cpu" else super().auto_precision(device)
+
     def scorer(self, precision: Precision = "fp32"):
         """The inference path, :meth:`forward` under ``precision``'s autocast
         (:meth:`~masknet.models.mask_prediction.MaskPredictionMixin.forward_scorer`)."""

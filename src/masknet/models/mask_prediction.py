@@ -150,6 +150,8 @@ class MaskPredictionMixin:
         """:meth:`predict`'s scores as a CPU tensor (B, N), and whether one pair was given:
         the clouds enter torch in one conversion, and callers take out only what they need."""
         device = next(self.parameters()).device
+        if precision == "auto":
+            precision = self.auto_precision(device)
         t, s, single, precision = prepare_inputs(template, source, normalize, precision, device)
         fused = self.scorer(precision)
         step = max(1, pairs_per_call)
@@ -253,6 +255,12 @@ class MaskPredictionMixin:
             template, source, k=k, threshold=threshold, precision=precision, normalize=normalize
         )
         return mask, None
+
+    def auto_precision(self, device: torch.device) -> Precision:
+        """What ``precision="auto"`` runs on ``device``: bf16 where the hardware runs it
+        natively (:func:`masknet.runtime.default_precision`), else fp32. A network whose
+        bf16 path is slower where it runs overrides this."""
+        return default_precision(device)
 
     def forward_scorer(self, precision: Precision = "fp32"):
         """A ``scorer`` from the network's own forward: ``(template (B, N, 3), source
