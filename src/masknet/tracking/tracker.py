@@ -39,6 +39,7 @@ import numpy as np
 from masknet.errors import MaskNetError
 from masknet.geometry.clouds import MIN_POINTS, centroid_radius, median_spacing
 from masknet.io_checks import ARRAY_NONFINITE_HINT, check_cloud
+from masknet.registration.assessment import VERDICTS
 
 __all__ = ["STATES", "TrackResult", "Tracker", "points_near", "track"]
 
@@ -331,7 +332,8 @@ def _turned(transform: np.ndarray, centre: np.ndarray) -> list[np.ndarray]:
 # Frame-to-frame motions beyond these are jumps, not velocities (the sequences move a few
 # degrees and per cent of the radius a frame).
 MAX_STEP_DEG, MAX_STEP_SHIFT = 10.0, 0.1
-RANKS = {"likely correct": 0, "uncertain": 1, "likely wrong": 2, "": 3}
+# The verdicts best first, as the verdict orders them (assessment.VERDICTS), then no pose.
+RANKS = {verdict: rank for rank, verdict in enumerate((*VERDICTS, ""))}
 
 
 def _best(candidates: Iterable[_Found]) -> _Found:
