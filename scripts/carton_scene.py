@@ -32,7 +32,7 @@ from masknet.evaluation.registration import pose_errors
 from masknet.geometry.knn import cloud_tree
 from masknet.io import read_points, require_open3d, write_text_atomic
 from masknet.models import TwoSidedMaskNet
-from masknet.registration.scene import SceneSearch
+from masknet.registration.stages.scene import SceneSearch
 from masknet.viewer import scene_layers, write_views
 
 

@@ -45,7 +45,7 @@ from masknet.geometry.se3 import transform_points
 from masknet.io import write_text_atomic
 from masknet.models.refine import RefineMaskNet
 from masknet.models.weights import shipped_weights_path
-from masknet.registration.refinement import TEMPLATE_THRESHOLD
+from masknet.registration.stages.refinement import TEMPLATE_THRESHOLD
 
 THRESHOLDS = (0.5, 0.8, 0.9, 0.925, 0.95, 0.97, 0.98)
 SPACINGS = (1.0, 1.5, 2.0, 3.0)

@@ -35,7 +35,7 @@ from masknet.data import bundled_sample_path, load_modelnet40
 from masknet.data.views import hidden_point_removal
 from masknet.evaluation.registration import pose_errors
 from masknet.io import write_text_atomic
-from masknet.registration.scene import SceneSearch
+from masknet.registration.stages.scene import SceneSearch
 
 SENSOR = np.array([3.0, 3.0, 8.0])  # one depth sensor above the grid's centre
 

@@ -163,7 +163,7 @@ def ship_refine(args: argparse.Namespace, previous: dict | None) -> None:
     from masknet.experiments.context import BenchmarkContext
     from masknet.experiments.rounds import refiner_table
     from masknet.models.refine import RefineMaskNet
-    from masknet.registration.refinement import NearestNeighbourMasks
+    from masknet.registration.stages.refinement import NearestNeighbourMasks
 
     run, log = cards.read_run(args.run)
     model = RefineMaskNet.from_file(args.run / "best.safetensors")

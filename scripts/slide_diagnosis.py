@@ -27,8 +27,8 @@ def main() -> None:
     from masknet.geometry.clouds import median_spacing
     from masknet.geometry.knn import cloud_tree
     from masknet.geometry.normals import estimate_normals
-    from masknet.registration.fit import FIT_SPACINGS, pose_fit
-    from masknet.registration.icp import icp
+    from masknet.registration.judge.fit import FIT_SPACINGS, pose_fit
+    from masknet.registration.solvers.icp import icp
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--draws", type=int, default=8)

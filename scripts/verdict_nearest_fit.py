@@ -5,7 +5,7 @@
 
 For each of three sets of the robust benchmark (re-sampled ModelNet40 pairs of 512 points,
 scan pairs re-sampled, scan pairs sharing points; its seed 0): the verdict
-(:func:`masknet.registration.assessment.judge`) at the true pose and at the true pose
+(:func:`masknet.registration.judge.assessment.judge`) at the true pose and at the true pose
 turned 30 degrees, counted by verdict, with each nearest fit. The default uses the
 plane-to-plane fit only in the consensus front end of scans (templates of
 ``consensus_from`` points or more); ``scripts/density_draws.py`` measures it there. Needs
@@ -31,7 +31,7 @@ def main() -> None:
     from masknet.evaluation.registration import pair_arrays
     from masknet.experiments import robust
     from masknet.experiments.context import BenchmarkContext
-    from masknet.registration import assessment
+    from masknet.registration.judge import assessment
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--pairs", type=int, default=100)

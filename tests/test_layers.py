@@ -48,3 +48,27 @@ def test_the_architecture_doc_lists_the_layers_in_this_order():
     block = text.split("```")[1]
     listed = [line.split()[0] for line in block.strip().splitlines() if re.match(r"^\w", line)]
     assert listed == LAYERS
+
+
+# registration/'s folders by role (docs/ARCHITECTURE.md): the call's top (the facade and
+# what only it runs) uses everything; the stages use the solvers and the judge; the solvers
+# and the judge never use the stages. All of them use the call's terms.
+CALL_TOP = {"api", "plan", "pipeline", "many"}
+
+
+def test_registration_folders_import_only_down():
+    wrong = []
+    reg = SRC / "registration"
+    for role, banned in (
+        ("stages", {"call." + m for m in CALL_TOP}),
+        ("solvers", {"stages"} | {"call." + m for m in CALL_TOP}),
+        ("judge", {"stages"} | {"call." + m for m in CALL_TOP}),
+    ):
+        for path in (reg / role).rglob("*.py"):
+            for name in _imports(path):
+                rest = name.removeprefix("masknet.registration.")
+                if any(rest == b or rest.startswith(b + ".") for b in banned):
+                    wrong.append(f"{path.relative_to(SRC)} imports {name}")
+    assert not wrong, wrong
+    # the check sees the folders it is about
+    assert {p.name for p in reg.iterdir() if p.is_dir()} >= {"call", "stages", "solvers", "judge"}

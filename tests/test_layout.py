@@ -1,6 +1,6 @@
 """The shape of the source tree: one home per idea (docs/ARCHITECTURE.md's "One of each"
 table), short functions (registration's shortest), back-ends that do not import upward,
-and no pose compared with another outside the arbiter (registration/arbiter.py)."""
+and no pose compared with another outside the arbiter (registration/judge/arbiter.py)."""
 
 from __future__ import annotations
 
@@ -244,7 +244,7 @@ DETECTORS = {
         {
             idea
             for idea, file, _ in one_of_each()
-            if file == "registration/fit.py" or idea.startswith("ICP,") or "consensus" in idea
+            if file == "registration/judge/fit.py" or idea.startswith("ICP,") or "consensus" in idea
         },
         counts_inliers,
     ),
@@ -263,7 +263,7 @@ ELSEWHERE = {
         "ModelNet40's shapes are float32: unit_radius's float64 radius moves them by up to "
         "1.2e-7 (a float32 step), and every figure was measured on the shapes as they are"
     ),
-    ("inlier cut-off", "registration/assessment.py:prepare_check"): (
+    ("inlier cut-off", "registration/judge/assessment.py:prepare_check"): (
         "the verdict's cut-off, on the larger of the two clouds' spacings; it goes through "
         "options.inlier_cutoff with the verdict's next change"
     ),
@@ -366,17 +366,21 @@ def test_register_and_the_registration_functions_are_short():
         if where.startswith("registration/") and body_lines(fn) >= 80
     }
     assert not long, f"functions of 80 lines or more: {long}"
-    register = dict(top_level_functions())["registration/api.py:register"]
+    register = dict(top_level_functions())["registration/call/api.py:register"]
     assert body_lines(register) < 60
 
 
 def test_backends_import_nothing_that_dispatches_into_them():
     dispatchers = set()
-    for path in (SRC / "registration").glob("*.py"):
-        if re.search(r"^from masknet\.registration\.(methods|backends)", path.read_text(), re.M):
-            dispatchers.add("masknet.registration." + path.stem)
-    assert "masknet.registration.rounds" in dispatchers  # the check still sees a dispatcher
-    for path in (SRC / "registration" / "backends").glob("*.py"):
+    backends = SRC / "registration" / "solvers" / "backends"
+    for path in (SRC / "registration").rglob("*.py"):
+        text = path.read_text()
+        if backends not in path.parents and re.search(
+            r"^from masknet\.registration\.(call\.methods|solvers\.backends)", text, re.M
+        ):
+            dispatchers.add(".".join(path.relative_to(SRC.parent).with_suffix("").parts))
+    assert "masknet.registration.stages.rounds" in dispatchers  # the check still sees a dispatcher
+    for path in backends.glob("*.py"):
         imported = re.findall(r"from (masknet\.[\w.]+) import", path.read_text())
         assert not set(imported) & dispatchers, f"{path.name} imports {set(imported) & dispatchers}"
 
@@ -384,23 +388,65 @@ def test_backends_import_nothing_that_dispatches_into_them():
 @pytest.mark.parametrize(
     ("old", "name", "new"),
     [
-        ("masknet.registration.prepared", "pose_fit", "masknet.registration.fit"),
-        ("masknet.registration.prepared", "PoseFit", "masknet.registration.fit"),
-        ("masknet.registration.rounds", "RoundFits", "masknet.registration.fit"),
-        ("masknet.registration.rounds", "keep_source_points", "masknet.registration.backends.base"),
-        ("masknet.registration.refinement", "FIT_SLACK", "masknet.registration.fit"),
-        ("masknet.registration.api", "REFINE_POINTS", "masknet.registration.pipeline"),
+        ("masknet.registration.auto", "auto_register", "masknet.registration.stages.auto"),
+        ("masknet.registration.robust", "robust_register", "masknet.registration.stages.robust"),
+        ("masknet.registration.robust.consensus", "judge", "masknet.registration.stages.consensus"),
+        ("masknet.registration.icp", "icp", "masknet.registration.solvers.icp"),
+        ("masknet.registration.backends", "BackendRun", "masknet.registration.solvers.backends"),
+        ("masknet.registration.arbiter", "Candidate", "masknet.registration.judge.arbiter"),
+        ("masknet.registration.api", "register", "masknet.registration.call.api"),
+    ],
+)
+def test_a_moved_module_still_imports_with_a_warning_naming_its_new_place(old, name, new):
+    module = importlib.import_module(old)
+    with pytest.warns(DeprecationWarning, match=f"{old} has moved to {new}"):
+        value = getattr(module, name)
+    assert value is getattr(importlib.import_module(new), name)
+
+
+def test_every_registration_module_sits_in_a_role_folder_or_is_a_shim():
+    loose = [
+        path.relative_to(SRC).as_posix()
+        for path in (SRC / "registration").rglob("*.py")
+        if path.parent.name not in {"call", "stages", "solvers", "judge", "backends"}
+        and path.name != "__init__.py"
+        and "moved_" not in path.read_text()
+    ]
+    assert not loose, f"modules outside the role folders: {loose}"
+
+
+@pytest.mark.parametrize(
+    ("old", "name", "new"),
+    [
+        ("masknet.registration.judge.prepared", "pose_fit", "masknet.registration.judge.fit"),
+        ("masknet.registration.judge.prepared", "PoseFit", "masknet.registration.judge.fit"),
+        ("masknet.registration.stages.rounds", "RoundFits", "masknet.registration.judge.fit"),
+        (
+            "masknet.registration.stages.rounds",
+            "keep_source_points",
+            "masknet.registration.solvers.backends.base",
+        ),
+        ("masknet.registration.stages.refinement", "FIT_SLACK", "masknet.registration.judge.fit"),
+        ("masknet.registration.call.api", "REFINE_POINTS", "masknet.registration.call.pipeline"),
         (
             "masknet.registration.coarse",
             "coarse_to_fine",
-            "masknet.registration.robust.search",
+            "masknet.registration.stages.search",
         ),
-        ("masknet.registration.coarse", "check_points", "masknet.registration.prepared"),
-        ("masknet.registration.evaluation", "evaluate_registration", "masknet.registration.fit"),
+        ("masknet.registration.coarse", "check_points", "masknet.registration.judge.prepared"),
+        (
+            "masknet.registration.evaluation",
+            "evaluate_registration",
+            "masknet.registration.judge.fit",
+        ),
         ("masknet.registration.sampling", "fit_to_network", "masknet.geometry.sampling"),
-        ("masknet.registration.fit", "fits_worse", "masknet.registration.arbiter"),
-        ("masknet.registration.robust.consensus", "verdict_rank", "masknet.registration.arbiter"),
-        ("masknet.registration.hypotheses", "rank", "masknet.registration.arbiter"),
+        ("masknet.registration.judge.fit", "fits_worse", "masknet.registration.judge.arbiter"),
+        (
+            "masknet.registration.stages.consensus",
+            "verdict_rank",
+            "masknet.registration.judge.arbiter",
+        ),
+        ("masknet.registration.judge.hypotheses", "rank", "masknet.registration.judge.arbiter"),
     ],
 )
 def test_a_moved_name_still_imports_with_a_warning_naming_its_new_place(old, name, new):
@@ -412,7 +458,7 @@ def test_a_moved_name_still_imports_with_a_warning_naming_its_new_place(old, nam
         module.no_such_name  # noqa: B018
 
 
-# --- No pose is compared with another outside registration/arbiter.py ------------------
+# --- No pose is compared with another outside registration/judge/arbiter.py ------------------
 #
 # The rule, by AST over ``src/masknet/registration/**`` (every top-level function and every
 # method), arbiter.py aside:
@@ -466,26 +512,26 @@ CALLS = {
 PICKS = {"min", "max", "sorted", "sort", "argsort", "argmax", "argmin"}
 COMPARISONS = (ast.Lt, ast.LtE, ast.Gt, ast.GtE, ast.Eq, ast.NotEq)
 
-ARBITER = "registration/arbiter.py:"
+ARBITER = "registration/judge/arbiter.py:"
 # (file:function, the decision's source) -> why it is no choice between poses.
 ALLOWED = {
-    ("registration/assessment.py:judge", "min(source_fit, template_fit)"): (
+    ("registration/judge/assessment.py:judge", "min(source_fit, template_fit)"): (
         "the verdict's overlap fit of one pose: the worse of its two directions"
     ),
-    ("registration/correspondences.py:ransac_poses", "max(best, int(near.sum(1).max()))"): (
+    ("registration/solvers/correspondences.py:ransac_poses", "max(best, int(near.sum(1).max()))"): (
         "RANSAC's stopping rule (how many draws): the best inlier share so far"
     ),
-    ("registration/correspondences.py:ransac_poses", "near.sum(1).max()"): (
+    ("registration/solvers/correspondences.py:ransac_poses", "near.sum(1).max()"): (
         "RANSAC's stopping rule (how many draws): the best inlier share so far"
     ),
     (
-        "registration/correspondences.py:ransac_poses",
+        "registration/solvers/correspondences.py:ransac_poses",
         "drawn >= np.log(1 - confidence) / np.log(1 - share ** 3)",
     ): "RANSAC's stopping rule: enough draws for its confidence",
-    ("registration/icp.py:_settled", "change <= relative_rmse * prev_mse ** 0.5"): (
+    ("registration/solvers/icp.py:_settled", "change <= relative_rmse * prev_mse ** 0.5"): (
         "ICP's convergence test on its own iterates' error, not a choice of answer"
     ),
-    ("registration/scene_centres.py:likely_centres", "np.argsort(-scores, kind='stable')"): (
+    ("registration/stages/scene_centres.py:likely_centres", "np.argsort(-scores, kind='stable')"): (
         "ranks the scene's candidate centres by feature likeness, before any pose exists"
     ),
 }

@@ -13,7 +13,7 @@ def test_every_public_name_resolves():
 
 def test_scene_search_is_exported():
     from masknet import SceneSearch
-    from masknet.registration.scene import SceneSearch as defined
+    from masknet.registration.stages.scene import SceneSearch as defined
 
     assert SceneSearch is defined and "SceneSearch" in masknet.__all__
     assert SceneSearch(viewpoint=(0.0, 0.0, 0.0)).viewpoint == (0.0, 0.0, 0.0)

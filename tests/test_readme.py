@@ -237,7 +237,7 @@ def test_the_demo_precision_in_the_readme_is_the_shipped_weights(tmp_path, one_t
 
 def test_the_readme_lists_every_path_of_the_default():
     # The Registration section's list of info["path"] values, against the code's own list.
-    from masknet.registration.auto import PATHS
+    from masknet.registration.stages.auto import PATHS
 
     text = README.read_text()
     listed = text.split('`result.info["path"]` says which ran:', 1)[1].split("), and", 1)[0]

@@ -68,7 +68,7 @@ def test_thinned_room_scans_are_judged_on_even_halves(thinned_rooms, monkeypatch
     correct`; on even halves the reference reads `likely correct` and the scans as given
     do not."""
     from masknet import assess_registration
-    from masknet.registration import assessment
+    from masknet.registration.judge import assessment
 
     template, source, reference = thinned_rooms
     assert assess_registration(template, source, reference).verdict == "likely correct"
@@ -83,7 +83,7 @@ def test_thinned_room_scans_do_not_slide_along_the_room(thinned_rooms, monkeypat
     scan); the translation that most matches vote for elsewhere, under its rotation, is the
     right one, and the verdict ranks it higher. Measured 0.17 degrees and 1.0 cm; without
     the slid pose 2.2 m off."""
-    import masknet.registration.robust.consensus as consensus
+    import masknet.registration.stages.consensus as consensus
 
     template, source, reference = thinned_rooms
     result = register(template, source)

@@ -18,7 +18,7 @@ ROOT = Path(__file__).resolve().parents[1]
 SCRIPTS = sorted((ROOT / "scripts").glob("*.py"))
 
 # Internal modules that hold no public API, beside every module or name with a leading _.
-INTERNAL = ("masknet.registration.rounds", "masknet.registration.backends")
+INTERNAL = ("masknet.registration.stages.rounds", "masknet.registration.solvers.backends")
 
 
 def _private(module: str, names: list[str]) -> list[str]:
@@ -56,9 +56,9 @@ import masknet._atomic
 from masknet._atomic import atomic_target
 from masknet.cli import _common
 from masknet.cli._common import write_views
-from masknet.registration.rounds import keep_source_points
-from masknet.registration.backends import BACKENDS
-from masknet.registration.backends.base import adapter
+from masknet.registration.stages.rounds import keep_source_points
+from masknet.registration.solvers.backends import BACKENDS
+from masknet.registration.solvers.backends.base import adapter
 from masknet.io import _read_trimesh
 from masknet.io import read_points
 from masknet import register
@@ -69,9 +69,9 @@ import numpy._core
         "masknet._atomic",
         "masknet.cli._common",
         "masknet.cli._common",
-        "masknet.registration.rounds",
-        "masknet.registration.backends",
-        "masknet.registration.backends.base",
+        "masknet.registration.stages.rounds",
+        "masknet.registration.solvers.backends",
+        "masknet.registration.solvers.backends.base",
         "masknet.io._read_trimesh",
     ]
 

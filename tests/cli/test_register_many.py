@@ -10,7 +10,7 @@ import pytest
 
 from masknet.cli import main
 from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
-from masknet.registration.assessment import VERDICTS
+from masknet.registration.judge.assessment import VERDICTS
 
 
 @pytest.fixture()

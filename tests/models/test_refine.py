@@ -122,7 +122,7 @@ def _masks_at(refiner, pairs, angle: float) -> tuple[float, float]:
 # 0.981, 10% outliers at 5 deg precision 0.965 and 0.747 removed (its card: 0.981, 0.965,
 # 0.719 on 300 test pairs). The rule measured 0.969, 0.946 and 0.599 on the same pairs.
 def test_shipped_refinement_weights_keep_their_accuracy(shipped_pairs):
-    from masknet.registration.refinement import NearestNeighbourMasks
+    from masknet.registration.stages.refinement import NearestNeighbourMasks
 
     net = RefineMaskNet.pretrained()
     clean, _ = _masks_at(net, shipped_pairs["clean"], 5.0)

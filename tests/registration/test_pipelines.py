@@ -12,15 +12,15 @@ from scipy.spatial.transform import Rotation
 from masknet.data import bundled_sample_path, load_modelnet40
 from masknet.geometry.sampling import NetworkClouds
 from masknet.models import MaskNet, TwoSidedMaskNet
-from masknet.registration.auto import PATHS
-from masknet.registration.auto import auto_register as run_auto
-from masknet.registration.backends.base import MaskModels, PipelineRun
-from masknet.registration.options import RobustOptions
-from masknet.registration.robust import robust_register as run_robust
+from masknet.registration.call.options import RobustOptions
+from masknet.registration.solvers.backends.base import MaskModels, PipelineRun
+from masknet.registration.stages.auto import PATHS
+from masknet.registration.stages.auto import auto_register as run_auto
+from masknet.registration.stages.robust import robust_register as run_robust
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
-# info["path"], as documented (masknet.registration.auto, .coarse)
+# info["path"], as documented (masknet.registration.stages.auto, .coarse)
 AUTO_PATHS = set(PATHS) - {"scene search"}  # the scene search's is set by the facade
 ROBUST_PATHS = {"correspondences", "search"}
 SEARCH_ONLY = RobustOptions(correspondence_hypotheses=0)  # skip the FPFH hypotheses

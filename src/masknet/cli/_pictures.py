@@ -31,7 +31,7 @@ def registration_views(
 ) -> list[tuple[Path, Callable[[Path], object]]]:
     """Writers of the HTML view and its PNG for a registration: template (N, 3), source as
     given (M, 3), moved (M, 3) the registered source, ``result`` the RegistrationResult,
-    ``check`` its :func:`~masknet.registration.assessment.assess_registration`."""
+    ``check`` its :func:`~masknet.registration.judge.assessment.assess_registration`."""
     from masknet.geometry.knn import cloud_tree
     from masknet.viewer import view_writers
     from masknet.viz import distance_colours, plot_registration

@@ -64,7 +64,7 @@ def report_path(info: dict, rotation: np.ndarray, source_name: str = "the source
         why = "method robust"
     print(f"path: {path} ({why}); best hypothesis from {info['source']}")
     if bool(info.get("ambiguous", False)):
-        from masknet.registration.hypotheses import rotation_between_deg
+        from masknet.registration.judge.hypotheses import rotation_between_deg
 
         result_pose = np.eye(4)
         result_pose[:3, :3] = rotation
@@ -90,7 +90,7 @@ def print_result(args, name: str, template, source, source_rows, result) -> None
     dropped_text = f", {dropped:,} non-finite rows dropped" if dropped else ""
     loop = ""
     if args.iterations > 1 and not args.no_mask:
-        from masknet.registration.refinement import DEFAULT_REFINER
+        from masknet.registration.stages.refinement import DEFAULT_REFINER
 
         refine = args.refine_masks or DEFAULT_REFINER
         loop = f"; {args.iterations} rounds, masks of rounds >= 2: {refine}"
@@ -121,7 +121,7 @@ def print_result(args, name: str, template, source, source_rows, result) -> None
         print(f"source kept: {int(result.source_mask.sum()):,} of {len(source):,} points")
     if len(result.rounds) > 1:  # how far each round moved the source: has the loop settled?
         from masknet.geometry.se3 import transform_points
-        from masknet.registration.hypotheses import rotation_between_deg
+        from masknet.registration.judge.hypotheses import rotation_between_deg
 
         steps = []
         for r, (before, after) in enumerate(zip(result.rounds, result.rounds[1:], strict=False), 2):

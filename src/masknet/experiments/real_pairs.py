@@ -36,8 +36,8 @@ from masknet.evaluation.registration import pose_errors
 from masknet.experiments.context import BenchmarkContext, ExperimentResult, median_time
 from masknet.experiments.scans import THREEDMATCH_FILES, load_pair, scans_folder
 from masknet.geometry.open3d_clouds import to_open3d
-from masknet.registration.api import register
-from masknet.registration.open3d_icp import point_to_plane_at_cuts
+from masknet.registration.call.api import register
+from masknet.registration.solvers.open3d_icp import point_to_plane_at_cuts
 
 __all__ = [
     "consensus_pose",
@@ -64,11 +64,11 @@ def open3d_tutorial(
 ) -> np.ndarray:
     """Open3D's global-registration tutorial on full clouds: (4, 4) source -> template.
     ``voxel`` in the clouds' units; ``unit`` metres per input unit (for the ICP). RANSAC on
-    FPFH is the project's wrapper (:func:`~masknet.registration.open3d_global.open3d_fpfh_ransac`,
+    FPFH is the project's wrapper (:func:`~masknet.registration.solvers.open3d_global.open3d_fpfh_ransac`,
     down-sampled to the voxel, the tutorial's radii, 100,000 iterations, all threads), then
     point-to-plane ICP."""
     from masknet.io import require_open3d
-    from masknet.registration.open3d_global import open3d_fpfh_ransac
+    from masknet.registration.solvers.open3d_global import open3d_fpfh_ransac
 
     o3d = require_open3d("the Open3D tutorial pipeline")
     coarse, _, _ = open3d_fpfh_ransac(template, source, voxel, repeatable=False, downsample=True)

@@ -28,8 +28,8 @@ from masknet.experiments.plots import panel_plot
 from masknet.experiments.scans import scans_folder
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
-from masknet.registration.api import register
-from masknet.registration.refinement import NearestNeighbourMasks
+from masknet.registration.call.api import register
+from masknet.registration.stages.refinement import NearestNeighbourMasks
 
 __all__ = [
     "masks_per_round",

@@ -68,7 +68,7 @@ def _register_each(seq: Sequence) -> Iterator[Answer]:
 
 def _icp_from_last(seq: Sequence) -> Iterator[Answer]:
     from masknet import register
-    from masknet.registration.open3d_icp import open3d_icp
+    from masknet.registration.solvers.open3d_icp import open3d_icp
 
     tic = time.perf_counter()
     pose = register(seq.template, seq.frames[0]).transform

@@ -1,18 +1,24 @@
-"""Registration: ``register`` (Mask-X for every method) and the algorithms behind it.
+"""Registration: ``register`` (Mask-X for every method) and the algorithms behind it, in
+four folders by role:
 
-* :mod:`.api`: the facade, :func:`register`; :mod:`.result`: :class:`RegistrationResult`;
-* :mod:`.fit`: :func:`evaluate_registration`, inlier fraction and RMSE of any result, and
-  every other fit;
-* :mod:`.assessment`: :func:`assess_registration`, did it work: a verdict and its reason;
-* :mod:`.methods`: the method table (names, titles, adapters, options, defaults);
-  :mod:`.options`: one typed options class per method (``ICPCriteria``,
-  ``RobustOptions``, ...);
-* :mod:`.validation`: argument checks;
-* :mod:`.rounds`: the rounds of Mask-X; :mod:`.backends`: one adapter per method;
-* :mod:`.icp`, :mod:`.open3d_icp`, :mod:`.open3d_global`: the algorithms (ICP, Open3D's
-  ICP, Open3D's RANSAC / FGR on FPFH); :mod:`.scene`: finding an object in a scan;
-  :mod:`.auto`, :mod:`.robust` (with :mod:`.robust.search`): the default and the
-  coarse-to-fine search.
+* :mod:`.call`: the call. :func:`~.call.api.register` (the facade), its plan, typed
+  options (one class per method), the method table, argument checks, the mixed-units
+  diagnosis, the stages of a Mask-X call (``pipeline``), :class:`RegistrationResult`
+  (``result``) and many pairs at once (``many``).
+* :mod:`.stages`: what runs. ``auto`` (the default, its stages in run order), the
+  consensus front end for scans (``consensus``), the coarse-to-fine search (``search``,
+  ``robust``), finding an object in a scene (``scene``, ``scene_centres``), and the rounds
+  of Mask-X with the masks of later rounds (``rounds``, ``refinement``).
+* :mod:`.solvers`: the algorithms. ICP (``icp``), Open3D's ICP and global registration
+  (``open3d_icp``, ``open3d_global``), FPFH correspondences and RANSAC
+  (``correspondences``), and one adapter per method (``backends``).
+* :mod:`.judge`: did it work, and which pose wins. The prepared pair (``prepared``), every
+  fit of a pose (``fit``: :func:`evaluate_registration`), the verdict (``assessment``:
+  :func:`assess_registration`) with its constraint analysis (``constraints``), and the
+  arbiter (``arbiter``), where every choice between poses is made.
+
+The modules' old places (``masknet.registration.auto`` and the like) still import, with a
+``DeprecationWarning``, for one more release.
 
 Names load on first use, so that the method table (and ``masknet --help``) needs no torch.
 """
@@ -20,30 +26,30 @@ Names load on first use, so that the method table (and ``masknet --help``) needs
 from typing import TYPE_CHECKING
 
 # The method table and the options are torch-free: loaded with the package.
-from masknet.registration import options as _options
-from masknet.registration.methods import METHOD_TABLE, METHOD_TITLES, METHODS  # noqa: F401
-from masknet.registration.options import *  # noqa: F403 (one options class per method)
+from masknet.registration.call import options as _options
+from masknet.registration.call.methods import METHOD_TABLE, METHOD_TITLES, METHODS  # noqa: F401
+from masknet.registration.call.options import *  # noqa: F403 (one options class per method)
 
 _LAZY = {
-    "register": "api",
-    "RegistrationResult": "result",
-    "Assessment": "assessment",
-    "assess_registration": "assessment",
-    "RegistrationQuality": "fit",
-    "evaluate_registration": "fit",
-    "ICPSolution": "icp",
-    "SceneMatch": "scene",
-    "SceneSearch": "scene",
+    "register": "call.api",
+    "RegistrationResult": "call.result",
+    "Assessment": "judge.assessment",
+    "assess_registration": "judge.assessment",
+    "RegistrationQuality": "judge.fit",
+    "evaluate_registration": "judge.fit",
+    "ICPSolution": "solvers.icp",
+    "SceneMatch": "stages.scene",
+    "SceneSearch": "stages.scene",
 }
 __all__ = sorted(["METHODS", "METHOD_TABLE", "METHOD_TITLES", *_options.__all__, *_LAZY])
 
 if TYPE_CHECKING:  # noqa: F401 below: names of __all__, loaded on first use
-    from masknet.registration.api import register  # noqa: F401
-    from masknet.registration.assessment import Assessment, assess_registration  # noqa: F401
-    from masknet.registration.fit import RegistrationQuality, evaluate_registration  # noqa: F401
-    from masknet.registration.icp import ICPSolution  # noqa: F401
-    from masknet.registration.result import RegistrationResult  # noqa: F401
-    from masknet.registration.scene import SceneMatch, SceneSearch  # noqa: F401
+    from masknet.registration.call.api import register  # noqa: F401
+    from masknet.registration.call.result import RegistrationResult  # noqa: F401
+    from masknet.registration.judge.assessment import Assessment, assess_registration  # noqa: F401
+    from masknet.registration.judge.fit import RegistrationQuality, evaluate_registration  # noqa: F401
+    from masknet.registration.solvers.icp import ICPSolution  # noqa: F401
+    from masknet.registration.stages.scene import SceneMatch, SceneSearch  # noqa: F401
 
 
 def __getattr__(name: str):

@@ -1,5 +1,5 @@
-"""Moved: the robust pipeline's search is :mod:`masknet.registration.robust.search`
-(the robust algorithm and its plumbing sit together in :mod:`masknet.registration.robust`)."""
+"""Moved: the robust pipeline's search is :mod:`masknet.registration.stages.search`
+(the robust algorithm and its plumbing sit together in :mod:`masknet.registration.stages.robust`)."""
 
 from masknet._moved import moved_names
 
@@ -7,9 +7,9 @@ __getattr__ = moved_names(
     __name__,
     {
         **{
-            name: "masknet.registration.robust.search"
+            name: "masknet.registration.stages.search"
             for name in ("REFINE_TOLERANCE", "CoarseRun", "coarse_to_fine")
         },
-        "check_points": "masknet.registration.prepared",
+        "check_points": "masknet.registration.judge.prepared",
     },
 )

@@ -1,4 +1,4 @@
-"""Moved: :func:`evaluate_registration` is in :mod:`masknet.registration.fit`, the one fit
+"""Moved: :func:`evaluate_registration` is in :mod:`masknet.registration.judge.fit`, the one fit
 module (also importable as ``masknet.evaluate_registration``)."""
 
 from masknet._moved import moved_names
@@ -6,7 +6,7 @@ from masknet._moved import moved_names
 __getattr__ = moved_names(
     __name__,
     {
-        name: "masknet.registration.fit"
+        name: "masknet.registration.judge.fit"
         for name in (
             "DEFAULT_SPACINGS",
             "RegistrationQuality",

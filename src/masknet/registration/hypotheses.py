@@ -1,55 +1,6 @@
-"""The angle between two poses. Scored hypotheses, their ranking and one per basin moved to
-:mod:`masknet.registration.arbiter` (:class:`~masknet.registration.arbiter.Candidate`,
-:func:`~masknet.registration.arbiter.rank`,
-:func:`~masknet.registration.arbiter.one_per_basin`); the old names work for one more
-release, with a ``DeprecationWarning``."""
+"""Moved to :mod:`masknet.registration.judge.hypotheses`; this name works for one more release, with a
+``DeprecationWarning``."""
 
-from __future__ import annotations
+from masknet._moved import moved_module
 
-import warnings
-from typing import Any
-
-import numpy as np
-
-from masknet.geometry.se3 import rotation_angle_deg
-
-__all__ = ["rotation_between_deg"]
-
-
-def rotation_between_deg(a: np.ndarray, b: np.ndarray) -> float:
-    """The angle in degrees between the rotations of transforms ``a`` and ``b`` (4, 4)."""
-    return float(rotation_angle_deg(a[:3, :3].T @ b[:3, :3]))
-
-
-def _scored(fitness: float, rmse: float, score: float, pose: np.ndarray, kind: str) -> Any:
-    """The former ``Scored(fitness, rmse, score, pose, kind)``: a :class:`Candidate`."""
-    from masknet.registration.arbiter import Candidate
-    from masknet.registration.fit import PoseFit
-
-    return Candidate(pose, kind, PoseFit(fitness, rmse, score))
-
-
-# Old name -> (its new spelling, the object that answers it).
-_MOVED = {
-    "Scored": ("masknet.registration.arbiter.Candidate(pose, stage, fit)", lambda: _scored),
-    "rank": ("masknet.registration.arbiter.rank", lambda: _arbiter().rank),
-    "distinct": ("masknet.registration.arbiter.one_per_basin", lambda: _arbiter().one_per_basin),
-}
-
-
-def _arbiter() -> Any:
-    from masknet.registration import arbiter
-
-    return arbiter
-
-
-def __getattr__(name: str) -> Any:
-    if name not in _MOVED:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    new, value = _MOVED[name]
-    warnings.warn(
-        f"{__name__}.{name} has moved to {new}; use that (the old name goes in the next release)",
-        DeprecationWarning,
-        stacklevel=2,
-    )
-    return value()
+__getattr__ = moved_module(__name__, "masknet.registration.judge.hypotheses")

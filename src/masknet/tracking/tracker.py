@@ -39,7 +39,7 @@ import numpy as np
 from masknet.errors import MaskNetError
 from masknet.geometry.clouds import MIN_POINTS, centroid_radius, median_spacing
 from masknet.io_checks import ARRAY_NONFINITE_HINT, check_cloud
-from masknet.registration.assessment import VERDICTS
+from masknet.registration.judge.assessment import VERDICTS
 
 __all__ = ["STATES", "TrackResult", "Tracker", "points_near", "track"]
 
@@ -143,7 +143,7 @@ class Tracker:
         self.max_uncertain, self.drop_nonfinite = max_uncertain, drop_nonfinite
         self.register_options = dict(register_options or {})
         if viewpoint is not None:
-            from masknet.registration.options import SceneSearch
+            from masknet.registration.call.options import SceneSearch
 
             self.register_options["scene"] = SceneSearch(viewpoint=tuple(viewpoint))
         self.centre = self.template.mean(0)
@@ -183,7 +183,7 @@ class Tracker:
         return TrackResult(index, *found[:3], state, time.perf_counter() - start, *found[3:])
 
     def _checked(self, frame: np.ndarray, name: str) -> np.ndarray | None:
-        from masknet.registration.units import check_units
+        from masknet.registration.call.units import check_units
 
         array = np.asarray(frame)
         if array.ndim == 2 and array.shape[1] >= 3:
@@ -249,7 +249,7 @@ class Tracker:
 
     def _judged(self, near: np.ndarray, transform: np.ndarray, how: str) -> _Found:
         """The verdict on the frame points ``near`` (K, 3) the object at ``transform``."""
-        from masknet.registration.assessment import assess_registration
+        from masknet.registration.judge.assessment import assess_registration
 
         if len(near) < self.min_points:
             reason = f"{how}only {len(near)} frame points near the object"
@@ -261,7 +261,7 @@ class Tracker:
         """Point-to-plane ICP from ``predicted`` (4, 4) on the frame's points near it."""
         from masknet.geometry.open3d_clouds import to_open3d
         from masknet.geometry.sampling import grid_subset
-        from masknet.registration.open3d_icp import point_to_plane_at_cuts
+        from masknet.registration.solvers.open3d_icp import point_to_plane_at_cuts
 
         near = self._near(points, predicted)
         if len(near) < self.min_points:
@@ -276,7 +276,7 @@ class Tracker:
 
     def _find(self, points: np.ndarray, why: str) -> _Found:
         """The full default, :func:`masknet.register`, on the whole frame."""
-        from masknet.registration.api import register
+        from masknet.registration.call.api import register
 
         result = register(self.template, points, **self.register_options)
         transform = np.asarray(result.transform, dtype=np.float64)
@@ -304,7 +304,7 @@ class _Found(NamedTuple):
 
 
 def _as_pose(value: Any) -> np.ndarray:
-    from masknet.registration.validation import as_rigid_transforms
+    from masknet.registration.call.validation import as_rigid_transforms
 
     return np.asarray(as_rigid_transforms(value, 1)[0], dtype=np.float64)
 

@@ -1,12 +1,6 @@
-"""Adapters of the method table (:mod:`masknet.registration.methods`), one module per
-family: :mod:`.icp` (ICP, Open3D's ICP), :mod:`.network` (the learned networks),
-:mod:`.open3d_global` (Open3D's RANSAC and FGR). :mod:`.base` says what each takes and
-returns, and what the whole-call pipelines take (``auto`` and ``robust``, whose adapters
-are :func:`~masknet.registration.auto.auto_register` and
-:func:`~masknet.registration.robust.robust_register`). The table imports each on first
-use.
-"""
+"""Moved to :mod:`masknet.registration.solvers.backends`; this name works for one more release, with a
+``DeprecationWarning``."""
 
-from masknet.registration.backends.base import Backend, BackendRun, Pipeline, PipelineRun
+from masknet._moved import moved_module
 
-__all__ = ["Backend", "BackendRun", "Pipeline", "PipelineRun"]
+__getattr__ = moved_module(__name__, "masknet.registration.solvers.backends")

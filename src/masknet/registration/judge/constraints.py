@@ -1,0 +1,237 @@
+"""How firmly a fit pins a pose: the six motions' constraint by point-to-plane pairs.
+
+A pose that fits is pinned only along the motions that move its inliers off the surfaces
+they lie on. A point-to-plane pair (p on the moved source, n the template's normal at its
+match) resists a small motion (turn w, slide t) by ``(p x n) . w + n . t``; over the inlier
+pairs the 6 x 6 normal matrix ``A = sum(row^T row)``, rows ``[p x n, n]``, weighs every
+motion at once, and an eigenvector of a small eigenvalue is a motion the fit barely feels
+(degeneracy-aware ICP: Zhang, Kaess & Singh, ICRA 2016; X-ICP's localisability: Tuna et
+al., T-RO 2023). On a plane a slide along it and a turn about its normal are free; on a
+crease, a slide along the crease; in a corridor, a slide along the walls; on a cylinder, a
+slide along and a turn about its axis.
+
+The matrix is made unit-free: points are taken about the inliers' centroid (so that a turn
+is about the overlap, not the origin) and divided by the inliers' RMS radius (so that a
+turn's rows weigh what a slide of one radius does), and the eigenvalues are read as
+fractions of the largest.
+
+Example::
+
+    constraint = pose_constraint(template, tree, moved_source, inlier_distance)
+    constraint.ratios[0], describe_free(constraint, 0.02)
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from masknet.geometry.clouds import rms_radius
+from masknet.geometry.normals import normals_at
+
+__all__ = [
+    "Constraint",
+    "Slide",
+    "best_slide",
+    "describe_free",
+    "direction_text",
+    "least_pinned",
+    "free_motions",
+    "pose_constraint",
+]
+
+NORMAL_NEIGHBOURS = 10  # the template's normal at a match: from its nearest points
+MIN_PAIRS = 12  # fewer inlier pairs than this say nothing about the six motions
+# A turn whose axis lies this many radii or more from the overlap is, over the overlap, a
+# slide; it is described as one.
+FAR_AXIS = 10.0
+
+
+class Constraint(NamedTuple):
+    """ratios: (6,) the normal matrix's eigenvalues over the largest, ascending. motions:
+    (6, 6) its unit eigenvectors as columns, in the order of ``ratios``: a turn (3, radians
+    times the radius) and a slide (3), for a motion of about one input unit. centre: (3,) the inliers' centroid, input
+    units. radius: their RMS radius, input units. pairs: the inlier pairs counted. Both
+    measured on the pairs' template points."""
+
+    ratios: np.ndarray
+    motions: np.ndarray
+    centre: np.ndarray
+    radius: float
+    pairs: int
+
+
+def pose_constraint(
+    template: np.ndarray, tree: Any, moved: np.ndarray, limit: float
+) -> Constraint | None:
+    """The constraint of the module docstring for the source points as a pose moved them,
+    ``moved`` (M, 3), against ``template`` (N, 3) and its KD-tree ``tree``
+    (:func:`masknet.geometry.knn.cloud_tree`): the pairs within ``limit`` (input units).
+    None where fewer than ``MIN_PAIRS`` pairs, or the pairs span no extent."""
+    distances, index = tree.query(moved, k=1, distance_upper_bound=limit)
+    inliers = np.isfinite(distances)
+    if inliers.sum() < MIN_PAIRS:
+        return None
+    normals = normals_at(template, index[inliers], tree, NORMAL_NEIGHBOURS)
+    # Each pair at its template point, where its normal was taken: on a curved surface a
+    # source point a spacing along from its match would tilt the pair's turn by the
+    # curvature (a cylinder turned about its axis read its turn pinned).
+    points = template[index[inliers]]
+    centre = points.mean(0)
+    radius = float(rms_radius(points))
+    if not radius > 0:
+        return None
+    rows = np.hstack([np.cross((points - centre) / radius, normals), normals])
+    values, vectors = np.linalg.eigh(rows.T @ rows / len(rows))
+    ratios = np.clip(values, 0.0, None) / max(values[-1], 1e-300)
+    return Constraint(ratios, vectors, centre, radius, int(inliers.sum()))
+
+
+def free_motions(constraint: Constraint | None, ratio: float) -> np.ndarray:
+    """(K, 6) the motions (rows, in the units of :attr:`Constraint.motions`) whose
+    eigenvalue is under ``ratio`` of the largest; none for no constraint."""
+    if constraint is None:
+        return np.zeros((0, 6))
+    return constraint.motions[:, constraint.ratios < ratio].T
+
+
+def direction_text(v: np.ndarray) -> str:
+    """The unit direction of ``v`` (3,), e.g. ``"(0.71, 0.70, 0.00)"``."""
+    unit = np.round(v / max(float(np.linalg.norm(v)), 1e-300), 2) + 0.0  # + 0.0: no -0.00
+    return "(" + ", ".join(f"{x:.2f}" for x in unit) + ")"
+
+
+def _point(v: np.ndarray) -> str:
+    # Components a thousandth of the largest are noise about zero: written 0.
+    v = np.where(np.abs(v) < 1e-3 * np.abs(v).max(), 0.0, v) + 0.0
+    return "(" + ", ".join(f"{x:.3g}" for x in v) + ")"
+
+
+def _signed(v: np.ndarray) -> np.ndarray:
+    """``v`` with its largest component positive: a direction reads the same either way."""
+    return -v if v[np.argmax(np.abs(v))] < 0 else v
+
+
+def describe_free(constraint: Constraint | None, ratio: float) -> tuple[str, ...]:
+    """The free motions of :func:`free_motions` in words, e.g. ``"slide along (0.71,
+    0.70, 0.00)"``, ``"slide within the plane normal to (0.00, 0.00, 1.00)"``, ``"turn
+    about (0.00, 0.00, 1.00) through (0.1, 2, 0.5)"`` (axis point in input units). Pure slides come first: the slides that lie within the free motions
+    (on a cylinder, whose free turn and slide share an eigenvalue, any mix of the two is an
+    eigenvector); what remains is named by its turn's axis, or as a slide where that axis
+    lies ``FAR_AXIS`` radii or more away."""
+    free = free_motions(constraint, ratio)
+    if not len(free):
+        return ()
+    # The slides within the free span: directions t whose pure slide (0, t) the span holds.
+    span = free.T @ free  # (6, 6) projector onto the free motions
+    weights, slides = np.linalg.eigh(span[3:, 3:])
+    pure = slides[:, weights > 0.5].T  # (S, 3)
+    if len(pure) == 3:
+        words = ["slide in any direction"]
+    elif len(pure) == 2:  # a plane's slides: any mix of the two is free
+        words = [f"slide within the plane normal to {direction_text(_signed(np.cross(*pure)))}"]
+    else:
+        words = [f"slide along {direction_text(_signed(t))}" for t in pure]
+    rest = free - (free[:, 3:] @ pure.T) @ np.hstack([np.zeros_like(pure), pure])
+    # The rest's principal motions: eigenvectors of its (6, 6) Gram matrix, largest first.
+    sizes, rest_vectors = np.linalg.eigh(rest.T @ rest)
+    for motion in rest_vectors.T[::-1][sizes[::-1] > 0.25][: len(free) - len(pure)]:
+        turn, slide = motion[:3] / constraint.radius, motion[3:]
+        # The axis of the motion x' = turn x (x - centre) + slide: its point nearest the centre.
+        axis = constraint.centre + np.cross(turn, slide) / max(turn @ turn, 1e-300)
+        if np.linalg.norm(axis - constraint.centre) >= FAR_AXIS * constraint.radius:
+            words.append(f"slide along {direction_text(_signed(slide / np.linalg.norm(slide)))}")
+        else:
+            direction = _signed(turn / np.linalg.norm(turn))
+            words.append(f"turn about {direction_text(direction)} through {_point(axis)}")
+    return tuple(words)
+
+
+def least_pinned(constraint: Constraint | None) -> str:
+    """The motion ``constraint`` pins least, in the words of :func:`describe_free` (empty
+    for no constraint)."""
+    if constraint is None:
+        return ""
+    return describe_free(constraint, float(np.nextafter(constraint.ratios[0], np.inf)))[0]
+
+
+# A slid pose's search: offsets along the least pinned motions' slides and their two
+# diagonals, in RMS radii of the moved source. On real scan views the front end's poses slid
+# along a table or a floor lay 0.27-0.45 radii from the truth, one along a diagonal of the two
+# least pinned slides.
+SLIDE_STEPS = tuple(0.05 * k for k in range(1, 11))
+SEARCHED_MOTIONS = 2  # the least pinned motions searched along: a plane leaves two slides
+SEARCH_POINTS = 1024  # points of each cloud the search fits on (the best slide on all)
+
+
+class Slide(NamedTuple):
+    """gain: how much more of the overlap fits at the best slid pose than at the pose: the
+    overlap fit of :mod:`masknet.registration.judge.assessment`, the worse of its two
+    directions. offset: (3,) that slide, input units (zeros where none fits better)."""
+
+    gain: float
+    offset: np.ndarray
+
+
+def best_slide(
+    tree: Any,
+    template_points: np.ndarray,
+    moved: np.ndarray,
+    limit: float,
+    constraint: Constraint | None,
+    floor: float = 0.0,
+) -> Slide:
+    """The slide of ``moved`` (M, 3), source points as a pose put them, along the slides of
+    the ``SEARCHED_MOTIONS`` least pinned motions of ``constraint`` and their diagonals, by
+    ``SLIDE_STEPS`` radii either way, that fits the template best: its points
+    ``template_points`` (P, 3) and the KD-tree ``tree`` of the template, within ``limit``.
+    The search fits about ``SEARCH_POINTS`` of each cloud; the gain it returns is the best
+    slide's on every point. Both ways, as the verdict
+    takes the overlap fit: the source's side alone rewards a slide that puts more source
+    points near some surface (re-sampled scan views gained up to 4 points at their true
+    pose). The gain is over the better of the pose's fit and ``floor`` (the fit at the
+    verdict's nearest fit: a pose a few degrees off gains by a slide, its nearest fit more)."""
+    from masknet.geometry.knn import cloud_tree
+    from masknet.registration.judge.fit import overlap_fit
+
+    none = Slide(0.0, np.zeros(3))
+    if constraint is None:
+        return none
+    # The source slid by an offset is the template slid back by it: one tree serves all.
+    source_tree = cloud_tree(moved)
+
+    def fits(offset: np.ndarray, stride: tuple[int, int] = (1, 1)) -> np.ndarray:
+        """(2,) the overlap fit of the source and of the template at ``offset``, on every
+        ``stride``-th point of each."""
+        return np.array(
+            [
+                overlap_fit(tree, moved[:: stride[0]] + offset, limit)[0],
+                overlap_fit(source_tree, template_points[:: stride[1]] - offset, limit)[0],
+            ]
+        )
+
+    def gain(offset: np.ndarray, stride: tuple[int, int], base: np.ndarray) -> float:
+        slid = fits(offset, stride)
+        return float(min(*(slid - base), slid.min() - max(base.min(), floor)))
+
+    stride = (max(1, len(moved) // SEARCH_POINTS), max(1, len(template_points) // SEARCH_POINTS))
+    base = fits(np.zeros(3), stride)
+    radius = float(rms_radius(moved))
+    slides = constraint.motions[3:, :SEARCHED_MOTIONS].T  # (2, 3), orthonormalised below
+    first = slides[0] / max(float(np.linalg.norm(slides[0])), 1e-300)
+    second = slides[1] - (slides[1] @ first) * first
+    second /= max(float(np.linalg.norm(second)), 1e-300)
+    lines = (first, second, (first + second) / np.sqrt(2), (first - second) / np.sqrt(2))
+    found, offset = 0.0, None
+    for direction in lines:
+        for step in (*SLIDE_STEPS, *(-s for s in SLIDE_STEPS)):
+            candidate = step * radius * direction
+            sampled = gain(candidate, stride, base)
+            if sampled > found:
+                found, offset = sampled, candidate
+    if offset is None:
+        return none
+    # The search's best, on every point.
+    best = Slide(gain(offset, (1, 1), fits(np.zeros(3))), offset)
+    return best if best.gain > 0 else none

@@ -1,0 +1,1 @@
+"""The stages of the default and of Mask-X: ``auto`` (the default, in run order), the consensus front end, the coarse-to-fine search (``robust``), the scene search, and the rounds of Mask-X with their masks."""

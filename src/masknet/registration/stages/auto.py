@@ -1,0 +1,420 @@
+"""``method="auto"``, the default: the stages of one pair, in the order they run, each
+with the condition under which it runs. Each choice between poses is a rule of
+:mod:`masknet.registration.judge.arbiter`.
+
+0. **Scene search** (before this module, in :mod:`masknet.registration.call.pipeline`), for
+   one pair whose source is ``scene_ratio`` (3) times as spread out as the template
+   (:func:`~masknet.registration.stages.scene.is_scene`): :func:`~masknet.registration.stages.scene.locate`
+   finds the template in the scene, and Mask-ICP (``"icp"``) from the pose found, then
+   the polish at full resolution, run instead of the stages below: path
+   ``"scene search"``. Where it finds nothing to register, the stages below run.
+1. **Size.** A template of ``consensus_from`` points or more is a scan's, one of fewer
+   than ``consensus_below`` sparse, one between them an object
+   (:meth:`~masknet.registration.call.options.RobustOptions.is_scan`, ``is_sparse``,
+   ``is_object``).
+2. **Consensus front end**, for scans and sparse clouds (``consensus_points`` > 0)
+   (:mod:`masknet.registration.stages.consensus`: a voxel budget, RANSAC on FPFH matches,
+   point-to-plane ICP, the verdict). The pose as given is refined and judged first
+   (``start="first"``: a ``likely correct`` pose ends the call before the features and
+   RANSAC), except on scans of ``CONSENSUS_FIRST`` times ``consensus_from`` points or
+   more (that large it is seldom right, and its refinement costs what RANSAC does);
+   else it competes with RANSAC's poses (a symmetric shape fits a flip as well). A
+   ``likely correct`` answer (``arbiter.settles``) ends the call: path ``"consensus"``.
+   On views of objects in real scans the pose as given, refined, ends most calls at a
+   third of the fast path's cost; on sparse clouds the fast path holds on a fifth to a
+   third of the pairs and the search costs 4-6 times the front end.
+3. **Principal-axes gate**, for objects (``search_first_turn_deg`` not None): a source
+   whose principal axes are turned ``search_first_turn_deg`` or more from the
+   template's goes to the search (stage 5) without the fast path, which starts from the
+   pose as given and seldom holds that far off.
+4. **Fast path**, otherwise. One round of the paper's Mask-ICP on the networks' clouds
+   (MaskNet's template mask, by default the small ``masknet_modelnet40_small``; the
+   source centroid onto the masked template's centroid, 10 iterations of ICP), then ICP
+   with pairs cut at ``max_correspondence_distance`` (1.5 template spacings) on the
+   pair prepared once (:func:`masknet.registration.judge.prepared.prepare_pair`: even subsets),
+   and the check: the share of the source's surface points within 1.5 template spacings
+   of the template (:func:`masknet.registration.judge.fit.pose_fit`). Stray outliers do not
+   count: points without two others within 2 template spacings, and points beside a
+   surface (no other point within 1.5 spacings, off their neighbours' plane), each test
+   unless it drops over 5% of the points
+   (:func:`masknet.registration.judge.prepared.check_points`). A fit of at least
+   ``accept_fitness`` (``object_accept_fitness`` on objects, where a near-symmetric
+   shape's flip fits 0.990) ends the call (``arbiter.accepts``): path ``"fast"``. A pose
+   that fits but was still moving when ICP's iterations ran out gets them once more.
+5. **Search**, where the fast path's fit is lower (or the gate sent the pair): the
+   coarse-to-fine pipeline of ``method="robust"``
+   (:mod:`masknet.registration.stages.search`) on the same prepared pair: path
+   ``"robust/correspondences"`` (its early exit) or ``"robust/search"``. The fast
+   path's pose takes part: where it fits better (``arbiter.fits_better``) it is the
+   answer after all (path ``"fast"``), ambiguous where one of the search's poses lies
+   elsewhere and fits about as well (``arbiter.close_rival``).
+6. **Scans' consensus**, on scans whose front end ended ``uncertain``
+   (``arbiter.may_compete``): the verdict judges the search's answer, and the consensus
+   pose replaces it where it ranks higher (``arbiter.ranks_higher``; the search's
+   one-way score can prefer a pose slid along a wall): path ``"robust/consensus"``. Not
+   on sparse clouds: there the verdict rated right search answers below consensus poses
+   60-180 degrees off.
+
+The networks' clouds are sampled on first use, so a call the consensus ends never
+samples them. ``info`` holds :data:`~masknet.registration.call.result.AUTO_INFO`: ``path``
+says which stage answered (:data:`PATHS`) and ``escalated_fitness`` the fast path's fit
+that sent the pair on (NaN where the fast path did not run or sufficed).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import NamedTuple
+
+import numpy as np
+
+from masknet.geometry.clouds import MIN_POINTS, median_spacing, principal_turn_deg
+from masknet.geometry.knn import cloud_tree
+from masknet.geometry.sampling import NetworkClouds, spread_labels
+from masknet.geometry.se3 import transform_points
+from masknet.models.masknet import MaskNet
+from masknet.models.two_sided import TwoSidedMaskNet
+from masknet.registration.call.options import ICPCriteria, RobustOptions, inlier_cutoff
+from masknet.registration.call.result import PipelineInfo, info_arrays
+from masknet.registration.judge import arbiter
+from masknet.registration.judge.arbiter import Candidate
+from masknet.registration.judge.assessment import judge
+from masknet.registration.judge.fit import PoseFit, covered_points, pose_fit
+from masknet.registration.judge.prepared import PreparedPair, check_points, prepare_pair
+from masknet.registration.solvers.backends.base import MaskModels, PipelineRun
+from masknet.registration.solvers.icp import icp
+from masknet.registration.stages.consensus import ConsensusRun, consensus_register
+from masknet.registration.stages.robust import NetworkMasks, pipeline_run
+from masknet.registration.stages.rounds import mask_and_register
+from masknet.registration.stages.search import REFINE_TOLERANCE, coarse_to_fine
+
+__all__ = ["PATHS", "auto_register"]
+
+# Every ``info["path"]`` of the default: its own paths, then the scene search's (set where
+# the call left the scan, masknet.registration.call.pipeline). The README lists them all.
+PATHS = (
+    "fast",
+    "consensus",
+    "robust/consensus",
+    "robust/correspondences",
+    "robust/search",
+    "scene search",
+)
+
+# Scans of this many times ``consensus_from`` points skip the pose as given in the consensus
+# front end: that large, it is seldom right, and its refinement costs what RANSAC does.
+CONSENSUS_FIRST = 8
+
+
+def auto_register(
+    template: np.ndarray,
+    source: np.ndarray,
+    nets: NetworkClouds,
+    models: MaskModels,
+    options: RobustOptions,
+    times: dict[str, float],
+    precision: str = "auto",
+) -> PipelineRun:
+    """The pipeline of the module docstring for template (B, N, 3) and source (B, M, 3),
+    float64, pair by pair, at full resolution; the networks see ``nets`` (B, n, 3) and
+    (B, m, 3), the clouds sampled to their size on first use. ``models.first`` masks the fast
+    path (None: plain ICP), ``models.search`` the escalation (None: no mask). Masks are over
+    the full clouds. The method table's adapter of ``"auto"``."""
+    model, search_model = models
+    runs = []
+    for b in range(template.shape[0]):
+        pair_nets = _PairNets(nets, b)
+        runs.append(
+            _one(template[b], source[b], pair_nets, model, search_model, options, times, precision)
+        )
+    info = {key: np.concatenate([r.info[key] for r in runs]) for key in runs[0].info}
+
+    def stacked(parts: list) -> np.ndarray | None:
+        return None if any(p is None for p in parts) else np.concatenate(parts)
+
+    return PipelineRun(
+        np.concatenate([r.transform for r in runs]),
+        stacked([r.mask for r in runs]),
+        stacked([r.source_mask for r in runs]),
+        info,
+    )
+
+
+def _one(
+    template: np.ndarray,
+    source: np.ndarray,
+    nets: _PairNets,
+    model: MaskNet | TwoSidedMaskNet | None,
+    search_model: TwoSidedMaskNet | None,
+    options: RobustOptions,
+    times: dict[str, float],
+    precision: str,
+) -> PipelineRun:
+    """One pair: template (N, 3), source (M, 3); ``nets`` the clouds the networks see."""
+    consensus = None
+    on = options.consensus_points > 0
+    scan = on and options.is_scan(len(template))
+    sparse = on and options.is_sparse(len(template))
+    if sparse or scan:
+        # The pose as given is judged first, except on scans so large that it seldom is
+        # right and its ICP costs what RANSAC does.
+        large = len(template) >= CONSENSUS_FIRST * options.consensus_from
+        start = "never" if large else "first"
+        consensus = consensus_register(template, source, options, times, start)
+        if consensus is not None and arbiter.settles(consensus.check):
+            return _consensus_run(consensus, template, source, model, "consensus")
+    if _turned(template, source, options):  # the fast path starts from the pose as given
+        return _escalate(
+            template, source, nets, None, model, search_model, options, times, precision
+        )
+    fast = _fast_path(template, source, nets, model, options, times, precision)
+    if fast.accepted is not None:
+        return fast.accepted
+    run = _escalate(template, source, nets, fast, model, search_model, options, times, precision)
+    if scan and consensus is not None and arbiter.may_compete(consensus.check):
+        # The search's one-way score can prefer a pose slid along a wall that the verdict
+        # sees through. Not on sparse clouds: there the verdict called right search answers
+        # worse than consensus poses 60-180 degrees off.
+        searched = judge(consensus.prepared, run.transform[0])
+        if arbiter.ranks_higher(consensus.check, searched):
+            escalated = float(run.info["escalated_fitness"][0])
+            path = "robust/consensus"
+            return _consensus_run(consensus, template, source, model, path, escalated)
+    return run
+
+
+def _turned(template: np.ndarray, source: np.ndarray, options: RobustOptions) -> bool:
+    """Whether a pair between the sparse and the scans' sizes goes to the search first: its
+    principal axes turned ``search_first_turn_deg`` or more. On 100 ModelNet40 pairs turned
+    up to 180 degrees the fast path held on 23 and was paid for before the search on the
+    rest; the axes flagged 50, of which the fast path would have held 2."""
+    turn = options.search_first_turn_deg
+    if turn is None or not options.is_object(len(template)):
+        return False
+    return principal_turn_deg(template, source) >= turn
+
+
+class _PairNets(NamedTuple):
+    """Pair ``b`` of the networks' clouds, sampled when first asked for."""
+
+    nets: NetworkClouds
+    b: int
+
+    def clouds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(1, n, 3) and (1, m, 3)."""
+        b = self.b
+        return self.nets.template[b : b + 1], self.nets.source[b : b + 1]
+
+
+class _Fast(NamedTuple):
+    """The fast path: its result where it fits (``accepted``), else what the escalation
+    uses: its transform (4, 4), fit, the check's fitness, masks, and the prepared pair."""
+
+    accepted: PipelineRun | None
+    transform: np.ndarray
+    fit: PoseFit
+    right: float
+    mask: np.ndarray | None
+    source_mask: np.ndarray | None
+    prepared: PreparedPair
+
+
+def _fast_path(
+    template: np.ndarray,
+    source: np.ndarray,
+    nets: _PairNets,
+    model: MaskNet | TwoSidedMaskNet | None,
+    options: RobustOptions,
+    times: dict[str, float],
+    precision: str,
+) -> _Fast:
+    """Stage 4 of the module docstring: Mask-ICP on the networks' clouds, ICP with the
+    pair cut-off at full resolution, and the check of its fit."""
+    icp_options = ICPCriteria()  # the paper's Mask-ICP: 10 iterations, all pairs
+    template_net, source_net = nets.clouds()
+    fast = mask_and_register(
+        template_net, source_net, "icp", model, 1, icp_options, times, precision=precision
+    )
+    tic = time.perf_counter()
+    prepared = prepare_pair(template, source, options.fine_points)
+    fine_template, tree, spacing, fine, surface = prepared[:5]
+    limit = inlier_cutoff(spacing)  # the fit's cut-off, on the prepared pair
+    source_mask = None
+    if fast.source_mask is not None:  # a two-sided network: its kept points, spread
+        source_mask = spread_labels(source, source_net[0], fast.source_mask[0])
+        kept_fine = spread_labels(fine, source_net[0], fast.source_mask[0]) & surface
+        surface = kept_fine if kept_fine.sum() >= MIN_POINTS else surface
+    kept = fine[surface]
+    # The check's points among those kept (a two-sided network's mask narrows both).
+    checked = fine[check_points(surface, prepared.strict, prepared.attached)]
+
+    def refined(start: np.ndarray) -> tuple[np.ndarray, PoseFit, float, bool]:
+        """ICP with the pair cut-off from ``start``: the pose, its fit, the check's
+        fitness, and whether ICP converged within its iterations."""
+        sol = icp(
+            fine_template,
+            kept,
+            start,
+            options.inlier_iterations,
+            REFINE_TOLERANCE,
+            max_correspondence_distance=options.cut(spacing),
+            template_tree=tree,
+        )
+        pose, converged = sol.transform[0], bool(sol.converged[0])
+        fit = pose_fit(tree, kept, pose, limit)
+        right = fit.fitness
+        if len(checked) >= 3:  # the verdict counts only points with neighbours enough
+            right = pose_fit(tree, checked, pose, limit).fitness
+        return pose, fit, right, converged
+
+    transform, fit, right, converged = refined(fast.transform[0])
+    accept = options.fast_accept(len(template))
+    if arbiter.accepts(right, accept) and not converged and options.inlier_iterations:
+        # Still moving when its iterations ran out, from a start far off: a pose that fits
+        # is let settle (on a copy pair it stopped 0.23 degrees short, one step from exact),
+        # and kept where it still fits.
+        settled = refined(transform)
+        if arbiter.accepts(settled[2], accept):
+            transform, fit, right, converged = settled
+    times["fast"] = times.get("fast", 0.0) + time.perf_counter() - tic
+    accepted = None
+    if arbiter.accepts(right, accept):
+        mask = None
+        if model is not None:  # the template points the moved source covers: every
+            # source point a two-sided network keeps (the fine grid's surface drops a rim)
+            seen = source if source_mask is None else source[source_mask]
+            seen = seen if len(seen) >= MIN_POINTS else kept
+            moved = transform_points(transform, seen)
+            mask = covered_points(template, moved, limit)[None]
+        info = _info("fast", fit, np.nan)
+        accepted = PipelineRun(
+            transform[None], mask, None if source_mask is None else source_mask[None], info
+        )
+    fast_mask = None if fast.mask is None else fast.mask[0]
+    return _Fast(accepted, transform, fit, right, fast_mask, fast.source_mask, prepared)
+
+
+def _escalate(
+    template: np.ndarray,
+    source: np.ndarray,
+    nets: _PairNets,
+    fast: _Fast | None,
+    model: MaskNet | TwoSidedMaskNet | None,
+    search_model: TwoSidedMaskNet | None,
+    options: RobustOptions,
+    times: dict[str, float],
+    precision: str,
+) -> PipelineRun:
+    """Stage 5 of the module docstring: the coarse-to-fine search, the fast path's pose one
+    more answer (``fast`` None: a pair the principal-axes gate sent to the search)."""
+    reuse = fast is not None and fast.mask is not None
+    if search_model is not None and search_model is model and reuse:
+        # The fast path's network is the search's: its masks serve again.
+        search_model = _GivenMasks(fast.mask, fast.source_mask)
+    masks = None
+    if search_model is not None:
+        template_net, source_net = nets.clouds()
+        masks = NetworkMasks(search_model, template_net[0], source_net[0], precision)
+    prepared = None if fast is None else fast.prepared
+    run = pipeline_run([coarse_to_fine(template, source, masks, options, times, prepared)])
+    if fast is not None and arbiter.fits_better(_fast_candidate(fast), run.info["score"][0]):
+        return _fast_after_all(run, fast, options)  # the fast path fits better
+    info = dict(run.info)
+    info["path"] = np.array([f"robust/{run.info['path'][0]}"])
+    info["escalated_fitness"] = np.array([np.nan if fast is None else fast.right])
+    return PipelineRun(run.transform, run.mask, run.source_mask, info)
+
+
+def _fast_candidate(fast: _Fast) -> Candidate:
+    """The fast path's pose as a candidate, with its fit."""
+    return Candidate(fast.transform, "fast", fast.fit)
+
+
+def _searched(run: PipelineRun) -> list[Candidate]:
+    """The search's answer and, where it has one, its runner-up, as candidates (their
+    fitness and score from ``run.info``; the runner-up's RMSE is not reported: NaN)."""
+    info = run.info
+    fit = PoseFit(info["fitness"][0], info["inlier_rmse"][0], info["score"][0])
+    found = [Candidate(run.transform[0], "search", fit)]
+    if np.isfinite(info["runner_up"][0]).all():
+        fit = PoseFit(info["runner_up_fitness"][0], np.nan, info["runner_up_score"][0])
+        found.append(Candidate(info["runner_up"][0], "runner-up", fit))
+    return found
+
+
+def _fast_after_all(run: PipelineRun, fast: _Fast, options: RobustOptions) -> PipelineRun:
+    """The fast path's pose, which fits better than the search's answer; ambiguous where
+    one of the search's answers lies elsewhere and fits about as well
+    (:func:`~masknet.registration.judge.arbiter.close_rival`)."""
+    transform = fast.transform
+    info = _info("fast", fast.fit, fast.right)
+    rival = arbiter.close_rival(
+        _fast_candidate(fast), _searched(run), options.distinct_deg, options.ambiguity_margin
+    )
+    if rival is not None:
+        info["ambiguous"] = np.array([True])
+        info["runner_up"] = rival.pose[None].copy()
+        info["runner_up_fitness"] = np.array([rival.fitness])
+        info["runner_up_score"] = np.array([rival.score])
+    return PipelineRun(transform[None], run.mask, run.source_mask, info)
+
+
+def _consensus_run(
+    found: ConsensusRun,
+    template: np.ndarray,
+    source: np.ndarray,
+    model: MaskNet | TwoSidedMaskNet | None,
+    path: str,
+    escalated: float = np.nan,
+) -> PipelineRun:
+    """The consensus front end's answer as the pipeline's result (``escalated``: the fast
+    path's fit where it ran before): its fit on the check's
+    grid; with a network, the template points the moved source covers (measured on that
+    grid: over the full clouds it cost more than the whole front end on 1M points), and
+    with a two-sided one (a source mask asked for) the source points the pose lays on the
+    template."""
+    grid_template, grid_source = found.template_grid, found.source_grid
+    limit = inlier_cutoff(median_spacing(grid_template, sample=2048))
+    fit = pose_fit(cloud_tree(grid_template), grid_source, found.transform, limit)
+    mask = source_mask = None
+    if model is not None:  # on the grid, each template point taking its grid point's label
+        moved = transform_points(found.transform, grid_source)
+        covered = covered_points(grid_template, moved, limit)
+        mask = spread_labels(template, grid_template, covered)[None]
+        if isinstance(model, TwoSidedMaskNet):
+            on_template = covered_points(moved, grid_template, limit)
+            source_mask = spread_labels(source, grid_source, on_template)[None]
+    info = _info(path, fit, escalated)
+    info["source"] = np.array(["consensus"])
+    return PipelineRun(found.transform[None], mask, source_mask, info)
+
+
+def _info(path: str, fit: PoseFit, escalated: float) -> dict[str, np.ndarray]:
+    """The info (:data:`~masknet.registration.call.result.AUTO_INFO`) of a result that is not
+    the search's: one pose, no runner-up."""
+    pair = PipelineInfo(
+        path=path,
+        source="fast",
+        fitness=fit.fitness,
+        inlier_rmse=fit.rmse,
+        ambiguous=False,
+        runner_up_fitness=np.nan,
+        score=fit.score,
+        runner_up_score=np.nan,
+        hypotheses=1,
+        runner_up=None,
+    )
+    return {**info_arrays([pair]), "escalated_fitness": np.array([escalated])}
+
+
+class _GivenMasks:
+    """Masks already predicted, answering the mask protocol: template (n,) and source
+    (1, m) or None, for the clouds they were predicted on."""
+
+    def __init__(self, mask: np.ndarray, source_mask: np.ndarray | None) -> None:
+        self.masks = mask, None if source_mask is None else source_mask[0]
+
+    def predict_masks(
+        self, template: np.ndarray, source: np.ndarray, **_: object
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        return self.masks

@@ -1,0 +1,168 @@
+"""The verdict sees a slide: shapes that leave a motion free, and a pose moved along it."""
+
+import numpy as np
+import pytest
+
+from masknet.geometry.knn import cloud_tree
+from masknet.registration.judge.assessment import (
+    FREE_RATIO,
+    SLIDE_GAIN,
+    assess_registration,
+    verdict_rule,
+)
+from masknet.registration.judge.constraints import best_slide, describe_free, pose_constraint
+
+RNG = np.random.default_rng(0)
+
+
+def _square(count: int, size: tuple[float, float] = (1.0, 1.0)) -> np.ndarray:
+    """(count, 3) points on the square [0, size] in z = 0."""
+    return np.c_[RNG.uniform(0, 1, (count, 2)) * size, np.zeros(count)]
+
+
+def _plane() -> np.ndarray:
+    return _square(3000)
+
+
+def _crease() -> np.ndarray:
+    """A floor (z = 0) and a wall (y = 0): they meet along x."""
+    return np.r_[_square(1500), _square(1500)[:, [0, 2, 1]]]
+
+
+def _corridor() -> np.ndarray:
+    """A floor 1 wide and two walls at x = 0 and x = 1, all 3 long in y."""
+    wall = _square(1000, (3.0, 1.0))[:, [2, 0, 1]]
+    return np.r_[_square(1500, (1.0, 3.0)), wall, wall + [1.0, 0.0, 0.0]]
+
+
+def _cylinder() -> np.ndarray:
+    """Radius 1 about z, 2 long; dense, so that its normals hardly tilt along it."""
+    angle, height = RNG.uniform(0, 2 * np.pi, 16000), RNG.uniform(0, 2, 16000)
+    return np.c_[np.cos(angle), np.sin(angle), height]
+
+
+def _corner() -> np.ndarray:
+    """Three faces of a box: every motion is pinned."""
+    return np.r_[_square(1000), _square(1000)[:, [0, 2, 1]], _square(1000)[:, [2, 0, 1]]]
+
+
+def _slid(direction: tuple[float, float, float], distance: float) -> np.ndarray:
+    pose = np.eye(4)
+    pose[:3, 3] = distance * np.asarray(direction)
+    return pose
+
+
+def _turned_about_z(degrees: float) -> np.ndarray:
+    angle = np.radians(degrees)
+    pose = np.eye(4)
+    pose[:2, :2] = [[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]]
+    return pose
+
+
+# Each shape, a pose moved along a motion it leaves free, how that motion reads, and
+# whether the shape leaves it free to the last bit (under FREE_RATIO: a plane, a cylinder)
+# or only nearly (a crease and a corridor, whose normals tilt where their faces meet).
+DEGENERATE = [
+    (
+        _plane,
+        _slid((0.6, 0.8, 0.0), 0.1),
+        "slide within the plane normal to (0.00, 0.00, 1.00)",
+        True,
+    ),
+    (_crease, _slid((1.0, 0.0, 0.0), 0.1), "slide along (1.00, 0.00, 0.00)", False),
+    (_corridor, _slid((0.0, 1.0, 0.0), 0.3), "slide along (0.00, 1.00, 0.00)", False),
+    (_cylinder, _slid((0.0, 0.0, 1.0), 0.2), "slide along (0.00, 0.00, 1.00)", True),
+    (_cylinder, _turned_about_z(10.0), "turn about (0.00, 0.00, 1.00) through (0, 0, ", True),
+]
+
+
+@pytest.mark.parametrize(("make", "pose", "words", "exactly"), DEGENERATE)
+def test_a_pose_moved_along_a_free_motion_is_not_likely_correct(make, pose, words, exactly):
+    """The fit on these shapes is as good at the moved pose as at the right one (or better
+    only where the moved pose hangs over an edge): the verdict cannot call it correct, and
+    it names the motion left free."""
+    template = make()
+    source = template[::2]
+    check = assess_registration(template, source, pose)
+    assert check.verdict in ("uncertain", "likely wrong"), check
+    if exactly:
+        assert check.constraint < FREE_RATIO
+        assert any(free.startswith(words) for free in check.free_directions), check
+        assert words in check.reason
+    else:
+        assert check.least_pinned.startswith(words), check
+
+
+def test_a_plane_is_uncertain_even_at_its_right_pose():
+    """Nothing tells the right pose of a plane from one slid along it: not likely correct,
+    with the reason naming what is free."""
+    plane = _plane()
+    check = assess_registration(plane, plane[::2], np.eye(4))
+    assert check.verdict == "uncertain", check
+    assert "does not pin the pose: free to slide within the plane normal to (0.00, 0.00, 1.00)" in (
+        check.reason
+    )
+
+
+def test_a_plane_leaves_two_slides_and_a_turn_free():
+    plane = _plane()
+    constraint = pose_constraint(plane, cloud_tree(plane), plane[::2], 0.05)
+    assert (constraint.ratios[:3] < FREE_RATIO).all() and constraint.ratios[3] > 0.1
+    words = describe_free(constraint, FREE_RATIO)
+    assert "slide within the plane normal to (0.00, 0.00, 1.00)" in words
+    assert sum(w.startswith("turn about (0.00, 0.00, 1.00)") for w in words) == 1
+
+
+@pytest.mark.parametrize("degrees", [0.0, 1.0])
+def test_a_box_corner_pins_every_motion(degrees):
+    """Three faces hold every slide and turn: the right pose (and one a degree off) stays
+    likely correct, with nothing free."""
+    corner = _corner()
+    check = assess_registration(corner, corner[::2], _turned_about_z(degrees))
+    assert check.verdict == "likely correct", check
+    assert check.free_directions == ()
+    assert check.constraint > 10 * FREE_RATIO
+
+
+def test_a_modelnet_shape_is_pinned_at_its_pose():
+    from masknet.data import bundled_sample_path, load_modelnet40
+
+    shape = load_modelnet40(bundled_sample_path()).points[3].astype(np.float64)
+    check = assess_registration(
+        shape, shape[shape[:, 0] < np.quantile(shape[:, 0], 0.7)], np.eye(4)
+    )
+    assert check.verdict == "likely correct", check
+    assert check.free_directions == ()
+
+
+def test_a_slide_back_along_a_table_brings_the_box_onto_the_box():
+    """A box on a table, the source slid along the table: the table fits wherever it lies,
+    but a slide back along the table's free directions brings the box onto the box."""
+    table = _square(6000, (2.0, 2.0))
+    walls = [([0, 2, 1], [0.8, 0.8, 0.0]), ([0, 2, 1], [0.8, 1.2, 0.0])]
+    walls += [([2, 0, 1], [0.8, 0.8, 0.0]), ([2, 0, 1], [1.2, 0.8, 0.0])]
+    faces = [_square(200, (0.4, 0.4))[:, order] + shift for order, shift in walls]
+    box = np.concatenate([_square(400, (0.4, 0.4)) + [0.8, 0.8, 0.4], *faces])
+    template = np.r_[table, box]
+    tree = cloud_tree(template)
+    slid = template[::2] + [0.12, 0.16, 0.0]
+    slide = best_slide(tree, template, slid, 0.04, pose_constraint(template, tree, slid, 0.04))
+    assert slide.gain >= SLIDE_GAIN
+    assert slide.offset @ [0.6, 0.8, 0.0] < -0.05  # back, towards the box
+    right = best_slide(
+        tree, template, template[::2], 0.04, pose_constraint(template, tree, template[::2], 0.04)
+    )
+    assert right.gain < SLIDE_GAIN  # at the right pose no slide fits better
+
+
+@pytest.mark.parametrize(
+    ("constraint", "slide_gain", "rule"),
+    [
+        (FREE_RATIO, 0.0, "correct"),  # the bound is pinned
+        (0.99 * FREE_RATIO, 0.0, "free"),  # under it, free: uncertain
+        (1.0, SLIDE_GAIN, "slid"),  # a slide that fits this much better: wrong
+        (1.0, 0.99 * SLIDE_GAIN, "correct"),
+    ],
+)
+def test_the_slide_rules_decide_at_their_bounds(constraint, slide_gain, rule):
+    assert verdict_rule(1.0, 0.0, 0.0, constraint, slide_gain) == rule
