@@ -65,7 +65,7 @@ def one_at_a_time(
     import torch
 
     from masknet import assess_registration, register
-    from masknet.registration.call.plan import default_model, default_two_sided
+    from masknet.registration.plan import default_model, default_two_sided
 
     before = torch.get_num_threads()
     if threads:

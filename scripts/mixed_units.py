@@ -1,4 +1,4 @@
-"""Where real pairs and mixed-unit pairs lie for the unit check (masknet.registration.call.units).
+"""Where real pairs and mixed-unit pairs lie for the unit check (masknet.registration.terms.units).
 
     python scripts/mixed_units.py [--scans ../shared/data/scans]
 
@@ -30,7 +30,7 @@ PAIRS = {
 def main() -> None:
     from masknet.experiments.scans import scans_folder
     from masknet.io import read_points
-    from masknet.registration.call.units import check_units
+    from masknet.registration.terms.units import check_units
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scans", type=Path, default=None, help="the evaluation scans")

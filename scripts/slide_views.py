@@ -30,8 +30,8 @@ def main() -> None:
     from masknet.evaluation.registration import pose_errors
     from masknet.experiments.rounds import scan_eval_set
     from masknet.geometry.clouds import centroid_radius
-    from masknet.registration.call.options import RobustOptions
     from masknet.registration.stages import consensus
+    from masknet.registration.terms.options import RobustOptions
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--per-scan", type=int, default=14)

@@ -31,9 +31,9 @@ from masknet.errors import MaskNetError, MaskNetWarning
 os.environ.setdefault("GOMP_SPINCOUNT", "10000")
 
 __version__ = "0.1.0"
-from masknet.registration.call import options as _options  # noqa: E402 (after the environment)
+from masknet.registration.terms import options as _options  # noqa: E402 (after the environment)
 
-# Every options class (SceneSearch included), as masknet.registration.call.options lists them:
+# Every options class (SceneSearch included), as masknet.registration.terms.options lists them:
 # that module is plain dataclasses, no torch.
 _OPTIONS = tuple(name for name in _options.__all__ if name[0].isupper())
 
@@ -66,10 +66,10 @@ _LAZY = {
     "assess_registration": "masknet.registration",
     "evaluate_registration": "masknet.registration",
     "register": "masknet.registration",
-    "register_many": "masknet.registration.call.many",
+    "register_many": "masknet.registration.many",
     "track": "masknet.tracking",
     "Tracker": "masknet.tracking",
-    **dict.fromkeys(_OPTIONS, "masknet.registration.call.options"),
+    **dict.fromkeys(_OPTIONS, "masknet.registration.terms.options"),
 }
 
 if TYPE_CHECKING:

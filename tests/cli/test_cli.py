@@ -87,7 +87,7 @@ def test_help_does_not_import_torch_and_names_agree():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
     from masknet.models import REGISTRATION_NETWORKS
-    from masknet.registration.call.methods import METHOD_TITLES, METHODS, NETWORK_METHODS
+    from masknet.registration.terms.methods import METHOD_TITLES, METHODS, NETWORK_METHODS
 
     assert NETWORK_METHODS == tuple(REGISTRATION_NETWORKS)
     assert set(METHODS) == set(METHOD_TITLES)

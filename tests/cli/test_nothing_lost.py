@@ -11,7 +11,7 @@ import warnings
 import numpy as np
 import pytest
 
-import masknet.registration.call.many as many
+import masknet.registration.many as many
 from masknet.cli import main
 from masknet.cli._common import EXIT_INTERRUPTED, EXIT_LIKELY_WRONG, EXIT_REFUSED
 from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs

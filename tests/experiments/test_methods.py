@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from masknet.registration.call.methods import METHOD_TABLE
+from masknet.registration.terms.methods import METHOD_TABLE
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -42,7 +42,7 @@ def test_the_benchmark_runs_exactly_the_tables_methods(monkeypatch, scans_dir):
     by a recorder here (the real run is in docs/RESULTS.md)."""
     from masknet.experiments import methods
     from masknet.experiments.context import BenchmarkContext
-    from masknet.registration.call import api
+    from masknet.registration import api
 
     called = []
 

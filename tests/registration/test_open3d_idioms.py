@@ -15,7 +15,7 @@ from masknet import MaskNetError, register
 from masknet.cli import main
 from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
 from masknet.geometry.se3 import transform_points
-from masknet.registration.call.methods import METHOD_TABLE, PIPELINES
+from masknet.registration.terms.methods import METHOD_TABLE, PIPELINES
 
 o3d = pytest.importorskip("open3d")
 

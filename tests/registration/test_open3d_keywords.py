@@ -15,7 +15,7 @@ from masknet.cli import main
 from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
 from masknet.errors import MaskNetWarning
 from masknet.evaluation.registration import pose_errors
-from masknet.registration.call.options import RobustOptions
+from masknet.registration.terms.options import RobustOptions
 
 SCANS = Path(__file__).resolve().parents[3] / "shared" / "data" / "scans"
 

@@ -12,11 +12,11 @@ from scipy.spatial.transform import Rotation
 from masknet.data import bundled_sample_path, load_modelnet40
 from masknet.geometry.sampling import NetworkClouds
 from masknet.models import MaskNet, TwoSidedMaskNet
-from masknet.registration.call.options import RobustOptions
 from masknet.registration.solvers.backends.base import MaskModels, PipelineRun
 from masknet.registration.stages.auto import PATHS
 from masknet.registration.stages.auto import auto_register as run_auto
 from masknet.registration.stages.robust import robust_register as run_robust
+from masknet.registration.terms.options import RobustOptions
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 

@@ -29,7 +29,7 @@ from masknet.cli._outputs import check_outputs, output_file
 from masknet.cli._pictures import registration_views
 from masknet.cli._report import print_result, report_path, shown_numbers
 from masknet.errors import MaskNetError
-from masknet.registration.call.methods import METHOD_TITLES, METHODS, PIPELINES
+from masknet.registration.terms.methods import METHOD_TITLES, METHODS, PIPELINES
 
 if TYPE_CHECKING:  # heavy imports stay out of ``masknet --help``
     from collections.abc import Callable
@@ -37,9 +37,9 @@ if TYPE_CHECKING:  # heavy imports stay out of ``masknet --help``
     import numpy as np
 
     from masknet.models import MaskNet
-    from masknet.registration.call.result import RegistrationResult
     from masknet.registration.judge.assessment import Assessment
     from masknet.registration.stages.scene import SceneSearch
+    from masknet.registration.terms.result import RegistrationResult
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -143,7 +143,7 @@ def _add_round_options(p: argparse.ArgumentParser) -> None:
         metavar="NAME=VALUE",
         help="any field of the method's options, as in Python (repeatable), e.g. --option "
         "accept_fitness=0.95 --option hypotheses=12 for auto and robust, --option "
-        "relative_rmse=1e-6 for icp (masknet.registration.call.options lists them); the flags "
+        "relative_rmse=1e-6 for icp (masknet.registration.terms.options lists them); the flags "
         "above win over the same name here",
     )
 
@@ -374,7 +374,7 @@ def _writers(
     (M, 3) as read; ``rows``: the input rows each kept."""
     from masknet.io import read_point_attributes, write_mask, write_points, write_text_atomic
     from masknet.io_checks import over_rows
-    from masknet.registration.call.many import transform_text
+    from masknet.registration.many import transform_text
     from masknet.viewer import scene_layers, view_writers
 
     (template, source), (template_rows, source_rows) = clouds, rows
@@ -417,7 +417,7 @@ def _report(
     check: Assessment,
 ) -> None:
     """Print what the method reported, the verdict and its warnings."""
-    from masknet.registration.call.options import DEFAULT_SPACINGS
+    from masknet.registration.terms.options import DEFAULT_SPACINGS
 
     print_result(args, name, template, source, source_rows, result)
     report_path(result.info, result.R, Path(args.source).name)

@@ -23,7 +23,7 @@ from masknet.cli._common import (
 )
 from masknet.cli._outputs import check_outputs
 from masknet.errors import MaskNetError
-from masknet.registration.call.methods import METHODS
+from masknet.registration.terms.methods import METHODS
 
 SUMMARY = "summary.csv"
 COLUMNS = (
@@ -95,7 +95,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 def read_jobs(args: argparse.Namespace):
     """The pairs the options name, as PairJobs with unique names."""
-    from masknet.registration.call.many import PairJob
+    from masknet.registration.many import PairJob
 
     rows: list[tuple[str, str, str | None]] = []
     if args.list:
@@ -135,8 +135,8 @@ def read_jobs(args: argparse.Namespace):
 
 def check_options(options: dict) -> None:
     """Refuse, once and before any pair, what ``register`` would refuse for every pair."""
-    from masknet.registration.call.methods import default_method, method_options
-    from masknet.registration.call.validation import (
+    from masknet.registration.terms.methods import default_method, method_options
+    from masknet.registration.terms.validation import (
         as_rigid_transforms,
         check_arguments,
         split_init,
@@ -231,7 +231,7 @@ def _record(job, outcome, options: dict) -> dict:
 
 def _write_record(out: Path, record: dict) -> None:
     from masknet.io import write_text_atomic
-    from masknet.registration.call.many import transform_text
+    from masknet.registration.many import transform_text
 
     transform_path = out / f"{record['name']}_transform.txt"
     if record["status"] == "registered":
@@ -279,7 +279,7 @@ def _check_results(args: argparse.Namespace, jobs, out: Path, started_from: list
 def run(args: argparse.Namespace) -> int:
     """Register the pairs not finished yet; write each result as it comes, then the
     summary. Returns the exit status."""
-    from masknet.registration.call.many import executor, run_jobs
+    from masknet.registration.many import executor, run_jobs
 
     jobs = read_jobs(args)
     started_from = start_files(args)

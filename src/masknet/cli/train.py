@@ -17,7 +17,7 @@ from masknet.cli._common import (
 )
 from masknet.cli._outputs import refuse_inputs
 from masknet.errors import MaskNetError
-from masknet.registration.call.methods import NETWORK_METHODS
+from masknet.registration.terms.methods import NETWORK_METHODS
 
 if TYPE_CHECKING:
     from masknet.training import Task

@@ -184,7 +184,7 @@ def realigned_mask_metrics(
     once the source is nearly aligned the network's task is easier. This measures
     MaskNet inside that pipeline, not the network alone.
     """
-    from masknet.registration.call.api import register
+    from masknet.registration.api import register
 
     template, source = pairs.template.double().numpy(), pairs.source.double().numpy()
     masks = []

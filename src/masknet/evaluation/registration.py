@@ -21,8 +21,8 @@ from masknet.data.pairs import Pairs
 from masknet.errors import MaskNetError
 from masknet.geometry.se3 import rotation_angle_deg
 from masknet.models.masknet import PAIRS_PER_CALL
-from masknet.registration.call.api import register
-from masknet.registration.call.methods import METHOD_TITLES
+from masknet.registration.api import register
+from masknet.registration.terms.methods import METHOD_TITLES
 
 __all__ = [
     "PIPELINES",

@@ -19,7 +19,7 @@ from masknet.evaluation.registration import pair_arrays, paired_difference, pose
 from masknet.experiments.context import BenchmarkContext, ExperimentResult
 from masknet.experiments.plots import line_plot
 from masknet.models.masknet import MaskNet
-from masknet.registration.call.api import register
+from masknet.registration.api import register
 
 __all__ = ["per_round_errors", "run"]
 

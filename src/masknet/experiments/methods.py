@@ -2,7 +2,7 @@
 
 The 3DMatch pair of ../shared/data/scans (GeoTransformer's demo fragments, ground truth
 given), 2,000 points drawn from each cloud (seeded), in metres. The rows are exactly the
-methods of :data:`masknet.registration.call.methods.METHOD_TABLE`, each with its defaults and
+methods of :data:`masknet.registration.terms.methods.METHOD_TABLE`, each with its defaults and
 its shipped weights, so a method added to the table appears here.
 """
 
@@ -15,7 +15,7 @@ import numpy as np
 from masknet.evaluation.registration import pose_errors
 from masknet.experiments.context import BenchmarkContext, ExperimentResult
 from masknet.experiments.scans import THREEDMATCH_FILES, load_pair, scans_folder
-from masknet.registration.call.methods import METHOD_TABLE
+from masknet.registration.terms.methods import METHOD_TABLE
 
 __all__ = ["POINTS", "run"]
 
@@ -24,7 +24,7 @@ POINTS = 2000  # drawn from each cloud: every method, the networks included, run
 
 def run(ctx: BenchmarkContext) -> ExperimentResult:
     """Rotation and translation error and time of each method, with and without a mask."""
-    from masknet.registration.call.api import register
+    from masknet.registration.api import register
 
     template, source, truth = load_pair(scans_folder(), *THREEDMATCH_FILES)
     rng = np.random.default_rng(0)

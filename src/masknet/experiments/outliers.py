@@ -14,7 +14,7 @@ from masknet.experiments.context import BenchmarkContext, ExperimentResult
 from masknet.experiments.pipelines import SWEEP_PIPELINES, shipped_masknet
 from masknet.experiments.plots import line_plot, series_by
 from masknet.geometry.clouds import MIN_POINTS
-from masknet.registration.call.api import register
+from masknet.registration.api import register
 
 
 def register_denoise_register(pairs: Pairs, how: dict, kwargs: dict) -> dict[str, float]:

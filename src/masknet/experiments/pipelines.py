@@ -8,7 +8,7 @@ from masknet.evaluation.registration import PIPELINES, x_and_mask_x
 from masknet.models import REGISTRATION_NETWORKS
 from masknet.models.masknet import MaskNet
 from masknet.models.weights import shipped_weights_path
-from masknet.registration.call.methods import METHOD_TITLES
+from masknet.registration.terms.methods import METHOD_TITLES
 
 __all__ = [
     "LEARNED",

@@ -13,7 +13,7 @@ from masknet.experiments.context import BenchmarkContext, ExperimentResult
 from masknet.experiments.pipelines import LEARNED, shipped
 from masknet.experiments.plots import line_plot
 from masknet.models.masknet import MaskNet
-from masknet.registration.call.api import register
+from masknet.registration.api import register
 
 
 def correspondence_precision(pairs: Pairs, method: str, chunk: int = PAIRS_PER_CALL) -> float:

@@ -18,7 +18,7 @@ from masknet.evaluation.evaluate import evaluate_masknet
 from masknet.evaluation.registration import pair_arrays, pose_errors
 from masknet.experiments.context import BenchmarkContext, ExperimentResult
 from masknet.models.masknet import MaskNet
-from masknet.registration.call.api import register
+from masknet.registration.api import register
 
 # The two protocols as the pair generator makes them.
 PROTOCOLS = {"random views (masknet)": "paper", "authors' fixed cut": "official"}

@@ -36,7 +36,7 @@ from masknet.evaluation.registration import pose_errors
 from masknet.experiments.context import BenchmarkContext, ExperimentResult, median_time
 from masknet.experiments.scans import THREEDMATCH_FILES, load_pair, scans_folder
 from masknet.geometry.open3d_clouds import to_open3d
-from masknet.registration.call.api import register
+from masknet.registration.api import register
 from masknet.registration.solvers.open3d_icp import point_to_plane_at_cuts
 
 __all__ = [

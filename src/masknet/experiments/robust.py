@@ -30,7 +30,7 @@ from masknet.data.pairs import PairConfig, Pairs
 from masknet.evaluation.registration import pair_arrays, pose_errors, summarize_errors
 from masknet.experiments.context import BenchmarkContext, ExperimentResult
 from masknet.geometry.clouds import centroid_radius
-from masknet.registration.call.api import register
+from masknet.registration.api import register
 
 VOXELS = (0.02, 0.035, 0.05, 0.075, 0.1)
 PEERS = ("Open3D RANSAC + ICP", "Open3D FGR + ICP")

@@ -28,7 +28,7 @@ from masknet.experiments.plots import panel_plot
 from masknet.experiments.scans import scans_folder
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
-from masknet.registration.call.api import register
+from masknet.registration.api import register
 from masknet.registration.stages.refinement import NearestNeighbourMasks
 
 __all__ = [

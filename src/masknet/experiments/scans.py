@@ -13,7 +13,7 @@ from masknet.evaluation.registration import pose_errors
 from masknet.experiments.context import BenchmarkContext, ExperimentResult
 from masknet.experiments.pipelines import SWEEP_PIPELINES
 from masknet.geometry.se3 import so3_exp
-from masknet.registration.call.api import register
+from masknet.registration.api import register
 
 # The 3DMatch fragment pair of ../shared/data/scans: template, source, ground truth.
 THREEDMATCH_FILES = (

@@ -24,7 +24,7 @@ from masknet.evaluation.registration import pose_errors
 from masknet.experiments.context import BenchmarkContext, ExperimentResult
 from masknet.experiments.scans import THREEDMATCH_FILES, load_pair, scans_folder
 from masknet.geometry.clouds import centroid_radius
-from masknet.registration.call.api import register
+from masknet.registration.api import register
 from masknet.registration.judge.assessment import VERDICTS, assess_registration
 
 ANGLES = (0, 2, 5, 15, 45)

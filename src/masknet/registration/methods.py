@@ -1,6 +1,6 @@
-"""Moved to :mod:`masknet.registration.call.methods`; this name works for one more release, with a
+"""Moved to :mod:`masknet.registration.terms.methods`; this name works for one more release, with a
 ``DeprecationWarning``."""
 
 from masknet._moved import moved_module
 
-__getattr__ = moved_module(__name__, "masknet.registration.call.methods")
+__getattr__ = moved_module(__name__, "masknet.registration.terms.methods")

@@ -1,6 +1,6 @@
-"""Moved to :mod:`masknet.registration.call.options`; this name works for one more release, with a
+"""Moved to :mod:`masknet.registration.terms.options`; this name works for one more release, with a
 ``DeprecationWarning``."""
 
 from masknet._moved import moved_module
 
-__getattr__ = moved_module(__name__, "masknet.registration.call.options")
+__getattr__ = moved_module(__name__, "masknet.registration.terms.options")

@@ -1,6 +1,6 @@
-"""Moved to :mod:`masknet.registration.call.result`; this name works for one more release, with a
+"""Moved to :mod:`masknet.registration.terms.result`; this name works for one more release, with a
 ``DeprecationWarning``."""
 
 from masknet._moved import moved_module
 
-__getattr__ = moved_module(__name__, "masknet.registration.call.result")
+__getattr__ = moved_module(__name__, "masknet.registration.terms.result")

@@ -1,6 +1,6 @@
-"""Moved to :mod:`masknet.registration.call.units`; this name works for one more release, with a
+"""Moved to :mod:`masknet.registration.terms.units`; this name works for one more release, with a
 ``DeprecationWarning``."""
 
 from masknet._moved import moved_module
 
-__getattr__ = moved_module(__name__, "masknet.registration.call.units")
+__getattr__ = moved_module(__name__, "masknet.registration.terms.units")

@@ -143,7 +143,7 @@ class Tracker:
         self.max_uncertain, self.drop_nonfinite = max_uncertain, drop_nonfinite
         self.register_options = dict(register_options or {})
         if viewpoint is not None:
-            from masknet.registration.call.options import SceneSearch
+            from masknet.registration.terms.options import SceneSearch
 
             self.register_options["scene"] = SceneSearch(viewpoint=tuple(viewpoint))
         self.centre = self.template.mean(0)
@@ -183,7 +183,7 @@ class Tracker:
         return TrackResult(index, *found[:3], state, time.perf_counter() - start, *found[3:])
 
     def _checked(self, frame: np.ndarray, name: str) -> np.ndarray | None:
-        from masknet.registration.call.units import check_units
+        from masknet.registration.terms.units import check_units
 
         array = np.asarray(frame)
         if array.ndim == 2 and array.shape[1] >= 3:
@@ -276,7 +276,7 @@ class Tracker:
 
     def _find(self, points: np.ndarray, why: str) -> _Found:
         """The full default, :func:`masknet.register`, on the whole frame."""
-        from masknet.registration.call.api import register
+        from masknet.registration.api import register
 
         result = register(self.template, points, **self.register_options)
         transform = np.asarray(result.transform, dtype=np.float64)
@@ -304,7 +304,7 @@ class _Found(NamedTuple):
 
 
 def _as_pose(value: Any) -> np.ndarray:
-    from masknet.registration.call.validation import as_rigid_transforms
+    from masknet.registration.terms.validation import as_rigid_transforms
 
     return np.asarray(as_rigid_transforms(value, 1)[0], dtype=np.float64)
 

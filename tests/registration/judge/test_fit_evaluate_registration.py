@@ -8,7 +8,7 @@ import pytest
 from masknet import MaskNetError, evaluate_registration
 from masknet.data import bundled_sample_path, load_modelnet40
 from masknet.geometry.clouds import median_spacing
-from masknet.registration.call.options import DEFAULT_SPACINGS
+from masknet.registration.terms.options import DEFAULT_SPACINGS
 
 
 @pytest.fixture(scope="module")

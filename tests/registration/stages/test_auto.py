@@ -10,8 +10,8 @@ from masknet import register
 from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
 from masknet.evaluation.registration import pose_errors
 from masknet.geometry.clouds import principal_turn_deg
-from masknet.registration.call.options import RobustOptions
-from masknet.registration.call.result import AUTO_INFO
+from masknet.registration.terms.options import RobustOptions
+from masknet.registration.terms.result import AUTO_INFO
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 

@@ -10,10 +10,10 @@ import pytest
 from masknet import assess_registration, register
 from masknet.errors import MaskNetError
 from masknet.evaluation.registration import pose_errors
-from masknet.registration.call.options import RobustOptions
 from masknet.registration.judge.arbiter import verdict_rank
 from masknet.registration.judge.assessment import Assessment
 from masknet.registration.stages.consensus import consensus_register
+from masknet.registration.terms.options import RobustOptions
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 

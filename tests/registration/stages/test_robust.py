@@ -10,8 +10,8 @@ from masknet import MaskNetError, register
 from masknet.data import bundled_sample_path, load_modelnet40
 from masknet.evaluation.registration import pose_errors
 from masknet.geometry.se3 import hypothesis_rotations
-from masknet.registration.call.methods import default_method
-from masknet.registration.call.result import AUTO_INFO, PIPELINE_INFO
+from masknet.registration.terms.methods import default_method
+from masknet.registration.terms.result import AUTO_INFO, PIPELINE_INFO
 
 
 def _pair(shape: np.ndarray, degrees: float, outliers: int, seed: int = 0):
@@ -140,7 +140,7 @@ def test_a_named_method_is_the_method():
 
 def test_auto_and_robust_take_the_robust_options():
     from masknet.registration import RobustOptions
-    from masknet.registration.call.methods import METHOD_TABLE
+    from masknet.registration.terms.methods import METHOD_TABLE
 
     assert METHOD_TABLE["robust"].options is RobustOptions is METHOD_TABLE["auto"].options
 

@@ -8,7 +8,7 @@ import pytest
 from masknet import register
 from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
 from masknet.geometry.clouds import Frame
-from masknet.registration.call.pipeline import REFINE_POINTS
+from masknet.registration.pipeline import REFINE_POINTS
 from masknet.registration.solvers.backends import BackendRun
 from masknet.registration.solvers.backends import icp as icp_backend
 from masknet.registration.solvers.backends.base import keep_source_points

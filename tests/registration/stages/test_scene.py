@@ -252,7 +252,7 @@ def test_the_fit_and_mask_near_the_object_are_the_whole_scenes(scene_pair):
 
 def test_after_a_scene_search_the_default_masks_with_the_papers_network(scene_pair, monkeypatch):
     """The fast path's small network is not the one of the Mask-ICP after a scene search."""
-    from masknet.registration.call import plan
+    from masknet.registration import plan
 
     obj, points, truth, _ = scene_pair
 

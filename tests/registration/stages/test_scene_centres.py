@@ -13,7 +13,6 @@ from masknet import MaskNetError
 from masknet.data import bundled_sample_path, load_modelnet40
 from masknet.geometry.clouds import unit_radius
 from masknet.geometry.knn import cloud_tree
-from masknet.registration.call.options import SceneSearch
 from masknet.registration.stages import scene_centres
 from masknet.registration.stages.scene_centres import (
     MIN_CENTRES,
@@ -22,6 +21,7 @@ from masknet.registration.stages.scene_centres import (
     likely_centres,
     voxel_thin,
 )
+from masknet.registration.terms.options import SceneSearch
 
 pytest.importorskip("open3d")
 

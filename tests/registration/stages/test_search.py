@@ -51,7 +51,6 @@ def _box_with_a_bump(rng: np.random.Generator) -> np.ndarray:
 def test_an_early_flip_gives_way_to_the_pose_the_clouds_are_near():
     """A flip that passed the early exit gives way to the clouds as given when they
     refine to a better fit; an early answer that is right gets nothing added."""
-    from masknet.registration.call.options import RobustOptions
     from masknet.registration.judge.arbiter import Candidate
     from masknet.registration.judge.prepared import FIT_SPACINGS, prepare_pair
     from masknet.registration.stages.search import (
@@ -59,6 +58,7 @@ def test_an_early_flip_gives_way_to_the_pose_the_clouds_are_near():
         _as_given,
         _short_icp_from_identity,
     )
+    from masknet.registration.terms.options import RobustOptions
 
     rng = np.random.default_rng(0)
     template = _box_with_a_bump(rng)

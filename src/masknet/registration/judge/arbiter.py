@@ -4,7 +4,7 @@ poses, and the one type of a pose on its way to an answer (:class:`Candidate`).
 The stages find poses; the arbiter says which one wins, which is the runner-up, whether
 the answer is ambiguous, when a search may stop, and which poses are one basin. Each rule
 is a small function here, named for what it decides, and takes its thresholds from the
-caller (the fields of :class:`~masknet.registration.call.options.RobustOptions`, the module
+caller (the fields of :class:`~masknet.registration.terms.options.RobustOptions`, the module
 constants beside the stage that measured them): the arbiter invents none.
 
 The measures it compares (one per stage, not yet one for all):

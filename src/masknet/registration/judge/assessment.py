@@ -46,9 +46,6 @@ import numpy as np
 from masknet.geometry.clouds import median_spacing, rms_radius
 from masknet.geometry.sampling import grid_subset
 from masknet.geometry.se3 import transform_points
-from masknet.registration.call.options import DEFAULT_SPACINGS
-from masknet.registration.call.units import warn_mixed_units
-from masknet.registration.call.validation import as_numpy_batch, as_rigid_transforms
 from masknet.registration.judge.constraints import (
     best_slide,
     describe_free,
@@ -59,6 +56,9 @@ from masknet.registration.judge.constraints import (
 from masknet.registration.judge.fit import given_cut
 from masknet.registration.judge.fit import overlap_fit as implied_overlap_fit
 from masknet.registration.judge.hypotheses import rotation_between_deg
+from masknet.registration.terms.options import DEFAULT_SPACINGS
+from masknet.registration.terms.units import warn_mixed_units
+from masknet.registration.terms.validation import as_numpy_batch, as_rigid_transforms
 
 __all__ = [
     "Assessment",

@@ -49,8 +49,8 @@ from masknet.errors import MaskNetError
 from masknet.geometry.clouds import SPACING_SAMPLE, median_spacing
 from masknet.geometry.knn import cloud_tree
 from masknet.geometry.se3 import transform_points
-from masknet.registration.call.options import DEFAULT_SPACINGS, inlier_cutoff
-from masknet.registration.call.validation import as_numpy_batch, as_rigid_transforms
+from masknet.registration.terms.options import DEFAULT_SPACINGS, inlier_cutoff
+from masknet.registration.terms.validation import as_numpy_batch, as_rigid_transforms
 
 __all__ = [
     "FIT_SLACK",

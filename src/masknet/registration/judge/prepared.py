@@ -31,8 +31,8 @@ from masknet.geometry.clouds import MIN_POINTS, SPACING_SAMPLE, median_spacing
 from masknet.geometry.knn import cloud_tree
 from masknet.geometry.normals import plane_offsets
 from masknet.geometry.sampling import grid_subset, random_subset
-from masknet.registration.call.options import inlier_cutoff
 from masknet.registration.judge.fit import FIT_SPACINGS
+from masknet.registration.terms.options import inlier_cutoff
 
 __all__ = [
     "CHECK_MAX_DROP",

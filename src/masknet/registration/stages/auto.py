@@ -2,7 +2,7 @@
 with the condition under which it runs. Each choice between poses is a rule of
 :mod:`masknet.registration.judge.arbiter`.
 
-0. **Scene search** (before this module, in :mod:`masknet.registration.call.pipeline`), for
+0. **Scene search** (before this module, in :mod:`masknet.registration.pipeline`), for
    one pair whose source is ``scene_ratio`` (3) times as spread out as the template
    (:func:`~masknet.registration.stages.scene.is_scene`): :func:`~masknet.registration.stages.scene.locate`
    finds the template in the scene, and Mask-ICP (``"icp"``) from the pose found, then
@@ -10,7 +10,7 @@ with the condition under which it runs. Each choice between poses is a rule of
    ``"scene search"``. Where it finds nothing to register, the stages below run.
 1. **Size.** A template of ``consensus_from`` points or more is a scan's, one of fewer
    than ``consensus_below`` sparse, one between them an object
-   (:meth:`~masknet.registration.call.options.RobustOptions.is_scan`, ``is_sparse``,
+   (:meth:`~masknet.registration.terms.options.RobustOptions.is_scan`, ``is_sparse``,
    ``is_object``).
 2. **Consensus front end**, for scans and sparse clouds (``consensus_points`` > 0)
    (:mod:`masknet.registration.stages.consensus`: a voxel budget, RANSAC on FPFH matches,
@@ -56,7 +56,7 @@ with the condition under which it runs. Each choice between poses is a rule of
    60-180 degrees off.
 
 The networks' clouds are sampled on first use, so a call the consensus ends never
-samples them. ``info`` holds :data:`~masknet.registration.call.result.AUTO_INFO`: ``path``
+samples them. ``info`` holds :data:`~masknet.registration.terms.result.AUTO_INFO`: ``path``
 says which stage answered (:data:`PATHS`) and ``escalated_fitness`` the fast path's fit
 that sent the pair on (NaN where the fast path did not run or sufficed).
 """
@@ -74,8 +74,6 @@ from masknet.geometry.sampling import NetworkClouds, spread_labels
 from masknet.geometry.se3 import transform_points
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
-from masknet.registration.call.options import ICPCriteria, RobustOptions, inlier_cutoff
-from masknet.registration.call.result import PipelineInfo, info_arrays
 from masknet.registration.judge import arbiter
 from masknet.registration.judge.arbiter import Candidate
 from masknet.registration.judge.assessment import judge
@@ -87,11 +85,13 @@ from masknet.registration.stages.consensus import ConsensusRun, consensus_regist
 from masknet.registration.stages.robust import NetworkMasks, pipeline_run
 from masknet.registration.stages.rounds import mask_and_register
 from masknet.registration.stages.search import REFINE_TOLERANCE, coarse_to_fine
+from masknet.registration.terms.options import ICPCriteria, RobustOptions, inlier_cutoff
+from masknet.registration.terms.result import PipelineInfo, info_arrays
 
 __all__ = ["PATHS", "auto_register"]
 
 # Every ``info["path"]`` of the default: its own paths, then the scene search's (set where
-# the call left the scan, masknet.registration.call.pipeline). The README lists them all.
+# the call left the scan, masknet.registration.pipeline). The README lists them all.
 PATHS = (
     "fast",
     "consensus",
@@ -390,7 +390,7 @@ def _consensus_run(
 
 
 def _info(path: str, fit: PoseFit, escalated: float) -> dict[str, np.ndarray]:
-    """The info (:data:`~masknet.registration.call.result.AUTO_INFO`) of a result that is not
+    """The info (:data:`~masknet.registration.terms.result.AUTO_INFO`) of a result that is not
     the search's: one pose, no runner-up."""
     pair = PipelineInfo(
         path=path,

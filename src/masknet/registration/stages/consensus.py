@@ -51,7 +51,6 @@ from masknet.geometry.clouds import median_spacing, rms_radius
 from masknet.geometry.open3d_clouds import to_open3d
 from masknet.geometry.sampling import random_subset
 from masknet.io import has_open3d
-from masknet.registration.call.options import RobustOptions
 from masknet.registration.judge import arbiter
 from masknet.registration.judge.arbiter import Candidate
 from masknet.registration.judge.assessment import (
@@ -72,6 +71,7 @@ from masknet.registration.solvers.open3d_global import (
     ransac_on_matches,
 )
 from masknet.registration.solvers.open3d_icp import point_to_plane_at_cuts
+from masknet.registration.terms.options import RobustOptions
 
 __all__ = ["ConsensusRun", "consensus_register"]
 

@@ -17,10 +17,10 @@ import numpy as np
 from masknet.geometry.sampling import NetworkClouds, spread_labels
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
-from masknet.registration.call.options import RobustOptions
-from masknet.registration.call.result import info_arrays
 from masknet.registration.solvers.backends.base import MaskModels, PipelineRun
 from masknet.registration.stages.search import CoarseRun, coarse_to_fine
+from masknet.registration.terms.options import RobustOptions
+from masknet.registration.terms.result import info_arrays
 
 __all__ = ["NetworkMasks", "pipeline_run", "robust_register"]
 

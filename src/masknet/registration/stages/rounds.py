@@ -14,10 +14,10 @@ import numpy as np
 
 from masknet._moved import moved_names
 from masknet.geometry.se3 import transform_points
-from masknet.registration.call.methods import adapter
 from masknet.registration.judge import fit
 from masknet.registration.solvers.backends.base import BackendRun, check_template_points, usable
 from masknet.registration.stages.refinement import Refiner
+from masknet.registration.terms.methods import adapter
 
 __all__ = ["RoundsResult", "initial_transform", "mask_and_register"]
 

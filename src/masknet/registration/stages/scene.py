@@ -76,10 +76,10 @@ from masknet.geometry.normals import estimate_normals
 from masknet.geometry.sampling import farthest_point_sample, grid_subset
 from masknet.geometry.se3 import hypothesis_rotations, transform_points
 from masknet.geometry.trimmed import trimmed_fit, trimmed_mean, trimmed_order
-from masknet.registration.call.options import SceneSearch, inlier_cutoff
 from masknet.registration.judge import arbiter
 from masknet.registration.solvers.icp import icp
 from masknet.registration.stages.scene_centres import candidate_centres, likely_centres, voxel_thin
+from masknet.registration.terms.options import SceneSearch, inlier_cutoff
 
 __all__ = ["SceneSearch", "SceneMatch", "is_scene", "locate", "polish"]
 

@@ -24,7 +24,7 @@ from masknet.errors import MaskNetError
 from masknet.geometry.knn import cloud_tree
 from masknet.geometry.sampling import first_in_cells
 from masknet.io import has_open3d
-from masknet.registration.call.options import SceneSearch
+from masknet.registration.terms.options import SceneSearch
 
 __all__ = ["candidate_centres", "likely_centres", "voxel_thin"]
 

@@ -57,8 +57,6 @@ from masknet.geometry.knn import cloud_tree
 from masknet.geometry.sampling import spread_labels
 from masknet.geometry.se3 import hypothesis_rotations, transform_points
 from masknet.io import has_open3d
-from masknet.registration.call.options import RobustOptions, inlier_cutoff
-from masknet.registration.call.result import PipelineInfo
 from masknet.registration.judge import arbiter
 from masknet.registration.judge.arbiter import Candidate
 from masknet.registration.judge.fit import covered_points, pose_fit, pose_fits
@@ -71,6 +69,8 @@ from masknet.registration.solvers.correspondences import (
     voxel_for,
 )
 from masknet.registration.solvers.icp import icp, icp_from_starts
+from masknet.registration.terms.options import RobustOptions, inlier_cutoff
+from masknet.registration.terms.result import PipelineInfo
 
 if TYPE_CHECKING:
     from masknet.registration.stages.refinement import MaskPredictor
@@ -114,7 +114,7 @@ class CoarseRun(NamedTuple):
     """transform: (4, 4) source -> template. mask: (N,) bool template points within the
     inlier distance of the moved kept source, or None without masks. source_mask: (M,)
     bool source points kept, or None without a two-sided network. info: the pair's
-    :class:`~masknet.registration.call.result.PipelineInfo`; its ``path`` is
+    :class:`~masknet.registration.terms.result.PipelineInfo`; its ``path`` is
     ``"correspondences"`` (the early exit) or ``"search"`` (the learned side ran), its
     ``source`` ``"fpfh"``, ``"fpfh-masked"``, ``"rotation"``, ...)."""
 

@@ -9,9 +9,9 @@ import pytest
 from scipy.spatial import cKDTree
 
 from masknet.errors import MaskNetError
-from masknet.registration.call.options import ICPCriteria, Open3DICPOptions
 from masknet.registration.solvers.backends.base import BackendRun
 from masknet.registration.solvers.backends.icp import run_icp, run_open3d_icp
+from masknet.registration.terms.options import ICPCriteria, Open3DICPOptions
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 

@@ -11,8 +11,8 @@ import pytest
 import torch
 
 from masknet.errors import MaskNetError
-from masknet.registration.call.options import NetworkOptions, PointNetLKOptions
 from masknet.registration.solvers.backends.network import run_network
+from masknet.registration.terms.options import NetworkOptions, PointNetLKOptions
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 

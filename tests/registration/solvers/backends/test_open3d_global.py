@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from masknet.registration.call.options import FGROptions, RANSACOptions
 from masknet.registration.solvers.backends.open3d_global import run_fgr, run_ransac
+from masknet.registration.terms.options import FGROptions, RANSACOptions
 
 pytestmark = pytest.mark.usefixtures("one_thread", "o3d")
 

@@ -1,4 +1,4 @@
-"""Adapters of the method table (:mod:`masknet.registration.call.methods`), one module per
+"""Adapters of the method table (:mod:`masknet.registration.terms.methods`), one module per
 family: :mod:`.icp` (ICP, Open3D's ICP), :mod:`.network` (the learned networks),
 :mod:`.open3d_global` (Open3D's RANSAC and FGR). :mod:`.base` says what each takes and
 returns, and what the whole-call pipelines take (``auto`` and ``robust``, whose adapters

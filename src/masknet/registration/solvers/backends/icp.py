@@ -8,10 +8,10 @@ import numpy as np
 import torch
 
 from masknet.errors import MaskNetError
-from masknet.registration.call.options import ICPCriteria, Open3DICPOptions, as_dict
 from masknet.registration.solvers.backends.base import BackendRun, points_in_use, usable
 from masknet.registration.solvers.icp import icp
 from masknet.registration.solvers.open3d_icp import open3d_icp
+from masknet.registration.terms.options import ICPCriteria, Open3DICPOptions, as_dict
 
 __all__ = ["run_icp", "run_open3d_icp"]
 

@@ -7,13 +7,13 @@ import torch
 
 from masknet.geometry.clouds import unit_radius
 from masknet.geometry.sampling import farthest_point_sample
-from masknet.registration.call.options import NetworkOptions, PointNetLKOptions
 from masknet.registration.solvers.backends.base import (
     BackendRun,
     check_template_points,
     keep_source_points,
     usable,
 )
+from masknet.registration.terms.options import NetworkOptions, PointNetLKOptions
 
 __all__ = ["run_network"]
 

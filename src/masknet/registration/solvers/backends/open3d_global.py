@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from masknet.geometry.clouds import unit_radius
-from masknet.registration.call.options import FGROptions, RANSACOptions, as_dict
 from masknet.registration.solvers.backends.base import BackendRun, points_in_use
+from masknet.registration.terms.options import FGROptions, RANSACOptions, as_dict
 
 __all__ = ["run_fgr", "run_ransac"]
 

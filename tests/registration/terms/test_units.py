@@ -9,7 +9,7 @@ import pytest
 
 from masknet import register
 from masknet.evaluation.registration import pose_errors
-from masknet.registration.call.methods import METHODS
+from masknet.registration.terms.methods import METHODS
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -51,7 +51,7 @@ def test_a_distance_given_in_input_units_follows_the_unit(real_pair):
     assert not np.allclose(looser.transform, metres.transform)  # the cut-off matters here
 
 
-# Mixed units: the one-line diagnosis (masknet.registration.call.units).
+# Mixed units: the one-line diagnosis (masknet.registration.terms.units).
 REAL_PAIRS = {
     "3DMatch": ("geotransformer_demo_ref.npy", "geotransformer_demo_src.npy"),
     "3DMatch (Open3D)": ("o3d_feature_cloud_bin_0.pcd", "o3d_feature_cloud_bin_1.pcd"),
@@ -72,7 +72,7 @@ def real_pairs(scans_dir) -> dict[str, tuple[np.ndarray, np.ndarray]]:
 
 
 def test_real_pairs_and_subsampled_ones_are_one_unit(real_pairs):
-    from masknet.registration.call.units import check_units
+    from masknet.registration.terms.units import check_units
 
     rng = np.random.default_rng(0)
     for name, (template, source) in real_pairs.items():
@@ -89,7 +89,7 @@ def test_real_pairs_and_subsampled_ones_are_one_unit(real_pairs):
 
 @pytest.mark.parametrize("factor", [10, 100, 1000])
 def test_mixed_units_get_one_line_naming_the_factor(real_pairs, factor):
-    from masknet.registration.call.units import check_units
+    from masknet.registration.terms.units import check_units
 
     for name, (template, source) in real_pairs.items():
         cases = {"source": (template, factor * source), "template": (factor * template, source)}

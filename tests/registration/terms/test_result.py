@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from masknet.registration.call.result import RegistrationResult
+from masknet.registration.terms.result import RegistrationResult
 
 
 def result(transform: np.ndarray, info: dict | None = None) -> RegistrationResult:

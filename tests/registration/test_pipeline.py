@@ -5,8 +5,7 @@ import pytest
 
 from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
 from masknet.errors import MaskNetError
-from masknet.registration.call.methods import method_options
-from masknet.registration.call.pipeline import (
+from masknet.registration.pipeline import (
     Estimate,
     check_clouds,
     enter_frame,
@@ -14,7 +13,8 @@ from masknet.registration.call.pipeline import (
     measure_fit,
     refine_plain,
 )
-from masknet.registration.call.plan import CallPlan, plan_call
+from masknet.registration.plan import CallPlan, plan_call
+from masknet.registration.terms.methods import method_options
 
 ARGUMENTS = dict(
     use_mask=False,

@@ -1,4 +1,4 @@
-"""masknet.registration.call.validation: register's argument checks, the clouds as float64
+"""masknet.registration.terms.validation: register's argument checks, the clouds as float64
 batches, rigid transforms, and the rows kept by drop_nonfinite."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from masknet.errors import MaskNetError
-from masknet.registration.call.validation import (
+from masknet.registration.terms.validation import (
     as_numpy_batch,
     as_rigid_transforms,
     check_arguments,

@@ -10,7 +10,7 @@ import numpy as np
 from masknet.errors import MaskNetError
 from masknet.geometry.clouds import MIN_POINTS, check_pair
 from masknet.io_checks import check_cloud, over_rows
-from masknet.registration.call.methods import INITS, METHODS
+from masknet.registration.terms.methods import INITS, METHODS
 
 __all__ = [
     "as_numpy_batch",
@@ -34,7 +34,7 @@ def check_arguments(
 ) -> None:
     """Raise :class:`MaskNetError` for an unknown method or init, or bad iterations,
     refine_iterations, max_points, k or threshold (a method's own options check
-    themselves: :mod:`masknet.registration.call.options`)."""
+    themselves: :mod:`masknet.registration.terms.options`)."""
     if method not in METHODS:
         raise MaskNetError(f"unknown registration method {method!r}; choose from {METHODS}")
     for name, value, low in (

@@ -1,4 +1,4 @@
-"""masknet.registration.call.plan: what a call resolves before it touches the clouds, and the
+"""masknet.registration.plan: what a call resolves before it touches the clouds, and the
 default networks it loads once."""
 
 from __future__ import annotations
@@ -8,8 +8,7 @@ import pytest
 from masknet import MaskNetError
 from masknet.models import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
-from masknet.registration.call.options import ICPCriteria, RobustOptions
-from masknet.registration.call.plan import (
+from masknet.registration.plan import (
     FAST_PATH_WEIGHTS,
     default_fast_model,
     default_model,
@@ -17,6 +16,7 @@ from masknet.registration.call.plan import (
     plan_call,
     with_networks,
 )
+from masknet.registration.terms.options import ICPCriteria, RobustOptions
 
 ARGUMENTS = dict(
     use_mask=True, iterations=1, refine_iterations=0, k=None, threshold=None, precision="fp32",

@@ -245,7 +245,7 @@ def test_a_weights_path_as_model_says_how_to_load_it(pairs):
 
 
 def test_default_model_is_loaded_once(monkeypatch, pairs, small_masknet):
-    from masknet.registration.call import plan
+    from masknet.registration import plan
 
     calls = []
 

@@ -1,4 +1,4 @@
-"""masknet.registration.call.options: one typed options object per method, checked when made,
+"""masknet.registration.terms.options: one typed options object per method, checked when made,
 and the same thing as its fields spelled as keywords."""
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from masknet.registration import (
     RANSACOptions,
     RobustOptions,
 )
-from masknet.registration.call.methods import METHOD_TABLE
+from masknet.registration.terms.methods import METHOD_TABLE
 
 
 @pytest.fixture(scope="module")
@@ -109,7 +109,7 @@ def test_pipelines_refuse_refine_iterations(pair):
 
 
 def test_the_hypotheses_short_icp_takes_a_share_of_large_sources():
-    from masknet.registration.call.options import RobustOptions
+    from masknet.registration.terms.options import RobustOptions
 
     options = RobustOptions()
     assert options.hypothesis_size(512) == options.hypothesis_size(2048) == 128
@@ -120,7 +120,7 @@ def test_the_hypotheses_short_icp_takes_a_share_of_large_sources():
 def test_the_scene_search_options_are_checked_when_made_and_frozen():
     import dataclasses
 
-    from masknet.registration.call.options import SceneSearch
+    from masknet.registration.terms.options import SceneSearch
 
     for bad, field in (
         ({"trim": 0}, "trim"),
@@ -137,7 +137,7 @@ def test_the_scene_search_options_are_checked_when_made_and_frozen():
 
 def test_every_options_class_is_exported_at_the_top_level():
     import masknet
-    from masknet.registration.call import options
+    from masknet.registration.terms import options
 
     classes = [n for n in options.__all__ if n[0].isupper() and n != "DEFAULT_SPACINGS"]
     assert "SceneSearch" in classes and "ICPCriteria" in classes

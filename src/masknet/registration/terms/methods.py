@@ -9,7 +9,7 @@ exactly its methods.
 To add a method: write an adapter module under :mod:`masknet.registration.solvers.backends`
 (``(template, source, template_mask, source_mask, options) -> BackendRun``, see
 :mod:`~masknet.registration.solvers.backends.base`), give it an options class in
-:mod:`~masknet.registration.call.options`, and add one :class:`Method` below.
+:mod:`~masknet.registration.terms.options`, and add one :class:`Method` below.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ import importlib
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
-from masknet.registration.call.options import (
+from masknet.registration.terms.options import (
     FGROptions,
     ICPCriteria,
     NetworkOptions,
@@ -54,7 +54,7 @@ class Method(NamedTuple):
         round on a batch (:data:`~masknet.registration.solvers.backends.base.Backend`); a
         pipeline's runs a whole call at full resolution
         (:data:`~masknet.registration.solvers.backends.base.Pipeline`).
-    options: its typed options class (:mod:`masknet.registration.call.options`).
+    options: its typed options class (:mod:`masknet.registration.terms.options`).
     default_iterations: ``max_iterations`` when none is given (None: the options' own).
     uses_init: whether ``init`` (the centroid start) matters; False for global registration,
         which searches every pose and has no iteration budget (:data:`GLOBAL_METHODS`,
@@ -133,7 +133,7 @@ def method_options(name: str, given: Any | None, keywords: dict[str, Any]) -> An
     None) with ``keywords`` (its fields, spelled inline) set, checked on construction.
     MaskNetError for an unknown field, a wrong options class, or a field given twice."""
     from masknet.errors import MaskNetError
-    from masknet.registration.call.options import as_dict
+    from masknet.registration.terms.options import as_dict
 
     kind = METHOD_TABLE[name].options
     keywords = open3d_spelling(keywords)

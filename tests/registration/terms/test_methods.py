@@ -1,4 +1,4 @@
-"""masknet.registration.call.methods: the method table, its views, the options it builds and the
+"""masknet.registration.terms.methods: the method table, its views, the options it builds and the
 default method; and that it needs no torch."""
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ import sys
 import pytest
 
 from masknet.errors import MaskNetError
-from masknet.registration.call import methods
-from masknet.registration.call.methods import (
+from masknet.registration.terms import methods
+from masknet.registration.terms.methods import (
     GLOBAL_METHODS,
     METHOD_TABLE,
     METHOD_TITLES,
@@ -25,7 +25,7 @@ from masknet.registration.call.methods import (
     default_method,
     method_options,
 )
-from masknet.registration.call.options import (
+from masknet.registration.terms.options import (
     FGROptions,
     ICPCriteria,
     NetworkOptions,
@@ -188,7 +188,7 @@ def test_default_method_rules():
 def test_importing_the_table_needs_no_torch():
     code = (
         "import sys\n"
-        "import masknet.registration.call.methods as m\n"
+        "import masknet.registration.terms.methods as m\n"
         "m.method_options('icp', None, {}); m.default_method(None, None)\n"
         "print('torch' in sys.modules)\n"
     )
@@ -196,7 +196,7 @@ def test_importing_the_table_needs_no_torch():
         [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120
     )
     assert out.stdout.strip() == "False", out.stdout + out.stderr
-    assert methods.__name__ == "masknet.registration.call.methods"
+    assert methods.__name__ == "masknet.registration.terms.methods"
 
 
 def test_a_given_network_options_object_runs_the_tables_iterations(known_pairs, shipped_pointnetlk):

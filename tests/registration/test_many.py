@@ -1,4 +1,4 @@
-"""masknet.registration.call.many: many pairs in parallel give what one call at a time gives, in
+"""masknet.registration.many: many pairs in parallel give what one call at a time gives, in
 order, a refused pair in its place; and the same on a local Dask cluster. The README's call
 works as written in a script, and a worker that dies stops the call."""
 
@@ -17,7 +17,7 @@ import pytest
 
 from masknet import MaskNetError, register
 from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
-from masknet.registration.call.many import register_many
+from masknet.registration.many import register_many
 
 
 @pytest.fixture(scope="module")
@@ -48,7 +48,7 @@ def test_a_local_dask_cluster_gives_the_same_results(pairs, one_thread):
         np.testing.assert_allclose(result.transform, single.transform, atol=1e-9)
 
 
-ROOT = Path(__file__).resolve().parents[3]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _readme_batch_block() -> str:
@@ -101,7 +101,7 @@ def test_spawned_workers_of_a_script_without_the_guard_say_what_to_add(tmp_path)
         textwrap.dedent(
             """\
             import numpy as np
-            import masknet.registration.call.many as many
+            import masknet.registration.many as many
             from masknet import MaskNetError, register_many
 
             many.start_method = lambda: "spawn"
