@@ -265,13 +265,15 @@ class MaskPredictionMixin:
     def forward_scorer(self, precision: Precision = "fp32"):
         """A ``scorer`` from the network's own forward: ``(template (B, N, 3), source
         (B, M, 3), chunk_size) -> scores (B, N)``, in eval mode under ``precision``'s
-        autocast (``chunk_size`` does not apply). For networks without a fused path."""
+        autocast (``chunk_size`` does not apply), without autograd (as the fused path: a
+        graph kept with each batch's scores grew an evaluation of 1,000 pairs past 20 GB).
+        For networks without a fused path."""
 
         def scores(template: Tensor, source: Tensor, chunk_size: int | None = None) -> Tensor:
             was_training = self.training
             self.eval()
             try:
-                with torch.autocast(
+                with torch.inference_mode(), torch.autocast(
                     template.device.type, dtype=torch.bfloat16, enabled=precision == "bf16"
                 ):
                     return torch.sigmoid(self(template, source, logits=True).float())
