@@ -247,9 +247,7 @@ def _grids(
     return ConsensusGrids(coarse, fine, voxel, template_grid, source_grid, check, cuts, scan)
 
 
-def _consensus(
-    o3d: Any, grids: ConsensusGrids, options: RobustOptions, start: str
-) -> ConsensusRun:
+def _consensus(o3d: Any, grids: ConsensusGrids, options: RobustOptions, start: str) -> ConsensusRun:
     """Steps 2 to 4 on ``grids``, with the pose as given as ``start`` says."""
 
     def run(pose: np.ndarray, check: Assessment) -> ConsensusRun:
@@ -344,7 +342,9 @@ def _sure(agreeing: float) -> bool:
     return 1.0 - (1.0 - agreeing**3) ** RANSAC_ITERATIONS >= RANSAC_CONFIDENCE
 
 
-def _best_judged(grids: ConsensusGrids, found: list[np.ndarray], options: RobustOptions) -> Candidate:
+def _best_judged(
+    grids: ConsensusGrids, found: list[np.ndarray], options: RobustOptions
+) -> Candidate:
     """The pose of ``found`` (each (4, 4)) that the verdict ranks highest, judged (a
     :class:`~masknet.registration.judge.arbiter.Candidate` with its check); a pose within
     ``distinct_deg`` and one voxel of the best so far is not judged
