@@ -66,7 +66,7 @@ def main() -> None:
         rows.append(
             f"| {i} {name} | {degrees:.2f}°, {shift:.1%} | {np.atleast_1d(result.info['path'])[0]} "
             f"| {check.verdict} | {check.overlap_fit:.2f} | "
-            f"{consensus.judge(grids.prepared, start).verdict}, {start_degrees:.2f}°, "
+            f"{consensus.judge(grids.check, start).verdict}, {start_degrees:.2f}°, "
             f"{start_shift:.1%} |"
         )
     print(f"{len(names)} views: {right} right, {called} of them called likely correct")

@@ -263,7 +263,7 @@ ELSEWHERE = {
         "ModelNet40's shapes are float32: unit_radius's float64 radius moves them by up to "
         "1.2e-7 (a float32 step), and every figure was measured on the shapes as they are"
     ),
-    ("inlier cut-off", "registration/judge/assessment.py:prepare_check"): (
+    ("inlier cut-off", "registration/judge/prepared.py:prepare_check"): (
         "the verdict's cut-off, on the larger of the two clouds' spacings; it goes through "
         "options.inlier_cutoff with the verdict's next change"
     ),

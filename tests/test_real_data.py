@@ -68,12 +68,12 @@ def test_thinned_room_scans_are_judged_on_even_halves(thinned_rooms, monkeypatch
     correct`; on even halves the reference reads `likely correct` and the scans as given
     do not."""
     from masknet import assess_registration
-    from masknet.registration.judge import assessment
+    from masknet.registration.judge import prepared
 
     template, source, reference = thinned_rooms
     assert assess_registration(template, source, reference).verdict == "likely correct"
     assert assess_registration(template, source, np.eye(4)).verdict != "likely correct"
-    monkeypatch.setattr(assessment, "UNEVEN_SPREAD", np.inf)
+    monkeypatch.setattr(prepared, "UNEVEN_SPREAD", np.inf)
     assert assess_registration(template, source, reference).verdict != "likely correct"
     assert assess_registration(template, source, np.eye(4)).verdict == "likely correct"
 

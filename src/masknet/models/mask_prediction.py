@@ -273,8 +273,11 @@ class MaskPredictionMixin:
             was_training = self.training
             self.eval()
             try:
-                with torch.inference_mode(), torch.autocast(
-                    template.device.type, dtype=torch.bfloat16, enabled=precision == "bf16"
+                with (
+                    torch.inference_mode(),
+                    torch.autocast(
+                        template.device.type, dtype=torch.bfloat16, enabled=precision == "bf16"
+                    ),
                 ):
                     return torch.sigmoid(self(template, source, logits=True).float())
             finally:

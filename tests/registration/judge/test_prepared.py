@@ -3,14 +3,18 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from masknet.geometry.clouds import median_spacing
 from masknet.geometry.knn import cloud_tree
+from masknet.registration.judge import prepared
 from masknet.registration.judge.fit import pose_fit
 from masknet.registration.judge.prepared import (
+    PreparedPair,
     check_points,
+    fit_clouds,
     isolated_free,
-    prepare_pair,
+    prepare_check,
     surface_points,
 )
 
@@ -105,7 +109,7 @@ def test_a_prepared_pair_is_even_where_a_random_subset_keeps_the_scanners_crowd(
     source = scan(shift) - shift  # the second scanner stands at the origin of its frame
     truth = np.eye(4)
     truth[:3, 3] = shift
-    pair = prepare_pair(template, source, fine_points=2048)
+    pair = fit_clouds(template, source, fine_points=2048)
     crowd = np.linalg.norm(pair.source[:, :2], axis=1) < 1.0
     assert len(pair.source) <= 2048 and len(pair.template) <= 8 * 2048
     assert crowd.mean() < 0.2  # 18,000 of 36,000 input points lie there
@@ -127,7 +131,7 @@ def test_a_prepared_pair_is_even_where_a_random_subset_keeps_the_scanners_crowd(
 def test_a_small_pair_is_prepared_whole():
     rng = np.random.default_rng(0)
     template, source = rng.normal(size=(500, 3)), rng.normal(size=(300, 3))
-    pair = prepare_pair(template, source, fine_points=4096)
+    pair = fit_clouds(template, source, fine_points=4096)
     assert (pair.template == template).all() and (pair.source == source).all()
 
 
@@ -141,5 +145,126 @@ def test_a_source_thinner_than_its_template_has_no_strays_at_its_edges():
     wall = np.c_[rng.uniform(0, 4, 40_000), np.zeros(40_000), rng.uniform(0, 2, 40_000)]
     template = np.concatenate([floor, wall])
     source = template[rng.choice(len(template), 4096, replace=False)]
-    pair = prepare_pair(template, source, 4096)
+    pair = fit_clouds(template, source, 4096)
     assert (~pair.attached).mean() < 0.005
+
+
+def _counted(monkeypatch, module, name: str) -> list:
+    """Replace ``module.name`` by a wrapper that counts its calls: the list of calls."""
+    calls: list = []
+    original = getattr(module, name)
+
+    def counting(*args, **kwargs):
+        calls.append(1)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(module, name, counting)
+    return calls
+
+
+@pytest.fixture
+def scan_like_pair():
+    """A ModelNet40 pair of the bundled sample (1,024 points), turned up to 45 degrees."""
+    from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
+
+    shapes = load_modelnet40(bundled_sample_path()).points
+    pairs = make_test_pairs(shapes, 1, PairConfig(max_angle_deg=45), seed=4)
+    return pairs.template[0].double().numpy(), pairs.source[0].double().numpy()
+
+
+def test_every_view_of_the_pair_is_computed_once_per_call(scan_like_pair, o3d, monkeypatch):
+    """A call through every stage of ``auto`` (the pair taken as a scan's, the consensus
+    never settling, so that the front end, the fast path, the search and the scans'
+    verdict all run) builds the fit's view once, the front end's grids and their verdict
+    view once, never the whole pair's verdict view, and takes the consensus answer's
+    tree and cut-off from the check's view."""
+    from masknet import register
+    from masknet.registration.judge import arbiter
+    from masknet.registration.stages import auto, consensus
+    from masknet.registration.terms.options import RobustOptions
+
+    template, source = scan_like_pair
+    fits = _counted(monkeypatch, prepared, "fit_clouds")
+    grids = _counted(monkeypatch, consensus, "_grids")
+    grid_checks = _counted(monkeypatch, consensus, "prepare_check")
+    pair_checks = _counted(monkeypatch, prepared, "prepare_check")
+    grid_trees = _counted(monkeypatch, consensus, "cloud_tree")
+    judged = _counted(monkeypatch, auto, "judge")
+    monkeypatch.setattr(arbiter, "settles", lambda check: False)
+    monkeypatch.setattr(arbiter, "may_compete", lambda check: True)
+    monkeypatch.setattr(arbiter, "accepts", lambda fitness, accept: False)
+    options = RobustOptions(consensus_from=512, consensus_below=256)
+    result = register(template, source, method="auto", options=options)
+    assert str(result.info["path"]).startswith("robust/"), result.info["path"]
+    assert len(judged) == 1  # the scans' verdict on the search's answer ran
+    assert (len(fits), len(grids), len(grid_checks)) == (1, 1, 1)
+    assert pair_checks == [] and grid_trees == []
+
+
+def test_a_call_without_the_front_end_never_builds_its_grids(scan_like_pair, monkeypatch):
+    """An object pair: the fast path and the search share the one fit view."""
+    from masknet import register
+    from masknet.registration.judge import arbiter
+    from masknet.registration.stages import consensus
+
+    template, source = scan_like_pair
+    fits = _counted(monkeypatch, prepared, "fit_clouds")
+    grids = _counted(monkeypatch, consensus, "_grids")
+    monkeypatch.setattr(arbiter, "accepts", lambda fitness, accept: False)
+    result = register(template, source)
+    assert str(result.info["path"]).startswith("robust/"), result.info["path"]
+    assert len(fits) == 1 and grids == []
+
+
+def test_a_view_is_built_once_even_when_it_is_none():
+    pair = PreparedPair(np.zeros((4, 3)), np.zeros((4, 3)), 16)
+    built: list = []
+
+    def build():
+        built.append(1)
+
+    assert pair.view("grids", build) is None and pair.view("grids", build) is None
+    assert built == [1]
+
+
+def test_the_verdict_on_the_prepared_pair_is_the_verdict_from_scratch(scan_like_pair):
+    """The verdict view of a pair whose fit view was computed first judges as
+    ``assess_registration`` and a fresh ``prepare_check`` do, field for field; the
+    consensus grids' verdict view as a fresh one of the same grids."""
+    from masknet import assess_registration
+    from masknet.registration.judge.assessment import judge
+
+    template, source = scan_like_pair
+    rng = np.random.default_rng(2)
+    pair = PreparedPair(template, source, 4096)
+    assert pair.fit is pair.fit  # one fit view
+    for shift in (0.0, 0.05, 0.3):
+        pose = np.eye(4)
+        pose[:3, 3] = rng.normal(size=3) * shift
+        kept = judge(pair.check(), pose)
+        assert pair.check() is pair.check()
+        assert kept == judge(prepare_check(template, source), pose)
+        assert kept == assess_registration(template, source, pose)
+        given = judge(pair.check(0.05), pose)
+        assert given == assess_registration(
+            template, source, pose, max_correspondence_distance=0.05
+        )
+
+
+def test_the_front_ends_verdict_view_is_a_fresh_one_of_its_grids(scan_like_pair, o3d):
+    from masknet.registration.judge.assessment import judge
+    from masknet.registration.stages.consensus import consensus_register
+    from masknet.registration.terms.options import RobustOptions
+
+    template, source = scan_like_pair
+    pair = PreparedPair(template, source, 4096)
+    found = consensus_register(template, source, RobustOptions(), {}, "first", pair)
+    grids = found.grids
+    fresh = prepare_check(grids.template_grid, grids.source_grid, open3d=True, even=False)
+    assert judge(grids.check, found.transform) == judge(fresh, found.transform)
+    tree, limit = grids.template_fit()
+    assert tree is grids.check.tree and limit == 1.5 * median_spacing(
+        grids.template_grid, sample=2048
+    )
+    again = consensus_register(template, source, RobustOptions(), {}, "first", pair)
+    assert again.grids is grids  # the pair's grids view, not a second one

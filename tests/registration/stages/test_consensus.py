@@ -36,7 +36,7 @@ def test_the_consensus_registers_the_3dmatch_pair(threedmatch):
     assert found.check.verdict == "likely correct"
     assert times["consensus"] > 0
     # The check's grid is twice as fine as the first (about 1,500 template points).
-    assert 3 * 1500 < len(found.template_grid) < 8 * 1500
+    assert 3 * 1500 < len(found.grids.template_grid) < 8 * 1500
 
 
 def test_the_consensus_repeats(threedmatch):
@@ -198,7 +198,7 @@ def test_sparse_clouds_try_the_consensus_first(sparse_pairs, o3d):
 def test_the_pose_as_given_wins_a_tie_with_a_flip():
     """A symmetric shape fits a pose 180 degrees off as well: the one nearer the start
     wins when the verdict rates both alike, and a better verdict beats nearness."""
-    from masknet.registration.judge.assessment import prepare_check
+    from masknet.registration.judge.prepared import prepare_check
     from masknet.registration.stages.consensus import _start_competes
 
     rng = np.random.default_rng(0)
@@ -339,7 +339,7 @@ def test_scans_take_a_third_cut_and_a_plane_to_plane_verdict(threedmatch, monkey
 
 
 def test_a_nearest_fit_must_be_known(threedmatch):
-    from masknet.registration.judge.assessment import prepare_check
+    from masknet.registration.judge.prepared import prepare_check
 
     template, source, _ = threedmatch
     with pytest.raises(MaskNetError, match="nearest_fit"):
@@ -390,7 +390,7 @@ def test_another_candidate_wins_only_by_a_clear_margin(monkeypatch):
         out[0, 3] = shift
         return out
 
-    grids = consensus._Grids([], [], 0.1, np.zeros((4, 3)), np.zeros((4, 3)), None)
+    grids = consensus.ConsensusGrids([], [], 0.1, np.zeros((4, 3)), np.zeros((4, 3)), None)
     options = RobustOptions()  # ambiguity_margin 0.02
 
     def best(*shifts: float) -> float:

@@ -52,7 +52,7 @@ def test_an_early_flip_gives_way_to_the_pose_the_clouds_are_near():
     """A flip that passed the early exit gives way to the clouds as given when they
     refine to a better fit; an early answer that is right gets nothing added."""
     from masknet.registration.judge.arbiter import Candidate
-    from masknet.registration.judge.prepared import FIT_SPACINGS, prepare_pair
+    from masknet.registration.judge.prepared import FIT_SPACINGS, fit_clouds
     from masknet.registration.stages.search import (
         REFINE_TOLERANCE,
         _as_given,
@@ -67,7 +67,7 @@ def test_an_early_flip_gives_way_to_the_pose_the_clouds_are_near():
     source = (template - truth[:3, 3]) @ truth[:3, :3]  # truth moves source onto template
     flip = truth.copy()
     flip[:3, :3] = truth[:3, :3] @ Rotation.from_euler("x", 180, degrees=True).as_matrix()
-    pair = prepare_pair(template, source, 4096)
+    pair = fit_clouds(template, source, 4096)
     limit = FIT_SPACINGS * pair.spacing
     kept = pair.source[pair.surface]
 

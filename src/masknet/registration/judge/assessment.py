@@ -39,12 +39,11 @@ Example::
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
-from masknet.geometry.clouds import median_spacing, rms_radius
-from masknet.geometry.sampling import grid_subset
+from masknet.geometry.clouds import rms_radius
 from masknet.geometry.se3 import transform_points
 from masknet.registration.judge.constraints import (
     best_slide,
@@ -56,7 +55,20 @@ from masknet.registration.judge.constraints import (
 from masknet.registration.judge.fit import given_cut
 from masknet.registration.judge.fit import overlap_fit as implied_overlap_fit
 from masknet.registration.judge.hypotheses import rotation_between_deg
-from masknet.registration.terms.options import DEFAULT_SPACINGS
+
+# The verdict's clouds are a view of the call's prepared pair (judge/prepared.py); their
+# builder and its figures are importable here as before.
+from masknet.registration.judge.prepared import (  # noqa: F401
+    CLOUD_POINTS,
+    MAX_POINTS,
+    MIN_HALVED,
+    NEAREST_FITS,
+    UNEVEN_SPREAD,
+    PreparedCheck,
+    PreparedPair,
+    even_pair,
+    prepare_check,
+)
 from masknet.registration.terms.units import warn_mixed_units
 from masknet.registration.terms.validation import as_numpy_batch, as_rigid_transforms
 
@@ -82,22 +94,7 @@ FREE_RATIO = 2e-4
 # A pose slid along its least pinned motions that fits this much more of the source's
 # overlap (masknet.registration.judge.constraints.best_slide) makes the pose likely wrong.
 SLIDE_GAIN = 0.035
-MAX_POINTS = 8192  # points asked per cloud (an even subset of larger clouds)
-# Larger clouds are first brought to this many points, evenly (grid_subset): a scanner's
-# crowd at its feet otherwise sets the spacing and the fit. On two room scans 2 m apart,
-# the right pose read `likely wrong` (19% of the overlap fitting) and the scans as given
-# `likely correct` (68%).
-CLOUD_POINTS = 32768
-# Smaller clouds are judged on an even half (grid_subset) where their spacing more than
-# doubles when an even grid keeps half their points: a random subset of a laser scan,
-# whose points crowd at the scanner's feet (an even surface: 1.2-1.7 times; room scans
-# thinned at random to 5,000-24,000 points: 1.9-2.7). On such room draws the right pose
-# read `uncertain` at 5,000 points and `likely wrong` at 20,000 (42-46% of the overlap
-# fitting), and a pose 2.2 m off `likely correct`.
-UNEVEN_SPREAD = 2.0
-MIN_HALVED = 2048  # ... for clouds of this many points or more: sparse objects keep theirs
 VERDICTS = ("likely correct", "uncertain", "likely wrong")
-NEAREST_FITS = ("point", "plane")  # the nearest fit's ICP: point-to-point, generalized
 # Which rule of verdict_rule decided, and the verdict it gives.
 RULE_VERDICTS = {
     "overlap": "likely wrong",  # under WRONG_FIT of the overlap fits
@@ -164,98 +161,6 @@ class Assessment(NamedTuple):
     free_directions: tuple[str, ...] = ()
     slide_gain: float = 0.0
     least_pinned: str = ""
-
-
-def _subset(points: np.ndarray, count: int, seed: int) -> np.ndarray:
-    return points[grid_subset(points, count, seed)]
-
-
-def _spread(points: np.ndarray) -> float:
-    """How much the spacing of ``points`` (P, 3) grows when an even grid keeps half of
-    them: about 1.4 on an evenly sampled surface, more where a crowd sets the spacing."""
-    spacing = median_spacing(points, sample=2048)
-    half = median_spacing(_subset(points, len(points) // 2, 0), sample=2048)
-    return half / spacing if spacing > 0 else 1.0
-
-
-def even_pair(
-    template: np.ndarray, source: np.ndarray, halve_uneven: bool = True
-) -> tuple[np.ndarray, np.ndarray]:
-    """The clouds the verdict judges, template (N, 3) and source (M, 3): even subsets of
-    ``CLOUD_POINTS`` of larger clouds, the others as given; then (with ``halve_uneven``)
-    an even half of each where both hold ``MIN_HALVED`` points or more and either is
-    uneven (:data:`UNEVEN_SPREAD`)."""
-    template, source = _subset(template, CLOUD_POINTS, 0), _subset(source, CLOUD_POINTS, 1)
-    if not halve_uneven or min(len(template), len(source)) < MIN_HALVED:
-        return template, source
-    if max(_spread(c) for c in (template, source)) > UNEVEN_SPREAD:
-        return _subset(template, len(template) // 2, 0), _subset(source, len(source) // 2, 1)
-    return template, source
-
-
-class PreparedCheck(NamedTuple):
-    """One pair made ready for the verdict, once for many poses (:func:`judge`).
-
-    template: (P, 3) the template's even subset (at most ``CLOUD_POINTS``), the ICP's and
-    the source-side fit's target. template_points, source_points: (P', 3), (Q, 3) the
-    points asked (at most ``MAX_POINTS`` each). tree: a KD-tree of ``template``. limit:
-    the inlier distance, input units. open3d: whether the nearest fit's ICP runs in
-    Open3D. nearest_fit: ``"point"`` (point-to-point ICP) or ``"plane"`` (Open3D's
-    generalized ICP, plane-to-plane), see :func:`prepare_check`."""
-
-    template: np.ndarray
-    template_points: np.ndarray
-    source_points: np.ndarray
-    tree: Any
-    limit: float
-    open3d: bool = False
-    nearest_fit: str = "point"
-
-
-def prepare_check(
-    template: np.ndarray,
-    source: np.ndarray,
-    max_correspondence_distance: float | None = None,
-    open3d: bool = False,
-    nearest_fit: str = "point",
-    even: bool = True,
-) -> PreparedCheck:
-    """The clouds of the verdict for template (N, 3) and source (M, 3), float64, already
-    checked (``register``'s inputs): even subsets, the template's KD-tree and the inlier
-    distance (None: 1.5 times the larger median spacing), computed once. ``open3d``: the
-    nearest fit's ICP runs in Open3D (for callers that have imported it already: the
-    consensus front end). ``nearest_fit``: ``"point"``, point-to-point ICP (the default:
-    on sparse symmetric shapes a fit on planes slides along the symmetry, and the truth of
-    re-sampled ModelNet40 pairs read `likely correct` on 78 of 100 with ``"plane"``
-    against 93); ``"plane"``, Open3D's generalized ICP, for scene scans, where a
-    point-to-point fit moves a pose refined on the planes along them by more than the
-    verdict's bounds (docs/RESULTS.md, "The consensus front end"). ``even``: halve uneven
-    clouds (:func:`even_pair`); False for clouds already on a voxel grid."""
-    from masknet.errors import MaskNetError
-    from masknet.geometry.knn import cloud_tree
-
-    if nearest_fit not in NEAREST_FITS:
-        raise MaskNetError(f"nearest_fit must be one of {NEAREST_FITS}, got {nearest_fit!r}")
-
-    even_template, even_source = even_pair(template, source, even)
-    if max_correspondence_distance is None:
-        spacing = max(
-            median_spacing(even_template, sample=2048), median_spacing(even_source, sample=2048)
-        )
-        limit = DEFAULT_SPACINGS * spacing
-    else:
-        limit = float(max_correspondence_distance)
-    if not limit > 0:
-        raise MaskNetError("every point of a cloud is the same point: no spacing to measure by")
-    return PreparedCheck(
-        even_template,
-        _subset(even_template, MAX_POINTS, 0),
-        _subset(even_source, MAX_POINTS, 1),
-        cloud_tree(even_template),
-        limit,
-        open3d or nearest_fit == "plane",
-        nearest_fit,
-    )
 
 
 def _nearest_fit(prepared: PreparedCheck, transform: np.ndarray) -> np.ndarray:
@@ -328,12 +233,14 @@ def assess_registration(
         raise MaskNetError("assess_registration judges one pair: (N, 3) and (M, 3) clouds")
     tf = as_rigid_transforms(transform, 1)[0]
     warn_mixed_units(template_b[0], source_b[0])
-    return judge(prepare_check(template_b[0], source_b[0], max_distance), tf)
+    return judge(PreparedPair(template_b[0], source_b[0]).check(max_distance), tf)
 
 
 def judge(prepared: PreparedCheck, transform: np.ndarray) -> Assessment:
-    """The verdict of the module docstring on a :func:`prepare_check` pair for
-    ``transform`` (4, 4), rigid, source -> template (no checks: the pipelines' own poses)."""
+    """The verdict of the module docstring on a pair's verdict view (a
+    :class:`~masknet.registration.judge.prepared.PreparedCheck`: ``PreparedPair.check()``,
+    or the consensus front end's on its check grid) for ``transform`` (4, 4), rigid,
+    source -> template (no checks: the pipelines' own poses)."""
     from masknet.geometry.knn import cloud_tree
 
     limit, template_tree = prepared.limit, prepared.tree

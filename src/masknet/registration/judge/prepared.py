@@ -1,11 +1,28 @@
-"""A pair prepared once for the fit and ICP of ``auto`` and ``robust``, and the fit itself.
+"""The pair of one call, prepared once: every stage of ``auto`` and the verdict read its
+views, and each view is computed on first use and kept.
 
-As small_gicp prepares a cloud (down-sample, KD-tree) and then aligns against it,
-:func:`prepare_pair` brings a pair to what every later stage uses: an even subset of each
-cloud (:func:`~masknet.geometry.sampling.grid_subset`, at most ``fine_points`` source
-points and eight times that of the template), the template's KD-tree and point spacing,
-and which source points lie on a surface. :func:`masknet.registration.judge.fit.pose_fit` scores a
-pose against it.
+:class:`PreparedPair` holds the two clouds as given to the pipeline and three kinds of
+view of them, each built once per call:
+
+* :attr:`PreparedPair.fit`, the fit's clouds (:class:`FitClouds`, :func:`fit_clouds`): an
+  even subset of each cloud (:func:`~masknet.geometry.sampling.grid_subset`, at most
+  ``fine_points`` source points and eight times that of the template), the template's
+  KD-tree, point spacing and inlier cut-off, and which source points lie on a surface and
+  which the check of a pose counts. auto's fast path, the coarse-to-fine search and its
+  early exit score poses on it (:func:`masknet.registration.judge.fit.pose_fit`).
+* :meth:`PreparedPair.check`, the verdict's clouds (:class:`PreparedCheck`,
+  :func:`prepare_check`): even subsets of at most 32,768 points (halved where uneven), the
+  template's KD-tree and the verdict's inlier distance (1.5 of the larger of the two
+  spacings). :func:`~masknet.registration.judge.assessment.assess_registration` judges on
+  it.
+* :meth:`PreparedPair.view`, the views a stage defines: the consensus front end's voxel
+  grids, their Open3D clouds with normals and the verdict's clouds on its check grid
+  (:mod:`masknet.registration.stages.consensus`), built through the pair so that a call
+  builds them once.
+
+The fit's subsets and the verdict's are two views, not one: the fit keeps the template
+whole up to 32,768 points and a source of ``fine_points`` (ICP's cost), the verdict both
+clouds up to 32,768 and its own seeds, and each rule was calibrated on its own clouds.
 
 Why even subsets: a laser scanner's points crowd the floor and ceiling at its feet (a
 fifth of a room scan lies within 30 cm of the scanner's axis). A random subset keeps that
@@ -16,32 +33,43 @@ an even one (0.46 against 0.76).
 
 Example::
 
-    pair = prepare_pair(template, source, fine_points=4096)
-    pose_fit(pair.tree, pair.source[pair.surface], transform, inlier_cutoff(pair.spacing))
+    pair = PreparedPair(template, source, fine_points=4096)
+    fit = pair.fit
+    pose_fit(fit.tree, fit.source[fit.surface], transform, fit.limit)
+    judge(pair.check(), transform)
 """
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+import warnings
+from collections.abc import Callable, Hashable
+from functools import cached_property
+from typing import Any, NamedTuple, TypeVar
 
 import numpy as np
 
 from masknet._moved import moved_names
+from masknet.errors import MaskNetError
 from masknet.geometry.clouds import MIN_POINTS, SPACING_SAMPLE, median_spacing
 from masknet.geometry.knn import cloud_tree
 from masknet.geometry.normals import plane_offsets
 from masknet.geometry.sampling import grid_subset, random_subset
 from masknet.registration.judge.fit import FIT_SPACINGS
-from masknet.registration.terms.options import inlier_cutoff
+from masknet.registration.terms.options import DEFAULT_SPACINGS, RobustOptions, inlier_cutoff
 
 __all__ = [
     "CHECK_MAX_DROP",
     "CHECK_NEIGHBOURS",
     "FIT_SPACINGS",
     "SURFACE_SPACINGS",
+    "FitClouds",
+    "PreparedCheck",
     "PreparedPair",
     "check_points",
+    "even_pair",
+    "fit_clouds",
     "isolated_free",
+    "prepare_check",
     "prepare_pair",
     "random_subset",
     "surface_points",
@@ -139,13 +167,14 @@ def _most(keep: np.ndarray) -> np.ndarray:
 TEMPLATE_FACTOR = 8
 
 
-class PreparedPair(NamedTuple):
-    """template: (N', 3) an even subset of the template (all of it up to
-    ``TEMPLATE_FACTOR * fine_points`` points); tree: its KD-tree; spacing: its median point
-    spacing, input units. source: (M', 3) an even subset of the source (all of it up to
-    ``fine_points``). surface, strict, attached: (M',) bool, :func:`surface_points` of the
-    source at ``SURFACE_SPACINGS`` template spacings (``attached``: at ``FIT_SPACINGS``
-    and ``PLANE_SPACINGS``)."""
+class FitClouds(NamedTuple):
+    """The fit's view of a pair. template: (N', 3) an even subset of the template (all of it
+    up to ``TEMPLATE_FACTOR * fine_points`` points); tree: its KD-tree; spacing: its median
+    point spacing, input units. source: (M', 3) an even subset of the source (all of it up
+    to ``fine_points``). surface, strict, attached: (M',) bool, :func:`surface_points` of
+    the source at ``SURFACE_SPACINGS`` template spacings (``attached``: at
+    ``FIT_SPACINGS`` and ``PLANE_SPACINGS``). checked: (M',) bool, the source points the
+    check of a pose counts (:func:`check_points`)."""
 
     template: np.ndarray
     tree: Any
@@ -154,21 +183,186 @@ class PreparedPair(NamedTuple):
     surface: np.ndarray
     strict: np.ndarray
     attached: np.ndarray
+    checked: np.ndarray
 
     @property
-    def checked(self) -> np.ndarray:
-        """(M',) bool: the source points the check of a pose counts (:func:`check_points`)."""
-        return check_points(self.surface, self.strict, self.attached)
+    def limit(self) -> float:
+        """The fit's inlier cut-off, input units: 1.5 template spacings."""
+        return inlier_cutoff(self.spacing)
 
 
-def prepare_pair(template: np.ndarray, source: np.ndarray, fine_points: int) -> PreparedPair:
-    """The :class:`PreparedPair` of template (N, 3) and source (M, 3), float64."""
+def fit_clouds(template: np.ndarray, source: np.ndarray, fine_points: int) -> FitClouds:
+    """The :class:`FitClouds` of template (N, 3) and source (M, 3), float64."""
     template = template[grid_subset(template, TEMPLATE_FACTOR * fine_points)]
     source = source[grid_subset(source, fine_points)]
     tree = cloud_tree(template)
     spacing = median_spacing(template, tree, sample=SPACING_SAMPLE) or 1.0
     surface, strict, attached = surface_points(source, SURFACE_SPACINGS * spacing, spacing)
-    return PreparedPair(template, tree, spacing, source, surface, strict, attached)
+    checked = check_points(surface, strict, attached)
+    return FitClouds(template, tree, spacing, source, surface, strict, attached, checked)
+
+
+View = TypeVar("View")
+_NOT_BUILT = object()
+
+
+class PreparedPair:
+    """One pair prepared once for a call: template (N, 3) and source (M, 3), float64, as
+    the pipeline sees them, and its views (the module docstring), each built on first use
+    and kept. ``fine_points``: the fit's source points (``RobustOptions.fine_points``)."""
+
+    def __init__(
+        self, template: np.ndarray, source: np.ndarray, fine_points: int | None = None
+    ) -> None:
+        self.template, self.source = template, source
+        self.fine_points = RobustOptions.fine_points if fine_points is None else fine_points
+        self._views: dict[Hashable, Any] = {}
+
+    @cached_property
+    def fit(self) -> FitClouds:
+        """The fit's even subsets, tree, spacing and surface masks (:func:`fit_clouds`)."""
+        return fit_clouds(self.template, self.source, self.fine_points)
+
+    def check(self, max_correspondence_distance: float | None = None) -> PreparedCheck:
+        """The verdict's clouds at this inlier distance (None: the verdict's own, 1.5 of the
+        larger spacing), :func:`prepare_check`."""
+        key = ("check", max_correspondence_distance)
+        return self.view(
+            key, lambda: prepare_check(self.template, self.source, max_correspondence_distance)
+        )
+
+    def view(self, key: Hashable, build: Callable[[], View]) -> View:
+        """The view ``key``: ``build()`` on first use (None included), then the same object.
+        For the views a stage defines (the consensus front end's grids)."""
+        found = self._views.get(key, _NOT_BUILT)
+        if found is _NOT_BUILT:
+            found = self._views[key] = build()
+        return found
+
+
+def prepare_pair(template: np.ndarray, source: np.ndarray, fine_points: int) -> FitClouds:
+    """Deprecated: the fit's view of template (N, 3) and source (M, 3), as
+    ``PreparedPair(template, source, fine_points).fit`` or :func:`fit_clouds` give it (the
+    next release drops this name)."""
+    warnings.warn(
+        "prepare_pair is deprecated: use PreparedPair(template, source, fine_points).fit "
+        "(masknet.registration.judge.prepared); it goes in the next release",
+        DeprecationWarning,
+        stacklevel=2,
+    )
+    return fit_clouds(template, source, fine_points)
+
+
+MAX_POINTS = 8192  # the verdict's points asked per cloud (an even subset of larger clouds)
+# Larger clouds are first brought to this many points, evenly (grid_subset): a scanner's
+# crowd at its feet otherwise sets the spacing and the fit. On two room scans 2 m apart,
+# the right pose read `likely wrong` (19% of the overlap fitting) and the scans as given
+# `likely correct` (68%).
+CLOUD_POINTS = 32768
+# Smaller clouds are judged on an even half (grid_subset) where their spacing more than
+# doubles when an even grid keeps half their points: a random subset of a laser scan,
+# whose points crowd at the scanner's feet (an even surface: 1.2-1.7 times; room scans
+# thinned at random to 5,000-24,000 points: 1.9-2.7). On such room draws the right pose
+# read `uncertain` at 5,000 points and `likely wrong` at 20,000 (42-46% of the overlap
+# fitting), and a pose 2.2 m off `likely correct`.
+UNEVEN_SPREAD = 2.0
+MIN_HALVED = 2048  # ... for clouds of this many points or more: sparse objects keep theirs
+NEAREST_FITS = ("point", "plane")  # the verdict's nearest fit: point-to-point, generalized
+CHECK_SPACING_SAMPLE = 2048  # the verdict's spacings ask this many points of a cloud
+
+
+def _subset(points: np.ndarray, count: int, seed: int) -> np.ndarray:
+    return points[grid_subset(points, count, seed)]
+
+
+def _spread(points: np.ndarray) -> float:
+    """How much the spacing of ``points`` (P, 3) grows when an even grid keeps half of
+    them: about 1.4 on an evenly sampled surface, more where a crowd sets the spacing."""
+    spacing = median_spacing(points, sample=CHECK_SPACING_SAMPLE)
+    half = median_spacing(_subset(points, len(points) // 2, 0), sample=CHECK_SPACING_SAMPLE)
+    return half / spacing if spacing > 0 else 1.0
+
+
+def even_pair(
+    template: np.ndarray, source: np.ndarray, halve_uneven: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
+    """The clouds the verdict judges, template (N, 3) and source (M, 3): even subsets of
+    ``CLOUD_POINTS`` of larger clouds, the others as given; then (with ``halve_uneven``)
+    an even half of each where both hold ``MIN_HALVED`` points or more and either is
+    uneven (:data:`UNEVEN_SPREAD`)."""
+    template, source = _subset(template, CLOUD_POINTS, 0), _subset(source, CLOUD_POINTS, 1)
+    if not halve_uneven or min(len(template), len(source)) < MIN_HALVED:
+        return template, source
+    if max(_spread(c) for c in (template, source)) > UNEVEN_SPREAD:
+        return _subset(template, len(template) // 2, 0), _subset(source, len(source) // 2, 1)
+    return template, source
+
+
+class PreparedCheck(NamedTuple):
+    """The verdict's view of a pair, once for many poses
+    (:func:`~masknet.registration.judge.assessment.judge`).
+
+    template: (P, 3) the template's even subset (at most ``CLOUD_POINTS``), the ICP's and
+    the source-side fit's target. template_points, source_points: (P', 3), (Q, 3) the
+    points asked (at most ``MAX_POINTS`` each). tree: a KD-tree of ``template``. limit:
+    the inlier distance, input units. open3d: whether the nearest fit's ICP runs in
+    Open3D. nearest_fit: ``"point"`` (point-to-point ICP) or ``"plane"`` (Open3D's
+    generalized ICP, plane-to-plane), see :func:`prepare_check`. template_spacing: the
+    median spacing of ``template`` (NaN where the inlier distance was given)."""
+
+    template: np.ndarray
+    template_points: np.ndarray
+    source_points: np.ndarray
+    tree: Any
+    limit: float
+    open3d: bool = False
+    nearest_fit: str = "point"
+    template_spacing: float = float("nan")
+
+
+def prepare_check(
+    template: np.ndarray,
+    source: np.ndarray,
+    max_correspondence_distance: float | None = None,
+    open3d: bool = False,
+    nearest_fit: str = "point",
+    even: bool = True,
+) -> PreparedCheck:
+    """The clouds of the verdict for template (N, 3) and source (M, 3), float64, already
+    checked (``register``'s inputs): even subsets, the template's KD-tree and the inlier
+    distance (None: 1.5 times the larger median spacing), computed once. ``open3d``: the
+    nearest fit's ICP runs in Open3D (for callers that have imported it already: the
+    consensus front end). ``nearest_fit``: ``"point"``, point-to-point ICP (the default:
+    on sparse symmetric shapes a fit on planes slides along the symmetry, and the truth of
+    re-sampled ModelNet40 pairs read `likely correct` on 78 of 100 with ``"plane"``
+    against 93); ``"plane"``, Open3D's generalized ICP, for scene scans, where a
+    point-to-point fit moves a pose refined on the planes along them by more than the
+    verdict's bounds (docs/RESULTS.md, "The consensus front end"). ``even``: halve uneven
+    clouds (:func:`even_pair`); False for clouds already on a voxel grid."""
+    if nearest_fit not in NEAREST_FITS:
+        raise MaskNetError(f"nearest_fit must be one of {NEAREST_FITS}, got {nearest_fit!r}")
+
+    even_template, even_source = even_pair(template, source, even)
+    tree = cloud_tree(even_template)  # the spacing's tree and the verdict's, built once
+    spacing = float("nan")
+    if max_correspondence_distance is None:
+        spacing = median_spacing(even_template, tree, sample=CHECK_SPACING_SAMPLE)
+        spacing_source = median_spacing(even_source, sample=CHECK_SPACING_SAMPLE)
+        limit = DEFAULT_SPACINGS * max(spacing, spacing_source)
+    else:
+        limit = float(max_correspondence_distance)
+    if not limit > 0:
+        raise MaskNetError("every point of a cloud is the same point: no spacing to measure by")
+    return PreparedCheck(
+        even_template,
+        _subset(even_template, MAX_POINTS, 0),
+        _subset(even_source, MAX_POINTS, 1),
+        tree,
+        limit,
+        open3d or nearest_fit == "plane",
+        nearest_fit,
+        spacing,
+    )
 
 
 # Moved to the one fit module (masknet.registration.judge.fit).

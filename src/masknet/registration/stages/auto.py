@@ -31,7 +31,7 @@ with the condition under which it runs. Each choice between poses is a rule of
    (MaskNet's template mask, by default the small ``masknet_modelnet40_small``; the
    source centroid onto the masked template's centroid, 10 iterations of ICP), then ICP
    with pairs cut at ``max_correspondence_distance`` (1.5 template spacings) on the
-   pair prepared once (:func:`masknet.registration.judge.prepared.prepare_pair`: even subsets),
+   pair's fit view (:attr:`masknet.registration.judge.prepared.PreparedPair.fit`: even subsets),
    and the check: the share of the source's surface points within 1.5 template spacings
    of the template (:func:`masknet.registration.judge.fit.pose_fit`). Stray outliers do not
    count: points without two others within 2 template spacings, and points beside a
@@ -68,8 +68,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from masknet.geometry.clouds import MIN_POINTS, median_spacing, principal_turn_deg
-from masknet.geometry.knn import cloud_tree
+from masknet.geometry.clouds import MIN_POINTS, principal_turn_deg
 from masknet.geometry.sampling import NetworkClouds, spread_labels
 from masknet.geometry.se3 import transform_points
 from masknet.models.masknet import MaskNet
@@ -78,14 +77,14 @@ from masknet.registration.judge import arbiter
 from masknet.registration.judge.arbiter import Candidate
 from masknet.registration.judge.assessment import judge
 from masknet.registration.judge.fit import PoseFit, covered_points, pose_fit
-from masknet.registration.judge.prepared import PreparedPair, check_points, prepare_pair
+from masknet.registration.judge.prepared import PreparedPair, check_points
 from masknet.registration.solvers.backends.base import MaskModels, PipelineRun
 from masknet.registration.solvers.icp import icp
 from masknet.registration.stages.consensus import ConsensusRun, consensus_register
 from masknet.registration.stages.robust import NetworkMasks, pipeline_run
 from masknet.registration.stages.rounds import mask_and_register
 from masknet.registration.stages.search import REFINE_TOLERANCE, coarse_to_fine
-from masknet.registration.terms.options import ICPCriteria, RobustOptions, inlier_cutoff
+from masknet.registration.terms.options import ICPCriteria, RobustOptions
 from masknet.registration.terms.result import PipelineInfo, info_arrays
 
 __all__ = ["PATHS", "auto_register"]
@@ -150,7 +149,9 @@ def _one(
     times: dict[str, float],
     precision: str,
 ) -> PipelineRun:
-    """One pair: template (N, 3), source (M, 3); ``nets`` the clouds the networks see."""
+    """One pair: template (N, 3), source (M, 3); ``nets`` the clouds the networks see. The
+    pair is prepared once here, and every stage and the verdict read its views."""
+    pair = PreparedPair(template, source, options.fine_points)
     consensus = None
     on = options.consensus_points > 0
     scan = on and options.is_scan(len(template))
@@ -160,22 +161,20 @@ def _one(
         # right and its ICP costs what RANSAC does.
         large = len(template) >= CONSENSUS_FIRST * options.consensus_from
         start = "never" if large else "first"
-        consensus = consensus_register(template, source, options, times, start)
+        consensus = consensus_register(template, source, options, times, start, pair)
         if consensus is not None and arbiter.settles(consensus.check):
             return _consensus_run(consensus, template, source, model, "consensus")
     if _turned(template, source, options):  # the fast path starts from the pose as given
-        return _escalate(
-            template, source, nets, None, model, search_model, options, times, precision
-        )
-    fast = _fast_path(template, source, nets, model, options, times, precision)
+        return _escalate(pair, nets, None, model, search_model, options, times, precision)
+    fast = _fast_path(pair, nets, model, options, times, precision)
     if fast.accepted is not None:
         return fast.accepted
-    run = _escalate(template, source, nets, fast, model, search_model, options, times, precision)
+    run = _escalate(pair, nets, fast, model, search_model, options, times, precision)
     if scan and consensus is not None and arbiter.may_compete(consensus.check):
         # The search's one-way score can prefer a pose slid along a wall that the verdict
         # sees through. Not on sparse clouds: there the verdict called right search answers
         # worse than consensus poses 60-180 degrees off.
-        searched = judge(consensus.prepared, run.transform[0])
+        searched = judge(consensus.grids.check, run.transform[0])
         if arbiter.ranks_higher(consensus.check, searched):
             escalated = float(run.info["escalated_fitness"][0])
             path = "robust/consensus"
@@ -208,7 +207,7 @@ class _PairNets(NamedTuple):
 
 class _Fast(NamedTuple):
     """The fast path: its result where it fits (``accepted``), else what the escalation
-    uses: its transform (4, 4), fit, the check's fitness, masks, and the prepared pair."""
+    uses: its transform (4, 4), fit, the check's fitness and masks."""
 
     accepted: PipelineRun | None
     transform: np.ndarray
@@ -216,12 +215,10 @@ class _Fast(NamedTuple):
     right: float
     mask: np.ndarray | None
     source_mask: np.ndarray | None
-    prepared: PreparedPair
 
 
 def _fast_path(
-    template: np.ndarray,
-    source: np.ndarray,
+    pair: PreparedPair,
     nets: _PairNets,
     model: MaskNet | TwoSidedMaskNet | None,
     options: RobustOptions,
@@ -229,16 +226,17 @@ def _fast_path(
     precision: str,
 ) -> _Fast:
     """Stage 4 of the module docstring: Mask-ICP on the networks' clouds, ICP with the
-    pair cut-off at full resolution, and the check of its fit."""
+    pair cut-off on the pair's fit view, and the check of its fit."""
+    template, source = pair.template, pair.source
     icp_options = ICPCriteria()  # the paper's Mask-ICP: 10 iterations, all pairs
     template_net, source_net = nets.clouds()
     fast = mask_and_register(
         template_net, source_net, "icp", model, 1, icp_options, times, precision=precision
     )
     tic = time.perf_counter()
-    prepared = prepare_pair(template, source, options.fine_points)
+    prepared = pair.fit
     fine_template, tree, spacing, fine, surface = prepared[:5]
-    limit = inlier_cutoff(spacing)  # the fit's cut-off, on the prepared pair
+    limit = prepared.limit  # the fit's cut-off, on the prepared pair
     source_mask = None
     if fast.source_mask is not None:  # a two-sided network: its kept points, spread
         source_mask = spread_labels(source, source_net[0], fast.source_mask[0])
@@ -246,7 +244,10 @@ def _fast_path(
         surface = kept_fine if kept_fine.sum() >= MIN_POINTS else surface
     kept = fine[surface]
     # The check's points among those kept (a two-sided network's mask narrows both).
-    checked = fine[check_points(surface, prepared.strict, prepared.attached)]
+    narrowed = surface is not prepared.surface
+    checked = fine[
+        check_points(surface, prepared.strict, prepared.attached) if narrowed else prepared.checked
+    ]
 
     def refined(start: np.ndarray) -> tuple[np.ndarray, PoseFit, float, bool]:
         """ICP with the pair cut-off from ``start``: the pose, its fit, the check's
@@ -291,12 +292,11 @@ def _fast_path(
             transform[None], mask, None if source_mask is None else source_mask[None], info
         )
     fast_mask = None if fast.mask is None else fast.mask[0]
-    return _Fast(accepted, transform, fit, right, fast_mask, fast.source_mask, prepared)
+    return _Fast(accepted, transform, fit, right, fast_mask, fast.source_mask)
 
 
 def _escalate(
-    template: np.ndarray,
-    source: np.ndarray,
+    pair: PreparedPair,
     nets: _PairNets,
     fast: _Fast | None,
     model: MaskNet | TwoSidedMaskNet | None,
@@ -315,8 +315,8 @@ def _escalate(
     if search_model is not None:
         template_net, source_net = nets.clouds()
         masks = NetworkMasks(search_model, template_net[0], source_net[0], precision)
-    prepared = None if fast is None else fast.prepared
-    run = pipeline_run([coarse_to_fine(template, source, masks, options, times, prepared)])
+    found = coarse_to_fine(pair.template, pair.source, masks, options, times, pair)
+    run = pipeline_run([found])
     if fast is not None and arbiter.fits_better(_fast_candidate(fast), run.info["score"][0]):
         return _fast_after_all(run, fast, options)  # the fast path fits better
     info = dict(run.info)
@@ -373,9 +373,9 @@ def _consensus_run(
     grid: over the full clouds it cost more than the whole front end on 1M points), and
     with a two-sided one (a source mask asked for) the source points the pose lays on the
     template."""
-    grid_template, grid_source = found.template_grid, found.source_grid
-    limit = inlier_cutoff(median_spacing(grid_template, sample=2048))
-    fit = pose_fit(cloud_tree(grid_template), grid_source, found.transform, limit)
+    grid_template, grid_source = found.grids.template_grid, found.grids.source_grid
+    tree, limit = found.grids.template_fit()
+    fit = pose_fit(tree, grid_source, found.transform, limit)
     mask = source_mask = None
     if model is not None:  # on the grid, each template point taking its grid point's label
         moved = transform_points(found.transform, grid_source)

@@ -48,17 +48,14 @@ import numpy as np
 from masknet._moved import moved_names
 from masknet._open3d import open3d_threads
 from masknet.geometry.clouds import median_spacing, rms_radius
+from masknet.geometry.knn import cloud_tree
 from masknet.geometry.open3d_clouds import to_open3d
 from masknet.geometry.sampling import random_subset
 from masknet.io import has_open3d
 from masknet.registration.judge import arbiter
 from masknet.registration.judge.arbiter import Candidate
-from masknet.registration.judge.assessment import (
-    Assessment,
-    PreparedCheck,
-    judge,
-    prepare_check,
-)
+from masknet.registration.judge.assessment import Assessment, judge
+from masknet.registration.judge.prepared import PreparedCheck, PreparedPair, prepare_check
 from masknet.registration.solvers.correspondences import (
     feature_matches,
     fpfh_features,
@@ -71,9 +68,9 @@ from masknet.registration.solvers.open3d_global import (
     ransac_on_matches,
 )
 from masknet.registration.solvers.open3d_icp import point_to_plane_at_cuts
-from masknet.registration.terms.options import RobustOptions
+from masknet.registration.terms.options import RobustOptions, inlier_cutoff
 
-__all__ = ["ConsensusRun", "consensus_register"]
+__all__ = ["ConsensusGrids", "ConsensusRun", "consensus_register"]
 
 MIN_SPACINGS = 2.0  # the grid's edge, at least, in the clouds' point spacings
 # Clouds larger than this are measured (voxel, spacing) on a random subset of this size.
@@ -132,35 +129,48 @@ ONE_THREAD_POINTS = 4096
 MAX_VOTES = 2048  # candidate slid poses, at most (with 2,048 matches: 100 MB of distances)
 
 
-class ConsensusRun(NamedTuple):
-    """transform: (4, 4) source -> template. check: the verdict on the check's grid.
-    voxel: the first grid's edge, input units. template_grid, source_grid: (P, 3) and
-    (Q, 3) the clouds on the check's grid. prepared: those clouds made ready for the
-    verdict (to judge other poses alike, :func:`~masknet.registration.judge.assessment.judge`)."""
-
-    transform: np.ndarray
-    check: Assessment
-    voxel: float
-    template_grid: np.ndarray
-    source_grid: np.ndarray
-    prepared: PreparedCheck
-
-
-class _Grids(NamedTuple):
-    """One pair on the front end's grids: Open3D clouds (template, source) on the first
-    grid (``coarse``) and on the refinement's (``fine``, the template with normals), the
-    first grid's edge, the check's grids made ready for the verdict, the refinement's
+class ConsensusGrids(NamedTuple):
+    """The front end's view of one pair (a view of its
+    :class:`~masknet.registration.judge.prepared.PreparedPair`, built once per call): Open3D
+    clouds (template, source) on the first grid (``coarse``, the template with normals)
+    and on the refinement's (``fine``, the template with normals), the first grid's edge
+    (``voxel``, input units), the clouds on the check's grid (``template_grid`` (P, 3),
+    ``source_grid`` (Q, 3)) and the verdict's view of them (``check``), the refinement's
     cut-offs in voxels (:data:`SCAN_CUTS` for scans, else :data:`CUTS`), and whether the
-    pair is a scan's (a template of ``consensus_from`` points or more)."""
+    pair is a scan's (a template of ``consensus_from`` points or more).
+
+    ``check`` is the verdict's view of the check's grid, not of the whole pair
+    (``PreparedPair.check()``): on the grid, as given (no even halving), with Open3D's
+    nearest fit, plane-to-plane on scans; the front end's choices were calibrated there."""
 
     coarse: list
     fine: list
     voxel: float
     template_grid: np.ndarray
     source_grid: np.ndarray
-    prepared: PreparedCheck
+    check: PreparedCheck
     cuts: tuple[float, ...] = CUTS
     scan: bool = False
+
+    def template_fit(self) -> tuple[Any, float]:
+        """The KD-tree of ``template_grid`` and the fit's inlier cut-off on it (1.5 of its
+        spacing): the check's, where the check's template is the whole grid (up to
+        32,768 points)."""
+        check = self.check
+        if len(check.template) == len(self.template_grid) and np.isfinite(check.template_spacing):
+            return check.tree, inlier_cutoff(check.template_spacing)
+        tree = cloud_tree(self.template_grid)
+        return tree, inlier_cutoff(median_spacing(self.template_grid, tree, sample=2048))
+
+
+class ConsensusRun(NamedTuple):
+    """transform: (4, 4) source -> template. check: the verdict on the check's grid.
+    grids: the pair's grids (:class:`ConsensusGrids`: the first grid's edge, the clouds on
+    the check's grid and the verdict's view of them, to judge other poses alike)."""
+
+    transform: np.ndarray
+    check: Assessment
+    grids: ConsensusGrids
 
 
 START_POLICIES = ("never", "first")  # consensus_register's ``start``
@@ -172,6 +182,7 @@ def consensus_register(
     options: RobustOptions,
     times: dict[str, float],
     start: str = "never",
+    prepared: PreparedPair | None = None,
 ) -> ConsensusRun | None:
     """The front end of the module docstring for template (N, 3) and source (M, 3),
     float64, any unit. None where Open3D is missing, a grid leaves too few points for
@@ -180,7 +191,8 @@ def consensus_register(
     ``start``, what the pose as given does (:func:`_start_competes`): with ``"never"`` it
     takes no part; ``"first"`` is refined and judged first, ends the call where it is ``likely
     correct`` and else competes with RANSAC's pose. Stage times go to ``times``
-    (``consensus``)."""
+    (``consensus``). ``prepared``: the call's prepared pair of these clouds, whose grids
+    view this builds or reuses (None: one of its own)."""
     if start not in START_POLICIES:
         raise ValueError(f"start must be one of {START_POLICIES}, got {start!r}")
     if not has_open3d():
@@ -188,7 +200,8 @@ def consensus_register(
     import open3d as o3d
 
     tic = time.perf_counter()
-    grids = _grids(o3d, template, source, options)
+    pair = PreparedPair(template, source, options.fine_points) if prepared is None else prepared
+    grids = pair.view(("consensus grids", options), lambda: _grids(o3d, template, source, options))
     found = None
     if grids is not None:
         found = _consensus(o3d, grids, options, start)
@@ -198,7 +211,7 @@ def consensus_register(
 
 def _grids(
     o3d: Any, template: np.ndarray, source: np.ndarray, options: RobustOptions
-) -> _Grids | None:
+) -> ConsensusGrids | None:
     """Step 1's grid, the refinement's and the check's (None where the first grid leaves
     too few points for RANSAC, or holds a scene around the template)."""
     # A large cloud's voxel and spacing floor are measured on a random subset: each pass
@@ -229,20 +242,16 @@ def _grids(
     # Scans of scenes are judged with a plane-to-plane nearest fit (point-to-plane ICP
     # refined the pose on the planes); sparse objects with point-to-point.
     nearest = "plane" if scan else "point"
-    prepared = prepare_check(
-        template_grid, source_grid, open3d=True, nearest_fit=nearest, even=False
-    )
+    check = prepare_check(template_grid, source_grid, open3d=True, nearest_fit=nearest, even=False)
     cuts = SCAN_CUTS if scan else CUTS
-    return _Grids(coarse, fine, voxel, template_grid, source_grid, prepared, cuts, scan)
+    return ConsensusGrids(coarse, fine, voxel, template_grid, source_grid, check, cuts, scan)
 
 
-def _consensus(o3d: Any, grids: _Grids, options: RobustOptions, start: str) -> ConsensusRun:
+def _consensus(o3d: Any, grids: ConsensusGrids, options: RobustOptions, start: str) -> ConsensusRun:
     """Steps 2 to 4 on ``grids``, with the pose as given as ``start`` says."""
 
     def run(pose: np.ndarray, check: Assessment) -> ConsensusRun:
-        return ConsensusRun(
-            pose, check, grids.voxel, grids.template_grid, grids.source_grid, grids.prepared
-        )
+        return ConsensusRun(pose, check, grids)
 
     near = near_check = None
     if start == "first":
@@ -250,17 +259,17 @@ def _consensus(o3d: Any, grids: _Grids, options: RobustOptions, start: str) -> C
         # third of the cost, and it ends most calls on scan views (docs/RESULTS.md, "Sparse
         # clouds: the consensus front end first", "Scans start with the front end").
         near = _point_to_plane(grids, _centroids_matched(o3d, *grids.coarse))
-        near_check = judge(grids.prepared, near)
+        near_check = judge(grids.check, near)
         if arbiter.settles(near_check):
             return run(near, near_check)
     best = _best_judged(grids, _ransac_poses(o3d, grids), options)
     pose, check = best.pose, best.check
     if near is not None:
-        pose, check = _start_competes(pose, check, near, grids.prepared, options, near_check)
+        pose, check = _start_competes(pose, check, near, grids.check, options, near_check)
     return run(pose, check)
 
 
-def _ransac_poses(o3d: Any, grids: _Grids) -> list[np.ndarray]:
+def _ransac_poses(o3d: Any, grids: ConsensusGrids) -> list[np.ndarray]:
     """Steps 2 and 3: RANSAC on FPFH matches of the first grid, refined: poses (4, 4). On
     scans where RANSAC could not be sure of its pose (:func:`_sure`), two more: RANSAC's
     on the matches the first pose leaves out (sequential RANSAC), and the first pose slid
@@ -314,7 +323,7 @@ def _slid_pose(
     return slid
 
 
-def _seeded_ransac(o3d: Any, grids: _Grids, matches: np.ndarray) -> np.ndarray:
+def _seeded_ransac(o3d: Any, grids: ConsensusGrids, matches: np.ndarray) -> np.ndarray:
     """Open3D's RANSAC (the tutorial's settings) on ``matches`` (K, 2) of the first grid,
     seeded and on one thread: (4, 4) source -> template."""
     o3d.utility.random.seed(SEED)
@@ -333,25 +342,27 @@ def _sure(agreeing: float) -> bool:
     return 1.0 - (1.0 - agreeing**3) ** RANSAC_ITERATIONS >= RANSAC_CONFIDENCE
 
 
-def _best_judged(grids: _Grids, found: list[np.ndarray], options: RobustOptions) -> Candidate:
+def _best_judged(
+    grids: ConsensusGrids, found: list[np.ndarray], options: RobustOptions
+) -> Candidate:
     """The pose of ``found`` (each (4, 4)) that the verdict ranks highest, judged (a
     :class:`~masknet.registration.judge.arbiter.Candidate` with its check); a pose within
     ``distinct_deg`` and one voxel of the best so far is not judged
     (:func:`~masknet.registration.judge.arbiter.same_place`), and another replaces the best so
     far only where it :func:`~masknet.registration.judge.arbiter.displaces` it by
     ``ambiguity_margin``."""
-    best = Candidate(found[0], "ransac", check=judge(grids.prepared, found[0]))
+    best = Candidate(found[0], "ransac", check=judge(grids.check, found[0]))
     centre = grids.source_grid.mean(0)
     for other in found[1:]:
         if arbiter.same_place(other, best.pose, centre, options.distinct_deg, grids.voxel):
             continue
-        judged = Candidate(other, "ransac", check=judge(grids.prepared, other))
+        judged = Candidate(other, "ransac", check=judge(grids.check, other))
         if arbiter.displaces(judged.check, best.check, options.ambiguity_margin):
             best = judged
     return best
 
 
-def _point_to_plane(grids: _Grids, start: np.ndarray) -> np.ndarray:
+def _point_to_plane(grids: ConsensusGrids, start: np.ndarray) -> np.ndarray:
     """Point-to-plane ICP from ``start`` (4, 4): on the first grid's clouds at the first of
     ``grids.cuts``, then on the finer grid's at each of the others (both templates have
     their normals from :func:`_grids`): the pose (4, 4)."""
@@ -388,7 +399,7 @@ def _start_competes(
     pose: np.ndarray,
     check: Assessment,
     near: np.ndarray,
-    prepared: PreparedCheck,
+    check_view: PreparedCheck,
     options: RobustOptions,
     near_check: Assessment | None = None,
 ) -> tuple[np.ndarray, Assessment]:
@@ -402,7 +413,7 @@ def _start_competes(
     views of real scans (4,096 points) three flips and a pose 55 degrees off."""
     if not arbiter.apart(near, pose, options.distinct_deg):
         return pose, check
-    near_check = judge(prepared, near) if near_check is None else near_check
+    near_check = judge(check_view, near) if near_check is None else near_check
     if arbiter.displaces(check, near_check, options.ambiguity_margin):
         return pose, check
     return near, near_check

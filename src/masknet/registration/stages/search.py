@@ -69,14 +69,13 @@ from masknet.registration.solvers.correspondences import (
     voxel_for,
 )
 from masknet.registration.solvers.icp import icp, icp_from_starts
-from masknet.registration.terms.options import RobustOptions, inlier_cutoff
+from masknet.registration.terms.options import RobustOptions
 from masknet.registration.terms.result import PipelineInfo
 
 if TYPE_CHECKING:
     from masknet.registration.stages.refinement import MaskPredictor
 from masknet.registration.judge.prepared import (
     PreparedPair,
-    prepare_pair,
     random_subset,
 )
 
@@ -134,8 +133,8 @@ def coarse_to_fine(
 ) -> CoarseRun:
     """The pipeline of the module docstring for template (N, 3) and source (M, 3), float64
     numpy, at any size: the features see the whole clouds, the fit and ICP the even
-    subsets of :func:`~masknet.registration.judge.prepared.prepare_pair` (``prepared``: that of
-    this pair, already made).
+    subsets of the pair's fit view (:attr:`~masknet.registration.judge.prepared.PreparedPair.fit`;
+    ``prepared``: the call's prepared pair of these clouds, None: one of its own).
 
     ``masks.predict_masks(template, source)`` gives the network's masks over the clouds
     it is given ((N,) and (M,) bool: the template's overlap, the source's kept points); None
@@ -188,15 +187,16 @@ class _Search:
     ) -> None:
         self.tic = time.perf_counter()
         if prepared is None:
-            prepared = prepare_pair(template, source, options.fine_points)
+            prepared = PreparedPair(template, source, options.fine_points)
+        fit = prepared.fit
         self.full_template, self.full_source = template, source
-        self.template, self.tree, self.spacing, self.source = prepared[:4]
+        self.template, self.tree, self.spacing, self.source = fit[:4]
         self.options, self.times = options, times
-        self.limit = inlier_cutoff(self.spacing)
+        self.limit = fit.limit
         self.radius = float(centroid_radius(self.template))
         # Isolated source points (uniform outliers, stray returns) would cap every pose's
         # fitness below what a correct pose reaches: the score counts the rest.
-        self.surface, self.checked = prepared.surface, prepared.checked
+        self.surface, self.checked = fit.surface, fit.checked
         self.small = options.hypothesis_size(len(self.source))  # the hypotheses' short ICP
         self.probe = random_subset(self.source[self.surface], self.small * 2)
         self.kept_source = self.source[self.surface]
