@@ -8,10 +8,15 @@ with the condition under which it runs. Each choice between poses is a rule of
    finds the template in the scene, and Mask-ICP (``"icp"``) from the pose found, then
    the polish at full resolution, run instead of the stages below: path
    ``"scene search"``. Where it finds nothing to register, the stages below run.
-1. **Size.** A template of ``consensus_from`` points or more is a scan's, one of fewer
-   than ``consensus_below`` sparse, one between them an object
-   (:meth:`~masknet.registration.call.options.RobustOptions.is_scan`, ``is_sparse``,
-   ``is_object``).
+1. **Route** (docs/ARCHITECTURE.md, "The routing table"). A template of fewer than
+   ``consensus_below`` points is sparse; any other is a scan (an open surface seen from
+   one side, or a scene scanned from within) or an object (a closed shape), as
+   :func:`~masknet.registration.judge.shape.classify_template` measures it, with the
+   thresholds of :data:`~masknet.registration.judge.shape.SHAPE`. From
+   ``consensus_from`` points the shape is measured before anything runs; between the
+   two sizes only once the fast path has not held (stage 4b): the measure costs 10-20 ms,
+   most objects there end on the fast path, and a fifth of ModelNet40's thin shapes read
+   as one-sided.
 2. **Consensus front end**, for scans and sparse clouds (``consensus_points`` > 0)
    (:mod:`masknet.registration.stages.consensus`: a voxel budget, RANSAC on FPFH matches,
    point-to-plane ICP, the verdict). The pose as given is refined and judged first
@@ -23,7 +28,8 @@ with the condition under which it runs. Each choice between poses is a rule of
    On views of objects in real scans the pose as given, refined, ends most calls at a
    third of the fast path's cost; on sparse clouds the fast path holds on a fifth to a
    third of the pairs and the search costs 4-6 times the front end.
-3. **Principal-axes gate**, for objects (``search_first_turn_deg`` not None): a source
+3. **Principal-axes gate**, for objects and templates not yet measured
+   (``search_first_turn_deg`` not None): a source
    whose principal axes are turned ``search_first_turn_deg`` or more from the
    template's goes to the search (stage 5) without the fast path, which starts from the
    pose as given and seldom holds that far off.
@@ -41,6 +47,9 @@ with the condition under which it runs. Each choice between poses is a rule of
    ``accept_fitness`` (``object_accept_fitness`` on objects, where a near-symmetric
    shape's flip fits 0.990) ends the call (``arbiter.accepts``): path ``"fast"``. A pose
    that fits but was still moving when ICP's iterations ran out gets them once more.
+   4b. **Measured late**: a template between the sizes is measured now; a scan's goes
+   to the consensus front end (the scan's settings, the pose as given judged first), and
+   a ``likely correct`` answer ends the call: path ``"consensus"``.
 5. **Search**, where the fast path's fit is lower (or the gate sent the pair): the
    coarse-to-fine pipeline of ``method="robust"``
    (:mod:`masknet.registration.stages.search`) on the same prepared pair: path
@@ -48,7 +57,7 @@ with the condition under which it runs. Each choice between poses is a rule of
    path's pose takes part: where it fits better (``arbiter.fits_better``) it is the
    answer after all (path ``"fast"``), ambiguous where one of the search's poses lies
    elsewhere and fits about as well (``arbiter.close_rival``).
-6. **Scans' consensus**, on scans whose front end ended ``uncertain``
+6. **Scans' consensus**, on scans whose front end (stage 2 or 4b) ended ``uncertain``
    (``arbiter.may_compete``): the verdict judges the search's answer, and the consensus
    pose replaces it where it ranks higher (``arbiter.ranks_higher``; the search's
    one-way score can prefer a pose slid along a wall): path ``"robust/consensus"``. Not
@@ -81,6 +90,7 @@ from masknet.registration.judge.arbiter import Candidate
 from masknet.registration.judge.assessment import judge
 from masknet.registration.judge.fit import PoseFit, covered_points, pose_fit
 from masknet.registration.judge.prepared import PreparedPair, check_points, prepare_pair
+from masknet.registration.judge.shape import PairShape, classify_template
 from masknet.registration.solvers.backends.base import MaskModels, PipelineRun
 from masknet.registration.solvers.icp import icp
 from masknet.registration.stages.consensus import ConsensusRun, consensus_register
@@ -151,27 +161,31 @@ def _one(
     precision: str,
 ) -> PipelineRun:
     """One pair: template (N, 3), source (M, 3); ``nets`` the clouds the networks see."""
+    route = _Route.first(template, options, times)
     consensus = None
-    on = options.consensus_points > 0
-    scan = on and options.is_scan(len(template))
-    sparse = on and options.is_sparse(len(template))
-    if sparse or scan:
+    if route.on and (route.sparse or route.scan):
         # The pose as given is judged first, except on scans so large that it seldom is
         # right and its ICP costs what RANSAC does.
         large = len(template) >= CONSENSUS_FIRST * options.consensus_from
         start = "never" if large else "first"
-        consensus = consensus_register(template, source, options, times, start)
+        consensus = consensus_register(template, source, options, times, start, route.scan)
         if consensus is not None and arbiter.settles(consensus.check):
             return _consensus_run(consensus, template, source, model, "consensus")
-    if _turned(template, source, options):  # the fast path starts from the pose as given
-        return _escalate(
-            template, source, nets, None, model, search_model, options, times, precision
-        )
-    fast = _fast_path(template, source, nets, model, options, times, precision)
-    if fast.accepted is not None:
-        return fast.accepted
+    fast = None
+    if not _turned(template, source, options, route):  # the fast path starts from the pose
+        accept = options.object_accept_fitness if route.dense_object else options.accept_fitness
+        fast = _fast_path(template, source, nets, model, options, times, precision, accept)
+        if fast.accepted is not None:
+            return fast.accepted
+    if route.shape is None and not route.sparse:  # measured now: most objects end above
+        route = route.measured(template, options, times)
+        if route.on and route.scan:
+            consensus = consensus_register(template, source, options, times, "first", True)
+            if consensus is not None and arbiter.settles(consensus.check):
+                escalated = np.nan if fast is None else fast.right
+                return _consensus_run(consensus, template, source, model, "consensus", escalated)
     run = _escalate(template, source, nets, fast, model, search_model, options, times, precision)
-    if scan and consensus is not None and arbiter.may_compete(consensus.check):
+    if route.scan and consensus is not None and arbiter.may_compete(consensus.check):
         # The search's one-way score can prefer a pose slid along a wall that the verdict
         # sees through. Not on sparse clouds: there the verdict called right search answers
         # worse than consensus poses 60-180 degrees off.
@@ -183,13 +197,56 @@ def _one(
     return run
 
 
-def _turned(template: np.ndarray, source: np.ndarray, options: RobustOptions) -> bool:
-    """Whether a pair between the sparse and the scans' sizes goes to the search first: its
-    principal axes turned ``search_first_turn_deg`` or more. On 100 ModelNet40 pairs turned
-    up to 180 degrees the fast path held on 23 and was paid for before the search on the
-    rest; the axes flagged 50, of which the fast path would have held 2."""
+class _Route(NamedTuple):
+    """Stage 1 of the module docstring: the pair's class. ``sparse``: a template under
+    ``consensus_below`` points; ``shape``: the template's measured class
+    (:func:`~masknet.registration.judge.shape.classify_template`), None until measured
+    (templates between the sizes are measured once the fast path failed); ``on``: the
+    consensus front end is (``consensus_points`` > 0)."""
+
+    sparse: bool
+    shape: PairShape | None
+    on: bool
+
+    @classmethod
+    def first(cls, template: np.ndarray, options: RobustOptions, times: dict) -> _Route:
+        """The route before any stage: sparse by size; templates of ``consensus_from``
+        points or more measured now (a scan's front end comes before the fast path)."""
+        route = cls(options.is_sparse(len(template)), None, options.consensus_points > 0)
+        if options.is_scan(len(template)):
+            return route.measured(template, options, times)
+        return route
+
+    def measured(self, template: np.ndarray, options: RobustOptions, times: dict) -> _Route:
+        """This route with the template's shape measured (``times["route"]``)."""
+        if self.sparse:
+            return self
+        tic = time.perf_counter()
+        shape = classify_template(template)
+        times["route"] = times.get("route", 0.0) + time.perf_counter() - tic
+        return self._replace(shape=shape)
+
+    @property
+    def scan(self) -> bool:
+        """A scan's route: measured as one (sparse templates are not measured)."""
+        return self.shape is not None and self.shape.kind == "scan"
+
+    @property
+    def dense_object(self) -> bool:
+        """An object's route: not sparse, not measured as a scan (the fast path's object
+        accept level and the principal axes' gate)."""
+        return not self.sparse and not self.scan
+
+
+def _turned(
+    template: np.ndarray, source: np.ndarray, options: RobustOptions, route: _Route
+) -> bool:
+    """Whether an object's pair goes to the search first: its principal axes turned
+    ``search_first_turn_deg`` or more. On 100 ModelNet40 pairs turned up to 180 degrees the
+    fast path held on 23 and was paid for before the search on the rest; the axes flagged
+    50, of which the fast path would have held 2."""
     turn = options.search_first_turn_deg
-    if turn is None or not options.is_object(len(template)):
+    if turn is None or not route.dense_object:
         return False
     return principal_turn_deg(template, source) >= turn
 
@@ -227,9 +284,10 @@ def _fast_path(
     options: RobustOptions,
     times: dict[str, float],
     precision: str,
+    accept: float,
 ) -> _Fast:
     """Stage 4 of the module docstring: Mask-ICP on the networks' clouds, ICP with the
-    pair cut-off at full resolution, and the check of its fit."""
+    pair cut-off at full resolution, and the check of its fit (``accept`` ends the call)."""
     icp_options = ICPCriteria()  # the paper's Mask-ICP: 10 iterations, all pairs
     template_net, source_net = nets.clouds()
     fast = mask_and_register(
@@ -268,7 +326,6 @@ def _fast_path(
         return pose, fit, right, converged
 
     transform, fit, right, converged = refined(fast.transform[0])
-    accept = options.fast_accept(len(template))
     if arbiter.accepts(right, accept) and not converged and options.inlier_iterations:
         # Still moving when its iterations ran out, from a start far off: a pose that fits
         # is let settle (on a copy pair it stopped 0.23 degrees short, one step from exact),

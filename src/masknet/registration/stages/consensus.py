@@ -89,7 +89,7 @@ FINE_GRID = 3  # the refinement's second grid: this many times finer
 # twice as fine, it parts them as the refinement's grid does, at 90 ms against 170.
 CHECK_GRID = 2
 CUTS = (1.5, 0.4)  # the refinement's pair cut-offs, in voxels: on the first grid, on the finer
-# Scans (templates of consensus_from points or more) go on to a third cut on the finer grid,
+# Scans (the route's class, masknet.registration.judge.shape) go on to a third cut on the finer grid,
 # judged by the plane-to-plane nearest fit: on 3DMatch draws of 5,000 and 20,000 source
 # points the mean error fell from 1.40 and 1.02 degrees to 0.88 and 0.61 (11.5 and 8.6 cm to
 # 8.9 and 7.0); seven room draws of eight at 5,000 points stayed within 1 degree and 2 cm
@@ -151,7 +151,7 @@ class _Grids(NamedTuple):
     grid (``coarse``) and on the refinement's (``fine``, the template with normals), the
     first grid's edge, the check's grids made ready for the verdict, the refinement's
     cut-offs in voxels (:data:`SCAN_CUTS` for scans, else :data:`CUTS`), and whether the
-    pair is a scan's (a template of ``consensus_from`` points or more)."""
+    pair is a scan's (the route's class, :mod:`masknet.registration.judge.shape`)."""
 
     coarse: list
     fine: list
@@ -172,6 +172,7 @@ def consensus_register(
     options: RobustOptions,
     times: dict[str, float],
     start: str = "never",
+    scan: bool | None = None,
 ) -> ConsensusRun | None:
     """The front end of the module docstring for template (N, 3) and source (M, 3),
     float64, any unit. None where Open3D is missing, a grid leaves too few points for
@@ -179,8 +180,11 @@ def consensus_register(
 
     ``start``, what the pose as given does (:func:`_start_competes`): with ``"never"`` it
     takes no part; ``"first"`` is refined and judged first, ends the call where it is ``likely
-    correct`` and else competes with RANSAC's pose. Stage times go to ``times``
-    (``consensus``)."""
+    correct`` and else competes with RANSAC's pose. ``scan``: refine and judge the pair as
+    a scan's (:data:`SCAN_CUTS`, plane-to-plane); None: by the template's size
+    (:meth:`~masknet.registration.call.options.RobustOptions.is_scan`). ``"auto"`` passes
+    its route's class (:mod:`masknet.registration.judge.shape`). Stage times go to
+    ``times`` (``consensus``)."""
     if start not in START_POLICIES:
         raise ValueError(f"start must be one of {START_POLICIES}, got {start!r}")
     if not has_open3d():
@@ -188,7 +192,8 @@ def consensus_register(
     import open3d as o3d
 
     tic = time.perf_counter()
-    grids = _grids(o3d, template, source, options)
+    scan = options.is_scan(len(template)) if scan is None else scan
+    grids = _grids(o3d, template, source, options, scan)
     found = None
     if grids is not None:
         found = _consensus(o3d, grids, options, start)
@@ -197,7 +202,11 @@ def consensus_register(
 
 
 def _grids(
-    o3d: Any, template: np.ndarray, source: np.ndarray, options: RobustOptions
+    o3d: Any,
+    template: np.ndarray,
+    source: np.ndarray,
+    options: RobustOptions,
+    scan: bool | None = None,
 ) -> _Grids | None:
     """Step 1's grid, the refinement's and the check's (None where the first grid leaves
     too few points for RANSAC, or holds a scene around the template)."""
@@ -215,7 +224,7 @@ def _grids(
         return None
     if len(coarse[1].points) > MAX_SOURCE_SHARE * len(coarse[0].points):
         return None  # an object in a scene: the scene search's work, not this one's
-    scan = options.is_scan(len(template))
+    scan = options.is_scan(len(template)) if scan is None else scan
     # The template's normals on both grids, for point-to-plane ICP: the 30 nearest points
     # within 2 voxels on the first (as the features take them), FINE_NORMALS on the finer.
     search = o3d.geometry.KDTreeSearchParamHybrid
