@@ -93,18 +93,25 @@ def _lines(count: int) -> np.ndarray:
     return np.stack([np.cos(turn) * ring, np.sin(turn) * ring, height], 1)
 
 
-def one_sided_share(points: np.ndarray, table: ShapeTable = SHAPE, seed: int = 0) -> float:
+def _subset(points: np.ndarray, table: ShapeTable, seed: int) -> np.ndarray:
+    """The seeded subset of ``table.points`` every measure sees, float64 (P, 3)."""
+    return np.asarray(random_subset(np.asarray(points, np.float64), table.points, seed))
+
+
+def one_sided_share(
+    points: np.ndarray, table: ShapeTable = SHAPE, seed: int = 0, tree: object | None = None
+) -> float:
     """The largest share, over ``2 * table.lines`` directions of view, of the points of
     ``points`` (P, 3) (a seeded subset of ``table.points``) that the direction sees with no
     other layer in front: the subset projected along the direction onto a grid of
     ``cell_spacings`` spacings, and a point hidden where a point of its cell lies over
     ``gap_spacings`` spacings nearer with an empty stretch that long between them. In [0, 1];
     1 for a height field along some direction (a sensor's view), 0.55-0.7 for a sphere, a
-    box or a ModelNet40 shape's median."""
-    cloud = np.asarray(random_subset(np.asarray(points, np.float64), table.points, seed))
+    box or a ModelNet40 shape's median. ``tree``: a tree of the subset, built here when None."""
+    cloud = _subset(points, table, seed)
+    spacing = median_spacing(cloud, tree) if len(cloud) >= 4 else 0.0
     cloud = cloud - cloud.mean(0)
-    spacing = median_spacing(cloud)
-    if len(cloud) < 4 or not spacing > 0:
+    if not spacing > 0:
         return 1.0
     views = _lines(table.lines)
     across = np.cross(views, [0.36, 0.48, 0.8])
@@ -112,36 +119,43 @@ def one_sided_share(points: np.ndarray, table: ShapeTable = SHAPE, seed: int = 0
     up = np.cross(views, across)
     cells = [np.floor(cloud @ axes.T / (table.cell_spacings * spacing)) for axes in (across, up)]
     cells = [(c - c.min(0)).astype(np.int64) for c in cells]
-    per_line = (cells[1].max() + 1) * (cells[0].max() + 1)
-    line_of = np.arange(len(views)) * per_line
-    key = (cells[0] * (cells[1].max() + 1) + cells[1] + line_of).T.ravel()  # (lines * P,)
-    depth = (cloud @ views.T).T.ravel()
-    gap = table.gap_spacings * spacing
-    best = 0.0
-    for toward in (depth, -depth):
-        order = np.lexsort((-toward, key))
-        k, z = key[order], toward[order]
-        same = k[1:] == k[:-1]
-        parted = np.zeros(len(k), bool)
-        parted[1:] = same & (z[:-1] - z[1:] > gap)
-        seen = np.cumsum(parted)
-        starts = np.r_[0, np.flatnonzero(~same) + 1]
-        before = np.repeat(seen[starts], np.diff(np.r_[starts, len(k)]))
-        hidden = (seen - before) > 0  # a gap above the point within its cell
-        per_view = np.bincount(k // per_line, weights=hidden, minlength=len(views))
-        best = max(best, 1.0 - float(per_view.min()) / len(cloud))
-    return best
+    rows = cells[1].max() + 1
+    per_line = rows * (cells[0].max() + 1)
+    key = (cells[0] * rows + cells[1] + np.arange(len(views)) * per_line).T.ravel()
+    depth = (cloud @ views.T).T.ravel()  # (lines * P,), line by line
+    # One sort: by cell, and by depth within a cell (the depth scaled into [0, 0.5]).
+    span = max(float(np.ptp(depth)), 1e-300)
+    order = np.argsort(key + 0.5 * (depth - depth.min()) / span, kind="stable")
+    k, z = key[order], depth[order]
+    same = k[1:] == k[:-1]
+    gap = same & (np.diff(z) > table.gap_spacings * spacing)  # between sorted i and i + 1
+    first = np.r_[0, np.flatnonzero(~same) + 1]  # each cell's first and end positions
+    length = np.diff(np.r_[first, len(k)])
+    before = np.r_[0, np.cumsum(gap)]  # gaps below position i within the whole order
+    # Seen from below (-direction) a point is hidden by a gap below it in its cell; from
+    # above, by one above it.
+    from_below = before - np.repeat(before[first], length) > 0
+    from_above = np.repeat(before[first + length - 1], length) - before > 0
+    view_of = k // per_line
+    hidden = [
+        np.bincount(view_of, weights=h, minlength=len(views)) for h in (from_below, from_above)
+    ]
+    return 1.0 - float(min(h.min() for h in hidden)) / len(cloud)
 
 
-def seen_from_inside(points: np.ndarray, table: ShapeTable = SHAPE, seed: int = 0) -> float:
+def seen_from_inside(
+    points: np.ndarray, table: ShapeTable = SHAPE, seed: int = 0, tree: object | None = None
+) -> float:
     """The rank (Spearman) correlation, over a seeded subset of ``table.points`` of
     ``points`` (P, 3), between each point's nearest-neighbour distance and its distance
     from the centroid: near 0 for an evenly sampled shape, 0.3-0.9 for a scene scanned
-    from within it (a sensor's samples thin out with distance)."""
-    cloud = np.asarray(random_subset(np.asarray(points, np.float64), table.points, seed))
+    from within it (a sensor's samples thin out with distance). ``tree``: a tree of the
+    subset, built here when None."""
+    cloud = _subset(points, table, seed)
     if len(cloud) < 4:
         return 0.0
-    near = cloud_tree(cloud).query(cloud, k=2)[0][:, 1]
+    tree = cloud_tree(cloud) if tree is None else tree
+    near = tree.query(cloud, k=2)[0][:, 1]
     far = np.linalg.norm(cloud - cloud.mean(0), axis=1)
     ranks = [np.argsort(np.argsort(v)).astype(np.float64) for v in (near, far)]
     ranks = [r - r.mean() for r in ranks]
@@ -151,8 +165,10 @@ def seen_from_inside(points: np.ndarray, table: ShapeTable = SHAPE, seed: int = 
 
 def measure_shape(points: np.ndarray, table: ShapeTable = SHAPE) -> tuple[float, float]:
     """(one_sided, inside) of a cloud (P, 3): :func:`one_sided_share` and
-    :func:`seen_from_inside`."""
-    return one_sided_share(points, table), seen_from_inside(points, table)
+    :func:`seen_from_inside`, on one subset and one tree of it."""
+    cloud = _subset(points, table, 0)
+    tree = cloud_tree(cloud) if len(cloud) >= 4 else None
+    return one_sided_share(cloud, table, tree=tree), seen_from_inside(cloud, table, tree=tree)
 
 
 def classify_template(template: np.ndarray, table: ShapeTable = SHAPE) -> PairShape:

@@ -14,7 +14,7 @@ with the condition under which it runs. Each choice between poses is a rule of
    :func:`~masknet.registration.judge.shape.classify_template` measures it, with the
    thresholds of :data:`~masknet.registration.judge.shape.SHAPE`. From
    ``consensus_from`` points the shape is measured before anything runs; between the
-   two sizes only once the fast path has not held (stage 4b): the measure costs 10-20 ms,
+   two sizes only once the fast path has not held (stage 4b): the measure costs about 8 ms,
    most objects there end on the fast path, and a fifth of ModelNet40's thin shapes read
    as one-sided.
 2. **Consensus front end**, for scans and sparse clouds (``consensus_points`` > 0)
