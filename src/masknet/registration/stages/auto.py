@@ -87,10 +87,10 @@ from masknet.registration.call.options import ICPCriteria, RobustOptions, inlier
 from masknet.registration.call.result import PipelineInfo, info_arrays
 from masknet.registration.judge import arbiter
 from masknet.registration.judge.arbiter import Candidate
-from masknet.registration.judge.assessment import judge
+from masknet.registration.judge.assessment import Assessment, judge
 from masknet.registration.judge.fit import PoseFit, covered_points, pose_fit
 from masknet.registration.judge.prepared import PreparedPair, check_points, prepare_pair
-from masknet.registration.judge.shape import PairShape, classify_template
+from masknet.registration.judge.shape import SHAPE, PairShape, classify_template
 from masknet.registration.solvers.backends.base import MaskModels, PipelineRun
 from masknet.registration.solvers.icp import icp
 from masknet.registration.stages.consensus import ConsensusRun, consensus_register
@@ -177,24 +177,34 @@ def _one(
         fast = _fast_path(template, source, nets, model, options, times, precision, accept)
         if fast.accepted is not None:
             return fast.accepted
-    if route.shape is None and not route.sparse:  # measured now: most objects end above
+    late = route.shape is None and not route.sparse  # measured now: most objects end above
+    if late:
         route = route.measured(template, options, times)
-        if route.on and route.scan:
+        partial = arbiter.partial_overlap(None if fast is None else fast.right, SHAPE.partial_fit)
+        if route.on and route.scan and partial:  # a front end to compete with the search
             consensus = consensus_register(template, source, options, times, "first", True)
-            if consensus is not None and arbiter.settles(consensus.check):
-                escalated = np.nan if fast is None else fast.right
-                return _consensus_run(consensus, template, source, model, "consensus", escalated)
     run = _escalate(template, source, nets, fast, model, search_model, options, times, precision)
-    if route.scan and consensus is not None and arbiter.may_compete(consensus.check):
+    if route.scan and consensus is not None and _competes(consensus.check, late):
         # The search's one-way score can prefer a pose slid along a wall that the verdict
         # sees through. Not on sparse clouds: there the verdict called right search answers
         # worse than consensus poses 60-180 degrees off.
         searched = judge(consensus.prepared, run.transform[0])
-        if arbiter.ranks_higher(consensus.check, searched):
+        if late:  # a thin object reads as one-sided: the search's exact pose is kept
+            wins = arbiter.better_verdict(consensus.check, searched)
+        else:
+            wins = arbiter.ranks_higher(consensus.check, searched)
+        if wins:
             escalated = float(run.info["escalated_fitness"][0])
             path = "robust/consensus"
             return _consensus_run(consensus, template, source, model, path, escalated)
     return run
+
+
+def _competes(check: Assessment, late: bool) -> bool:
+    """Whether the front end's pose competes with the search's answer: ``uncertain``
+    (:func:`~masknet.registration.judge.arbiter.may_compete`), or, measured late, also
+    ``likely correct`` (there it has not ended the call)."""
+    return arbiter.may_compete(check) or (late and arbiter.settles(check))
 
 
 class _Route(NamedTuple):
