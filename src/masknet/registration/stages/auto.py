@@ -47,9 +47,10 @@ with the condition under which it runs. Each choice between poses is a rule of
    ``accept_fitness`` (``object_accept_fitness`` on objects, where a near-symmetric
    shape's flip fits 0.990) ends the call (``arbiter.accepts``): path ``"fast"``. A pose
    that fits but was still moving when ICP's iterations ran out gets them once more.
-   4b. **Measured late**: a template between the sizes is measured now; a scan's goes
-   to the consensus front end (the scan's settings, the pose as given judged first), and
-   a ``likely correct`` answer ends the call: path ``"consensus"``.
+   4b. **Measured late**: a template between the sizes is measured now; a scan's whose
+   fast path fitted under ``partial_fit`` (``arbiter.partial_overlap``: two partial
+   clouds) runs the consensus front end (the scan's settings, the pose as given judged
+   first), whose pose then competes with the search's (stage 6).
 5. **Search**, where the fast path's fit is lower (or the gate sent the pair): the
    coarse-to-fine pipeline of ``method="robust"``
    (:mod:`masknet.registration.stages.search`) on the same prepared pair: path
@@ -58,6 +59,9 @@ with the condition under which it runs. Each choice between poses is a rule of
    answer after all (path ``"fast"``), ambiguous where one of the search's poses lies
    elsewhere and fits about as well (``arbiter.close_rival``).
 6. **Scans' consensus**, on scans whose front end (stage 2 or 4b) ended ``uncertain``
+   (after stage 4b also ``likely correct``; there only a better verdict,
+   ``arbiter.better_verdict``, replaces the search's answer: a thin object reads as
+   one-sided, and the search's pose is exact)
    (``arbiter.may_compete``): the verdict judges the search's answer, and the consensus
    pose replaces it where it ranks higher (``arbiter.ranks_higher``; the search's
    one-way score can prefer a pose slid along a wall): path ``"robust/consensus"``. Not
