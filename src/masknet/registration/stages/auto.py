@@ -14,9 +14,9 @@ with the condition under which it runs. Each choice between poses is a rule of
    :func:`~masknet.registration.judge.shape.classify_template` measures it, with the
    thresholds of :data:`~masknet.registration.judge.shape.SHAPE`. From
    ``consensus_from`` points the shape is measured before anything runs; between the
-   two sizes only once the fast path has not held (stage 4b): the measure costs about 8 ms,
-   most objects there end on the fast path, and a fifth of ModelNet40's thin shapes read
-   as one-sided.
+   two sizes only once the fast path has not held, and fitted under ``partial_fit``
+   (stage 4b): the measure costs about 8 ms, most objects there end on the fast path,
+   and a fifth of ModelNet40's thin shapes read as one-sided.
 2. **Consensus front end**, for scans and sparse clouds (``consensus_points`` > 0)
    (:mod:`masknet.registration.stages.consensus`: a voxel budget, RANSAC on FPFH matches,
    point-to-plane ICP, the verdict). The pose as given is refined and judged first
@@ -47,9 +47,9 @@ with the condition under which it runs. Each choice between poses is a rule of
    ``accept_fitness`` (``object_accept_fitness`` on objects, where a near-symmetric
    shape's flip fits 0.990) ends the call (``arbiter.accepts``): path ``"fast"``. A pose
    that fits but was still moving when ICP's iterations ran out gets them once more.
-   4b. **Measured late**: a template between the sizes is measured now; a scan's whose
-   fast path fitted under ``partial_fit`` (``arbiter.partial_overlap``: two partial
-   clouds) runs the consensus front end (the scan's settings, the pose as given judged
+   4b. **Measured late**: a template between the sizes whose fast path fitted under
+   ``partial_fit`` (``arbiter.partial_overlap``: two partial clouds) is measured now; a
+   scan's runs the consensus front end (the scan's settings, the pose as given judged
    first), whose pose then competes with the search's (stage 6).
 5. **Search**, where the fast path's fit is lower (or the gate sent the pair): the
    coarse-to-fine pipeline of ``method="robust"``
@@ -181,11 +181,11 @@ def _one(
         fast = _fast_path(template, source, nets, model, options, times, precision, accept)
         if fast.accepted is not None:
             return fast.accepted
-    late = route.shape is None and not route.sparse  # measured now: most objects end above
-    if late:
+    late = route.shape is None and not route.sparse  # most objects ended above
+    partial = arbiter.partial_overlap(None if fast is None else fast.right, SHAPE.partial_fit)
+    if late and route.on and partial:  # both clouds partial: measured now
         route = route.measured(template, options, times)
-        partial = arbiter.partial_overlap(None if fast is None else fast.right, SHAPE.partial_fit)
-        if route.on and route.scan and partial:  # a front end to compete with the search
+        if route.scan:  # a scan's front end, its pose to compete with the search's
             consensus = consensus_register(template, source, options, times, "first", True)
     run = _escalate(template, source, nets, fast, model, search_model, options, times, precision)
     if route.scan and consensus is not None and _competes(consensus.check, late):
