@@ -97,8 +97,12 @@ def test_the_table_sets_the_threshold():
     """A table whose one-sided threshold lies above 1 calls nothing one-sided."""
     plane = _shapes()["plane patch"][0]
     assert classify_template(plane).kind == "scan"
-    never = ShapeTable(scan_one_sided=1.01, scan_inside=1.01)
+    never = ShapeTable(scan_one_sided=1.01, scan_one_sided_large=1.01, scan_inside=1.01)
     assert classify_template(plane, never).kind == "object"
+    assert classify_template(plane, never, large=True).kind == "object"
+    # a large template is a scan from a lower one-sided share
+    between = ShapeTable(scan_one_sided=1.01, scan_one_sided_large=0.9)
+    assert classify_template(plane, between, large=True).kind == "scan"
 
 
 def test_tiny_clouds_read_as_one_sided():

@@ -61,7 +61,7 @@ def test_a_20000_point_object_takes_the_objects_path():
     then the objects' path: the fast path (MaskNet, ICP) and, where its fit falls short
     of the objects' accept level, the search; no consensus front end."""
     template = _dense_object(20_000)
-    assert classify_template(template).kind == "object"
+    assert classify_template(template, large=True).kind == "object"
     turn = np.eye(4)
     turn[:3, :3] = Rotation.from_euler("z", 20, degrees=True).as_matrix()
     turn[:3, 3] = [0.1, -0.05, 0.02]
@@ -81,11 +81,11 @@ def test_the_same_object_as_a_scan_would_take_the_front_end(monkeypatch):
     from masknet.registration.judge import shape
 
     template = _dense_object(20_000)
-    never_closed = shape.ShapeTable(scan_one_sided=0.0)
+    never_closed = shape.ShapeTable(scan_one_sided=0.0, scan_one_sided_large=0.0)
     monkeypatch.setattr(shape, "SHAPE", never_closed)
     monkeypatch.setattr(
         "masknet.registration.stages.auto.classify_template",
-        lambda t: shape.classify_template(t, never_closed),
+        lambda t, large=False: shape.classify_template(t, never_closed, large),
     )
     result = register(template, template[:12_000] + [0.01, 0.0, 0.0])
     assert result.times["consensus"] > 0

@@ -236,7 +236,7 @@ class _Route(NamedTuple):
         if self.sparse:
             return self
         tic = time.perf_counter()
-        shape = classify_template(template)
+        shape = classify_template(template, large=options.is_scan(len(template)))
         times["route"] = times.get("route", 0.0) + time.perf_counter() - tic
         return self._replace(shape=shape)
 
