@@ -286,3 +286,19 @@ def test_the_old_homes_of_the_rules_still_answer(old, name):
 
     with pytest.warns(DeprecationWarning, match=f"arbiter.{name}"):
         assert getattr(importlib.import_module(old), name) is getattr(arbiter, name)
+
+
+def test_a_better_verdict_wins_whatever_the_overlap_fits():
+    """``better_verdict``: the verdict alone; a higher overlap fit of the same verdict
+    does not win (where ``ranks_higher`` lets it)."""
+    right, unsure = _check("likely correct", 0.5), _check("uncertain", 0.99)
+    assert arbiter.better_verdict(right, unsure) and not arbiter.better_verdict(unsure, right)
+    same_higher = _check("likely correct", 0.9)
+    assert not arbiter.better_verdict(same_higher, right)
+    assert arbiter.ranks_higher(same_higher, right)
+
+
+def test_partial_overlap_by_the_fast_paths_fit():
+    """Under the level (or no fast path run): both clouds partial."""
+    assert arbiter.partial_overlap(0.3, 0.8) and arbiter.partial_overlap(None, 0.8)
+    assert not arbiter.partial_overlap(0.96, 0.8) and not arbiter.partial_overlap(0.8, 0.8)

@@ -8,10 +8,15 @@ with the condition under which it runs. Each choice between poses is a rule of
    finds the template in the scene, and Mask-ICP (``"icp"``) from the pose found, then
    the polish at full resolution, run instead of the stages below: path
    ``"scene search"``. Where it finds nothing to register, the stages below run.
-1. **Size.** A template of ``consensus_from`` points or more is a scan's, one of fewer
-   than ``consensus_below`` sparse, one between them an object
-   (:meth:`~masknet.registration.terms.options.RobustOptions.is_scan`, ``is_sparse``,
-   ``is_object``).
+1. **Route** (docs/ARCHITECTURE.md, "The routing table"). A template of fewer than
+   ``consensus_below`` points is sparse; any other is a scan (an open surface seen from
+   one side, or a scene scanned from within) or an object (a closed shape), as
+   :func:`~masknet.registration.judge.shape.classify_template` measures it, with the
+   thresholds of :data:`~masknet.registration.judge.shape.SHAPE`. From
+   ``consensus_from`` points the shape is measured before anything runs; between the
+   two sizes only once the fast path has not held, and fitted under ``partial_fit``
+   (stage 4b): the measure costs about 8 ms, most objects there end on the fast path,
+   and a fifth of ModelNet40's thin shapes read as one-sided.
 2. **Consensus front end**, for scans and sparse clouds (``consensus_points`` > 0)
    (:mod:`masknet.registration.stages.consensus`: a voxel budget, RANSAC on FPFH matches,
    point-to-plane ICP, the verdict). The pose as given is refined and judged first
@@ -23,7 +28,8 @@ with the condition under which it runs. Each choice between poses is a rule of
    On views of objects in real scans the pose as given, refined, ends most calls at a
    third of the fast path's cost; on sparse clouds the fast path holds on a fifth to a
    third of the pairs and the search costs 4-6 times the front end.
-3. **Principal-axes gate**, for objects (``search_first_turn_deg`` not None): a source
+3. **Principal-axes gate**, for objects and templates not yet measured
+   (``search_first_turn_deg`` not None): a source
    whose principal axes are turned ``search_first_turn_deg`` or more from the
    template's goes to the search (stage 5) without the fast path, which starts from the
    pose as given and seldom holds that far off.
@@ -41,6 +47,10 @@ with the condition under which it runs. Each choice between poses is a rule of
    ``accept_fitness`` (``object_accept_fitness`` on objects, where a near-symmetric
    shape's flip fits 0.990) ends the call (``arbiter.accepts``): path ``"fast"``. A pose
    that fits but was still moving when ICP's iterations ran out gets them once more.
+   4b. **Measured late**: a template between the sizes whose fast path fitted under
+   ``partial_fit`` (``arbiter.partial_overlap``: two partial clouds) is measured now; a
+   scan's runs the consensus front end (the scan's settings, the pose as given judged
+   first), whose pose then competes with the search's (stage 6).
 5. **Search**, where the fast path's fit is lower (or the gate sent the pair): the
    coarse-to-fine pipeline of ``method="robust"``
    (:mod:`masknet.registration.stages.search`) on the same prepared pair: path
@@ -48,7 +58,10 @@ with the condition under which it runs. Each choice between poses is a rule of
    path's pose takes part: where it fits better (``arbiter.fits_better``) it is the
    answer after all (path ``"fast"``), ambiguous where one of the search's poses lies
    elsewhere and fits about as well (``arbiter.close_rival``).
-6. **Scans' consensus**, on scans whose front end ended ``uncertain``
+6. **Scans' consensus**, on scans whose front end (stage 2 or 4b) ended ``uncertain``
+   (after stage 4b also ``likely correct``; there only a better verdict,
+   ``arbiter.better_verdict``, replaces the search's answer: a thin object reads as
+   one-sided, and the search's pose is exact)
    (``arbiter.may_compete``): the verdict judges the search's answer, and the consensus
    pose replaces it where it ranks higher (``arbiter.ranks_higher``; the search's
    one-way score can prefer a pose slid along a wall): path ``"robust/consensus"``. Not
@@ -75,9 +88,10 @@ from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
 from masknet.registration.judge import arbiter
 from masknet.registration.judge.arbiter import Candidate
-from masknet.registration.judge.assessment import judge
+from masknet.registration.judge.assessment import Assessment, judge
 from masknet.registration.judge.fit import PoseFit, covered_points, pose_fit
 from masknet.registration.judge.prepared import PreparedPair, check_points
+from masknet.registration.judge.shape import SHAPE, PairShape, classify_template
 from masknet.registration.solvers.backends.base import MaskModels, PipelineRun
 from masknet.registration.solvers.icp import icp
 from masknet.registration.stages.consensus import ConsensusRun, consensus_register
@@ -152,43 +166,102 @@ def _one(
     """One pair: template (N, 3), source (M, 3); ``nets`` the clouds the networks see. The
     pair is prepared once here, and every stage and the verdict read its views."""
     pair = PreparedPair(template, source, options.fine_points)
+    route = _Route.first(template, options, times)
     consensus = None
-    on = options.consensus_points > 0
-    scan = on and options.is_scan(len(template))
-    sparse = on and options.is_sparse(len(template))
-    if sparse or scan:
+    if route.on and (route.sparse or route.scan):
         # The pose as given is judged first, except on scans so large that it seldom is
         # right and its ICP costs what RANSAC does.
         large = len(template) >= CONSENSUS_FIRST * options.consensus_from
         start = "never" if large else "first"
-        consensus = consensus_register(template, source, options, times, start, pair)
+        consensus = consensus_register(template, source, options, times, start, pair, route.scan)
         if consensus is not None and arbiter.settles(consensus.check):
             return _consensus_run(consensus, template, source, model, "consensus")
-    if _turned(template, source, options):  # the fast path starts from the pose as given
-        return _escalate(pair, nets, None, model, search_model, options, times, precision)
-    fast = _fast_path(pair, nets, model, options, times, precision)
-    if fast.accepted is not None:
-        return fast.accepted
+    fast = None
+    if not _turned(template, source, options, route):  # the fast path starts from the pose
+        accept = options.object_accept_fitness if route.dense_object else options.accept_fitness
+        fast = _fast_path(pair, nets, model, options, times, precision, accept)
+        if fast.accepted is not None:
+            return fast.accepted
+    late = route.shape is None and not route.sparse  # most objects ended above
+    partial = arbiter.partial_overlap(None if fast is None else fast.right, SHAPE.partial_fit)
+    if late and route.on and partial:  # both clouds partial: measured now
+        route = route.measured(template, options, times)
+        if route.scan:  # a scan's front end, its pose to compete with the search's
+            consensus = consensus_register(template, source, options, times, "first", pair, True)
     run = _escalate(pair, nets, fast, model, search_model, options, times, precision)
-    if scan and consensus is not None and arbiter.may_compete(consensus.check):
+    if route.scan and consensus is not None and _competes(consensus.check, late):
         # The search's one-way score can prefer a pose slid along a wall that the verdict
         # sees through. Not on sparse clouds: there the verdict called right search answers
         # worse than consensus poses 60-180 degrees off.
         searched = judge(consensus.grids.check, run.transform[0])
-        if arbiter.ranks_higher(consensus.check, searched):
+        if late:  # a thin object reads as one-sided: the search's exact pose is kept
+            wins = arbiter.better_verdict(consensus.check, searched)
+        else:
+            wins = arbiter.ranks_higher(consensus.check, searched)
+        if wins:
             escalated = float(run.info["escalated_fitness"][0])
             path = "robust/consensus"
             return _consensus_run(consensus, template, source, model, path, escalated)
     return run
 
 
-def _turned(template: np.ndarray, source: np.ndarray, options: RobustOptions) -> bool:
-    """Whether a pair between the sparse and the scans' sizes goes to the search first: its
-    principal axes turned ``search_first_turn_deg`` or more. On 100 ModelNet40 pairs turned
-    up to 180 degrees the fast path held on 23 and was paid for before the search on the
-    rest; the axes flagged 50, of which the fast path would have held 2."""
+def _competes(check: Assessment, late: bool) -> bool:
+    """Whether the front end's pose competes with the search's answer: ``uncertain``
+    (:func:`~masknet.registration.judge.arbiter.may_compete`), or, measured late, also
+    ``likely correct`` (there it has not ended the call)."""
+    return arbiter.may_compete(check) or (late and arbiter.settles(check))
+
+
+class _Route(NamedTuple):
+    """Stage 1 of the module docstring: the pair's class. ``sparse``: a template under
+    ``consensus_below`` points; ``shape``: the template's measured class
+    (:func:`~masknet.registration.judge.shape.classify_template`), None until measured
+    (templates between the sizes are measured once the fast path failed); ``on``: the
+    consensus front end is (``consensus_points`` > 0)."""
+
+    sparse: bool
+    shape: PairShape | None
+    on: bool
+
+    @classmethod
+    def first(cls, template: np.ndarray, options: RobustOptions, times: dict) -> _Route:
+        """The route before any stage: sparse by size; templates of ``consensus_from``
+        points or more measured now (a scan's front end comes before the fast path)."""
+        route = cls(options.is_sparse(len(template)), None, options.consensus_points > 0)
+        if options.is_scan(len(template)):
+            return route.measured(template, options, times)
+        return route
+
+    def measured(self, template: np.ndarray, options: RobustOptions, times: dict) -> _Route:
+        """This route with the template's shape measured (``times["route"]``)."""
+        if self.sparse:
+            return self
+        tic = time.perf_counter()
+        shape = classify_template(template, large=options.is_scan(len(template)))
+        times["route"] = times.get("route", 0.0) + time.perf_counter() - tic
+        return self._replace(shape=shape)
+
+    @property
+    def scan(self) -> bool:
+        """A scan's route: measured as one (sparse templates are not measured)."""
+        return self.shape is not None and self.shape.kind == "scan"
+
+    @property
+    def dense_object(self) -> bool:
+        """An object's route: not sparse, not measured as a scan (the fast path's object
+        accept level and the principal axes' gate)."""
+        return not self.sparse and not self.scan
+
+
+def _turned(
+    template: np.ndarray, source: np.ndarray, options: RobustOptions, route: _Route
+) -> bool:
+    """Whether an object's pair goes to the search first: its principal axes turned
+    ``search_first_turn_deg`` or more. On 100 ModelNet40 pairs turned up to 180 degrees the
+    fast path held on 23 and was paid for before the search on the rest; the axes flagged
+    50, of which the fast path would have held 2."""
     turn = options.search_first_turn_deg
-    if turn is None or not options.is_object(len(template)):
+    if turn is None or not route.dense_object:
         return False
     return principal_turn_deg(template, source) >= turn
 
@@ -224,9 +297,10 @@ def _fast_path(
     options: RobustOptions,
     times: dict[str, float],
     precision: str,
+    accept: float,
 ) -> _Fast:
     """Stage 4 of the module docstring: Mask-ICP on the networks' clouds, ICP with the
-    pair cut-off on the pair's fit view, and the check of its fit."""
+    pair cut-off on the pair's fit view, and the check of its fit (``accept`` ends the call)."""
     template, source = pair.template, pair.source
     icp_options = ICPCriteria()  # the paper's Mask-ICP: 10 iterations, all pairs
     template_net, source_net = nets.clouds()
@@ -269,7 +343,6 @@ def _fast_path(
         return pose, fit, right, converged
 
     transform, fit, right, converged = refined(fast.transform[0])
-    accept = options.fast_accept(len(template))
     if arbiter.accepts(right, accept) and not converged and options.inlier_iterations:
         # Still moving when its iterations ran out, from a start far off: a pose that fits
         # is let settle (on a copy pair it stopped 0.23 degrees short, one step from exact),

@@ -86,7 +86,7 @@ FINE_GRID = 3  # the refinement's second grid: this many times finer
 # twice as fine, it parts them as the refinement's grid does, at 90 ms against 170.
 CHECK_GRID = 2
 CUTS = (1.5, 0.4)  # the refinement's pair cut-offs, in voxels: on the first grid, on the finer
-# Scans (templates of consensus_from points or more) go on to a third cut on the finer grid,
+# Scans (the route's class, masknet.registration.judge.shape) go on to a third cut on the finer grid,
 # judged by the plane-to-plane nearest fit: on 3DMatch draws of 5,000 and 20,000 source
 # points the mean error fell from 1.40 and 1.02 degrees to 0.88 and 0.61 (11.5 and 8.6 cm to
 # 8.9 and 7.0); seven room draws of eight at 5,000 points stayed within 1 degree and 2 cm
@@ -137,7 +137,7 @@ class ConsensusGrids(NamedTuple):
     (``voxel``, input units), the clouds on the check's grid (``template_grid`` (P, 3),
     ``source_grid`` (Q, 3)) and the verdict's view of them (``check``), the refinement's
     cut-offs in voxels (:data:`SCAN_CUTS` for scans, else :data:`CUTS`), and whether the
-    pair is a scan's (a template of ``consensus_from`` points or more).
+    pair is a scan's (the route's class, :mod:`masknet.registration.judge.shape`).
 
     ``check`` is the verdict's view of the check's grid, not of the whole pair
     (``PreparedPair.check()``): on the grid, as given (no even halving), with Open3D's
@@ -183,6 +183,7 @@ def consensus_register(
     times: dict[str, float],
     start: str = "never",
     prepared: PreparedPair | None = None,
+    scan: bool | None = None,
 ) -> ConsensusRun | None:
     """The front end of the module docstring for template (N, 3) and source (M, 3),
     float64, any unit. None where Open3D is missing, a grid leaves too few points for
@@ -192,7 +193,10 @@ def consensus_register(
     takes no part; ``"first"`` is refined and judged first, ends the call where it is ``likely
     correct`` and else competes with RANSAC's pose. Stage times go to ``times``
     (``consensus``). ``prepared``: the call's prepared pair of these clouds, whose grids
-    view this builds or reuses (None: one of its own)."""
+    view this builds or reuses (None: one of its own). ``scan``: refine and judge the pair
+    as a scan's (:data:`SCAN_CUTS`, plane-to-plane); None: by the template's size
+    (:meth:`~masknet.registration.terms.options.RobustOptions.is_scan`). ``"auto"`` passes
+    its route's class (:mod:`masknet.registration.judge.shape`)."""
     if start not in START_POLICIES:
         raise ValueError(f"start must be one of {START_POLICIES}, got {start!r}")
     if not has_open3d():
@@ -201,7 +205,10 @@ def consensus_register(
 
     tic = time.perf_counter()
     pair = PreparedPair(template, source, options.fine_points) if prepared is None else prepared
-    grids = pair.view(("consensus grids", options), lambda: _grids(o3d, template, source, options))
+    scan = options.is_scan(len(template)) if scan is None else scan
+    grids = pair.view(
+        ("consensus grids", options, scan), lambda: _grids(o3d, template, source, options, scan)
+    )
     found = None
     if grids is not None:
         found = _consensus(o3d, grids, options, start)
@@ -210,7 +217,11 @@ def consensus_register(
 
 
 def _grids(
-    o3d: Any, template: np.ndarray, source: np.ndarray, options: RobustOptions
+    o3d: Any,
+    template: np.ndarray,
+    source: np.ndarray,
+    options: RobustOptions,
+    scan: bool | None = None,
 ) -> ConsensusGrids | None:
     """Step 1's grid, the refinement's and the check's (None where the first grid leaves
     too few points for RANSAC, or holds a scene around the template)."""
@@ -228,7 +239,7 @@ def _grids(
         return None
     if len(coarse[1].points) > MAX_SOURCE_SHARE * len(coarse[0].points):
         return None  # an object in a scene: the scene search's work, not this one's
-    scan = options.is_scan(len(template))
+    scan = options.is_scan(len(template)) if scan is None else scan
     # The template's normals on both grids, for point-to-plane ICP: the 30 nearest points
     # within 2 voxels on the first (as the features take them), FINE_NORMALS on the finer.
     search = o3d.geometry.KDTreeSearchParamHybrid

@@ -224,20 +224,22 @@ class RobustOptions:
         the result ``ambiguous``.
     consensus_points: ``"auto"`` only: template points on the grid of the consensus front
         end (:mod:`masknet.registration.stages.consensus`); 0 skips it.
-    consensus_from: ``"auto"`` only: templates of at least this many points (scans) try
-        the consensus front end before the fast path, the pose as given judged first below
-        8 times as many points (:mod:`masknet.registration.stages.auto`).
+    consensus_from: ``"auto"`` only: templates of at least this many points have their
+        shape measured before anything runs (docs/ARCHITECTURE.md, "The routing table":
+        :mod:`masknet.registration.judge.shape`); those measured as scans try the consensus
+        front end before the fast path, the pose as given judged first below 8 times as
+        many points (:mod:`masknet.registration.stages.auto`). Smaller ones are measured
+        only once the fast path has not held.
     consensus_below: ``"auto"`` only: sparse templates, of fewer points than this, try the
         consensus front end before the fast path (0: never). There the fast path holds on
         a fifth to a third of the pairs and the search costs 4-6 times the front end.
-    search_first_turn_deg: ``"auto"`` only: templates between ``consensus_below`` and
-        ``consensus_from`` points whose source's principal axes are turned at least this
+    search_first_turn_deg: ``"auto"`` only: objects (templates of ``consensus_below``
+        points or more not measured as scans) whose source's principal axes are turned at least this
         far from the template's (:func:`masknet.geometry.clouds.principal_turn_deg`) go to
         the search first; the fast path, which starts from the pose as given, seldom holds
         there. None: never.
     object_accept_fitness: ``"auto"`` only: the fit at which the fast path's pose ends the
-        call on templates between ``consensus_below`` and ``consensus_from`` points
-        (``accept_fitness`` elsewhere). There a near-symmetric shape's flip fitted 0.990-0.992
+        call on objects (``accept_fitness`` on scans and sparse clouds). There a near-symmetric shape's flip fitted 0.990-0.992
         and right poses seldom fit under 0.993.
     """
 
@@ -318,10 +320,12 @@ class RobustOptions:
         return max(self.hypothesis_points, source_points // HYPOTHESIS_SHARE)
 
     def is_scan(self, template_points: int) -> bool:
-        """Whether a pair whose template has ``template_points`` points is a scan's, for
-        ``"auto"``: ``consensus_from`` points or more. A scan's consensus front end takes
-        the finer grid's normals from within two voxels, refines at a third cut, judges
-        plane to plane, and questions an unsure RANSAC."""
+        """Whether a template of ``template_points`` points is large enough to have its
+        shape measured before anything runs, for ``"auto"``: ``consensus_from`` points or
+        more (whether it is a scan is measured: :mod:`masknet.registration.judge.shape`).
+        Called directly, :func:`~masknet.registration.stages.consensus.consensus_register`
+        treats such a pair as a scan's: the finer grid's normals from within two voxels, a
+        third cut, the plane-to-plane verdict, an unsure RANSAC questioned."""
         return template_points >= self.consensus_from
 
     def is_sparse(self, template_points: int) -> bool:
@@ -330,13 +334,16 @@ class RobustOptions:
         return template_points < self.consensus_below
 
     def is_object(self, template_points: int) -> bool:
-        """Whether a template of ``template_points`` points is neither sparse nor a scan's,
-        for ``"auto"``: the size of ModelNet40's shapes, where the fast path's accept level
-        and the principal axes' gate were measured."""
+        """Whether a template of ``template_points`` points lies between the sparse and the
+        measured-first sizes: the size of ModelNet40's shapes, where the fast path's accept
+        level and the principal axes' gate were measured. ``"auto"`` calls a template an
+        object by its measured shape (:mod:`masknet.registration.judge.shape`)."""
         return not self.is_sparse(template_points) and not self.is_scan(template_points)
 
     def fast_accept(self, template_points: int) -> float:
-        """The fit at which ``"auto"``'s fast path ends the call for a template of this size."""
+        """The fit at which the fast path ends the call for a template of this size, by its
+        size alone (``"auto"`` takes ``object_accept_fitness`` on the objects its route
+        measures or has not measured yet)."""
         if self.is_object(template_points):
             return self.object_accept_fitness
         return self.accept_fitness

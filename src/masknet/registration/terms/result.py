@@ -72,7 +72,8 @@ class RegistrationResult:
         times: seconds per stage, summed over rounds: ``"sample"`` (subsampling large
             clouds), ``"mask"`` (MaskNet), ``"register"`` (the method), ``"refine"``,
             ``"search"`` (with a scene search) and ``"total"`` (the whole call); ``"auto"``
-            and ``"robust"`` add ``"fast"`` (the fast path's ICP and check),
+            and ``"robust"`` add ``"fast"`` (the fast path's ICP and check), ``"route"``
+            (``"auto"``'s measure of the template's shape) and ``"consensus"`` (its front end),
             ``"features"`` (FPFH), ``"ransac"`` (RANSAC and the early refinement),
             ``"hypotheses"`` and their ``"refine"``.
         info: what the method reported in its last run, as numpy arrays, () or (B,)
