@@ -91,3 +91,95 @@ def test_the_scorer_keeps_no_autograd_graph(pair):
     as_batch = [torch.as_tensor(c, dtype=torch.float32)[None] for c in (template, source)]
     scores = net.scorer("fp32")(*as_batch)
     assert scores.grad_fn is None and not scores.requires_grad
+
+
+# FPFH descriptor inputs (descriptors="fpfh"; Open3D).
+DESCRIBED = SMALL | {"descriptors": "fpfh"}
+
+
+@pytest.fixture
+def surface_pair() -> tuple[np.ndarray, np.ndarray]:
+    """A smooth closed surface (an ellipsoid, 300 points) and a part of it, in metres."""
+    rng = np.random.default_rng(1)
+    unit = rng.normal(size=(300, 3))
+    template = unit / np.linalg.norm(unit, axis=1, keepdims=True) * [1.0, 0.6, 0.3]
+    return template, template[template[:, 0] > -0.3]
+
+
+def _turn(degrees: float) -> np.ndarray:
+    a = np.radians(degrees)
+    about_z = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    about_x = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    return about_z @ about_x
+
+
+def test_descriptors_do_not_change_with_a_turn_or_the_units(surface_pair):
+    pytest.importorskip("open3d")
+    from masknet.models.descriptors import pair_descriptors
+
+    template, source = (torch.as_tensor(c, dtype=torch.float32)[None] for c in surface_pair)
+    t, s = pair_descriptors(template, source)
+    assert t.shape == (1, 300, 34) and s.shape == (1, len(surface_pair[1]), 34)
+    assert t[..., :33].std() > 0.01  # not a constant
+    turn = torch.as_tensor(_turn(40.0), dtype=torch.float32)
+    t_turned, s_turned = pair_descriptors(template, 1000.0 * source @ turn.T + 7.0)
+    for turned, still in ((t_turned, t), (s_turned, s)):
+        # Equal but for float32 rounding, which may move a rare angle to the next bin.
+        off = (turned - still).abs()
+        assert (off < 5e-3).float().mean() > 0.999 and off.max() < 0.05
+
+
+def test_descriptor_inputs_round_trip_and_predict(tmp_path, surface_pair):
+    pytest.importorskip("open3d")
+    model = CrossMaskNet(**DESCRIBED).eval()
+    assert model.config["descriptors"] == "fpfh" and "descriptors" not in CrossMaskNet().config
+    model.save(tmp_path / "w.safetensors")
+    loaded = CrossMaskNet.from_file(tmp_path / "w.safetensors")
+    assert loaded.config == model.config and loaded.descriptors == "fpfh"
+    template, source = surface_pair
+    scores = loaded.predict(template, source, precision="fp32")
+    assert scores.shape == (300,) and ((scores >= 0) & (scores <= 1)).all()
+    np.testing.assert_array_equal(scores, model.predict(template, source, precision="fp32"))
+    batch = model.predict(np.stack([template] * 2), np.stack([source] * 2), precision="fp32")
+    np.testing.assert_allclose(batch[1], scores, atol=1e-5)
+    # The descriptors reach the scores: the same clouds without them score otherwise.
+    plain = CrossMaskNet(**SMALL).eval()
+    plain.load_state_dict(
+        {k: v for k, v in model.state_dict().items() if "edges.0" not in k}, strict=False
+    )
+    assert np.abs(plain.predict(template, source, precision="fp32") - scores).max() > 1e-4
+
+
+def test_descriptor_inputs_without_open3d_are_one_clear_error(monkeypatch, surface_pair):
+    import masknet._open3d
+
+    def broken():
+        raise ImportError("No module named 'open3d'")
+
+    monkeypatch.setattr(masknet._open3d, "_load_open3d", broken)
+    model = CrossMaskNet(**DESCRIBED)  # building needs no Open3D; scoring does
+    with pytest.raises(MaskNetError, match="descriptors='fpfh'.*needs Open3D.*pip install"):
+        model.predict(*surface_pair, precision="fp32")
+
+
+def test_an_unknown_descriptor_is_refused():
+    with pytest.raises(MaskNetError, match="descriptors must be None or one of"):
+        CrossMaskNet(descriptors="shot")
+
+
+def test_a_training_step_with_descriptor_inputs(surface_pair):
+    # `masknet train --model crossmasknet --model-config '{"descriptors": "fpfh"}'`: the
+    # task's step computes the descriptors of each batch and trains through them.
+    pytest.importorskip("open3d")
+    from masknet.data import PairConfig, make_test_pairs
+
+    shapes = np.stack([surface_pair[0] * s for s in (1.0, 0.5, 2.0, 1.5)]).astype(np.float32)
+    batch = make_test_pairs(shapes, 2, PairConfig(), seed=0)
+    task = MaskNetTask(network="crossmasknet", loss="bce", model_config=DESCRIBED)
+    model = task.build_model()
+    loss, metrics = task.step(model, batch, torch.device("cpu"))
+    loss.backward()
+    first = model.encoder.edges[0][0].weight
+    assert first.shape == (8, 2 * (3 + 34))  # [x_j - x_i; x_i], each xyz and descriptors
+    assert first.grad[:, 3:37].abs().sum() > 0
+    assert 0.0 <= metrics["precision"] <= 1.0

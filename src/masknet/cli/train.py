@@ -95,8 +95,9 @@ def _add_network_options(p: argparse.ArgumentParser) -> None:
         metavar="JSON",
         help="keyword arguments of the network class, e.g. "
         '\'{"embedding": 128, "k": 16}\' for dcp, \'{"context": 16}\' for masknet (a '
-        "residual context head over 16 template neighbours and the source's points; "
-        "default: the paper's sizes)",
+        "residual context head over 16 template neighbours and the source's points), "
+        '\'{"descriptors": "fpfh"}\' for crossmasknet (FPFH descriptor inputs beside the '
+        "coordinates; needs Open3D); default: the paper's sizes",
     )
     p.add_argument(
         "--precision",

@@ -19,6 +19,13 @@ comes from"). CrossMaskNet gives each point what a point-wise head cannot see:
 Inputs are centred as MaskNet's (each cloud on its own centroid); clouds are scaled by
 the template's radius in :meth:`predict`, as for MaskNet.
 
+``descriptors="fpfh"`` adds rotation-invariant inputs to the coordinates: each point's FPFH
+descriptor and its distance to the nearest descriptor of the other cloud
+(:mod:`masknet.models.descriptors`; Open3D, the ``open3d`` extra), computed in
+:meth:`forward` from the clouds themselves, so training and every prediction method get
+them with nothing else to pass. A 45-degree turn of the source hides from coordinates
+what such descriptors still show.
+
 forward(template (B, N, 3), source (B, M, 3), logits=False) -> scores (B, N) in [0, 1].
 """
 
@@ -29,6 +36,8 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor, nn
 
+from masknet.errors import MaskNetError
+from masknet.models.descriptors import DESCRIPTOR_CHANNELS, pair_descriptors
 from masknet.models.layers import EdgeConvEncoder, linear_stack, mlp
 from masknet.models.mask_prediction import MaskPredictionMixin, Precision
 from masknet.models.masknet import centre_pair
@@ -79,6 +88,8 @@ class CrossMaskNet(MaskPredictionMixin, SafetensorsWeights, nn.Module):
         heads: attention heads.
         keys: at most this many points of the other cloud serve as keys in each step.
         head_channels: widths of the scoring head after [feature; source feature].
+        descriptors: None (coordinates only) or ``"fpfh"``: per-point FPFH descriptors and
+            descriptor-match distances beside the coordinates (see the module's docs).
 
     Weights: :meth:`save`, :meth:`from_file`, :meth:`pretrained` (shipped files
     ``resources/weights/crossmasknet_<name>.safetensors``). The prediction methods are
@@ -96,6 +107,7 @@ class CrossMaskNet(MaskPredictionMixin, SafetensorsWeights, nn.Module):
         heads: int = 4,
         keys: int = 256,
         head_channels: Sequence[int] = (64, 32),
+        descriptors: str | None = None,
     ):
         super().__init__()
         if k < 2 or layers < 0 or features % heads:
@@ -103,6 +115,12 @@ class CrossMaskNet(MaskPredictionMixin, SafetensorsWeights, nn.Module):
                 f"need k >= 2, layers >= 0 and features divisible by heads; got k={k}, "
                 f"layers={layers}, features={features}, heads={heads}"
             )
+        if descriptors is not None and descriptors not in DESCRIPTOR_CHANNELS:
+            raise MaskNetError(
+                f"descriptors must be None or one of {sorted(DESCRIPTOR_CHANNELS)}, "
+                f"got {descriptors!r}"
+            )
+        self.descriptors = descriptors
         self.config = {
             "channels": list(channels),
             "features": features,
@@ -112,7 +130,10 @@ class CrossMaskNet(MaskPredictionMixin, SafetensorsWeights, nn.Module):
             "keys": keys,
             "head_channels": list(head_channels),
         }
-        self.encoder = EdgeConvEncoder(channels, features, k=k, dynamic=False)
+        if descriptors is not None:  # only then: earlier files' configs stay as they were
+            self.config["descriptors"] = descriptors
+        extra = DESCRIPTOR_CHANNELS[descriptors] if descriptors else 0
+        self.encoder = EdgeConvEncoder(channels, features, k=k, dynamic=False, extra_channels=extra)
         # Per layer: template points attend to the source's, then source to template's.
         self.to_source = nn.ModuleList(AttentionStep(features, heads, keys) for _ in range(layers))
         self.to_template = nn.ModuleList(
@@ -121,9 +142,15 @@ class CrossMaskNet(MaskPredictionMixin, SafetensorsWeights, nn.Module):
         self.head = linear_stack([2 * features, *head_channels, 1])
 
     def forward(self, template: Tensor, source: Tensor, logits: bool = False) -> Tensor:
-        """(B, N, 3), (B, M, 3) -> scores (B, N) in [0, 1], or logits with ``logits=True``."""
+        """(B, N, 3), (B, M, 3) -> scores (B, N) in [0, 1], or logits with ``logits=True``.
+
+        With ``descriptors`` set, they are computed here from the clouds (on the CPU,
+        without autograd)."""
+        t_extra = s_extra = None
+        if self.descriptors is not None:
+            t_extra, s_extra = pair_descriptors(template, source, self.descriptors)
         template, source = centre_pair(template, source, "each")
-        t, s = self.encoder(template), self.encoder(source)
+        t, s = self.encoder(template, t_extra), self.encoder(source, s_extra)
         for to_source, to_template in zip(self.to_source, self.to_template, strict=True):
             t, s = to_source(t, s), to_template(s, t)
         pooled = s.amax(dim=1, keepdim=True).expand(-1, t.shape[1], -1)

@@ -129,7 +129,12 @@ class EdgeConvEncoder(nn.Module):
     every layer: one 3-D KD-tree search per cloud instead of a pairwise distance matrix in
     feature space per layer, for networks that must run fast on a CPU.
 
-    forward: points (B, N, 3) -> features (B, N, out_channels); k is clamped to N.
+    ``extra_channels``: per-point inputs beside the coordinates (e.g. descriptors), given
+    to forward as ``extra`` (B, N, extra_channels); with ``dynamic=False`` the graph is
+    still the points' own.
+
+    forward: points (B, N, 3), extra (B, N, E) or None -> features (B, N, out_channels);
+    k is clamped to N.
     """
 
     def __init__(
@@ -138,9 +143,10 @@ class EdgeConvEncoder(nn.Module):
         out_channels: int = 512,
         k: int = 20,
         dynamic: bool = True,
+        extra_channels: int = 0,
     ):
         super().__init__()
-        dims = [3, *channels]
+        dims = [3 + extra_channels, *channels]
         self.k = k
         self.dynamic = dynamic
         self.edges = nn.ModuleList(
@@ -151,9 +157,10 @@ class EdgeConvEncoder(nn.Module):
             nn.Linear(sum(channels), out_channels, bias=False), nn.LayerNorm(out_channels)
         )
 
-    def forward(self, points: Tensor) -> Tensor:
+    def forward(self, points: Tensor, extra: Tensor | None = None) -> Tensor:
         k = min(self.k, points.shape[1])
-        x, outputs = points, []
+        x = points if extra is None else torch.cat([points, extra.to(points.dtype)], -1)
+        outputs = []
         graph = None if self.dynamic else neighbour_index(points, k)
         for edge in self.edges:
             linear, norm = edge

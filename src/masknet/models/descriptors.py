@@ -1,0 +1,100 @@
+"""Rotation-invariant per-point descriptors for the mask networks' inputs.
+
+A network that reads coordinates alone sees a turned source as another shape; a local
+descriptor of the surface around each point does not change with the turn. Ranking the
+template points by how far their FPFH descriptor lies from the nearest source descriptor
+(no learning at all) already picks the seen points with top-k precision 0.84 on ModelNet40
+pairs turned up to 45 degrees (docs/RESULTS.md, CrossMaskNet).
+
+:func:`pair_descriptors` gives each point of both clouds of a batch of pairs:
+
+* its FPFH descriptor (Rusu et al. 2009; Open3D's, 33 bins in three 11-bin histograms,
+  each summing to 200, divided here by 200), at a scale from the cloud's own median point
+  spacing (:func:`~masknet.geometry.clouds.median_spacing`), so units do not matter, with
+  normals turned towards the cloud's centroid (their sign then follows the surface, not
+  the frame, as the registration's FPFH);
+* one more channel: the distance from its descriptor to the nearest descriptor of the
+  other cloud (small: some point of the other cloud looks like this one).
+
+Open3D is the ``open3d`` extra; without it the descriptors raise one MaskNetError naming it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from masknet._open3d import open3d_threads, require_open3d
+from masknet.errors import MaskNetError
+from masknet.geometry.clouds import median_spacing
+from masknet.geometry.open3d_clouds import to_open3d
+
+__all__ = ["DESCRIPTOR_CHANNELS", "fpfh_descriptors", "pair_descriptors"]
+
+# Per-point input channels each kind of descriptor adds: FPFH's 33 and the match distance.
+DESCRIPTOR_CHANNELS = {"fpfh": 34}
+# The FPFH scale in median spacings (normals from points within 2 scales, features from
+# points within 5) and the most neighbours a feature reads: 30 instead of Open3D's usual
+# 100 costs 10 ms a 1,024-point cloud instead of 38 (one thread), and the descriptors'
+# ranking alone picks the seen points with top-k precision 0.824 instead of 0.839 (60 test
+# pairs).
+FPFH_SPACINGS = 2.0
+FPFH_NEIGHBOURS = 30
+# What needs Open3D, for the error raised when it does not import.
+FEATURE = "CrossMaskNet's FPFH descriptors (descriptors='fpfh')"
+
+
+def fpfh_descriptors(points: np.ndarray, o3d: object | None = None) -> np.ndarray:
+    """FPFH descriptors (P, 33) float32 in [0, 1] of a cloud ``points`` (P, 3), in any units
+    (the scale is :data:`FPFH_SPACINGS` of the cloud's median spacing); a cloud of one
+    repeated point gets zeros. ``o3d``: the Open3D module where the caller has it."""
+    o3d = require_open3d(FEATURE) if o3d is None else o3d
+    cloud = np.ascontiguousarray(points, dtype=np.float64)
+    spacing = median_spacing(cloud) if len(cloud) > 1 else 0.0
+    if spacing <= 0:
+        return np.zeros((len(cloud), 33), np.float32)
+    # The settings of the registration's FPFH (solvers.correspondences.fpfh_features, in
+    # the layer below this one): normals from points within 2 scales (at most 30), turned
+    # towards the centroid; features from points within 5.
+    scale = FPFH_SPACINGS * spacing
+    search = o3d.geometry.KDTreeSearchParamHybrid
+    pc = to_open3d(cloud, feature=FEATURE)
+    pc.estimate_normals(search(radius=2 * scale, max_nn=30))
+    pc.orient_normals_towards_camera_location(cloud.mean(0))
+    feature = o3d.pipelines.registration.compute_fpfh_feature(
+        pc, search(radius=5 * scale, max_nn=FPFH_NEIGHBOURS)
+    )
+    return (np.asarray(feature.data).T / 200.0).astype(np.float32)
+
+
+def _with_match(own: np.ndarray, other: np.ndarray) -> np.ndarray:
+    """(P, 34): ``own`` (P, 33) and each row's distance to the nearest row of ``other``."""
+    # A few hundred to a thousand rows each: one distance matrix, no 33-D tree.
+    distance = torch.cdist(torch.from_numpy(own), torch.from_numpy(other)).amin(1).numpy()
+    return np.concatenate([own, distance[:, None]], axis=1)
+
+
+def pair_descriptors(template: Tensor, source: Tensor, kind: str = "fpfh") -> tuple[Tensor, Tensor]:
+    """Descriptors of each point of pairs (B, N, 3) and (B, M, 3): (B, N, C) and (B, M, C)
+    float32 on the clouds' device, C = :data:`DESCRIPTOR_CHANNELS` ``[kind]`` (see the
+    module's docs). Computed on the CPU (Open3D, on torch's thread count), without autograd.
+
+    Raises:
+        MaskNetError: an unknown ``kind``, or Open3D missing.
+    """
+    if kind not in DESCRIPTOR_CHANNELS:
+        raise MaskNetError(
+            f"descriptors must be one of {sorted(DESCRIPTOR_CHANNELS)}, got {kind!r}"
+        )
+    o3d = require_open3d(FEATURE)
+    t_all = template.detach().float().cpu().numpy()
+    s_all = source.detach().float().cpu().numpy()
+    t_out, s_out = [], []
+    with open3d_threads(torch.get_num_threads()):
+        for t, s in zip(t_all, s_all, strict=True):
+            ft, fs = fpfh_descriptors(t, o3d), fpfh_descriptors(s, o3d)
+            t_out.append(_with_match(ft, fs))
+            s_out.append(_with_match(fs, ft))
+    as_tensor = lambda rows: torch.from_numpy(np.stack(rows)).to(template.device)  # noqa: E731
+    return as_tensor(t_out), as_tensor(s_out)
