@@ -1,5 +1,7 @@
 #!/usr/bin/env bash
-# The relay: CrossMaskNet's long training run, carried across stretches of work and machines.
+# The relay: CrossMaskNet's long training run (with FPFH descriptor inputs), carried across
+# stretches of work and machines. The first run, on coordinates alone, is kept in
+# relay/crossmasknet_modelnet40/ (stopped: the descriptor inputs learn far faster).
 #
 #   scripts/relay.sh start      resume the run in the background (nohup nice), logging to train.log
 #   scripts/relay.sh pause      SIGSTOP it (while anything is timed)
@@ -7,13 +9,13 @@
 #   scripts/relay.sh stop       SIGTERM: it saves where it stands (mid-epoch too) and exits
 #   scripts/relay.sh status     running or not, and the last epoch logged
 #
-# Everything the run needs to go on is in relay/crossmasknet_modelnet40/: run.json (the
+# Everything the run needs to go on is in relay/crossmasknet_fpfh_modelnet40/: run.json (the
 # configuration), checkpoint.safetensors (weights, optimiser, schedule position, RNG, the
 # unfinished epoch's progress), log.csv, curve.png and train.log. Commit that folder after
 # `stop`. `start` on a fresh clone continues from the committed checkpoint.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-RUN=relay/crossmasknet_modelnet40
+RUN=relay/crossmasknet_fpfh_modelnet40
 PIDFILE="$RUN/.pid"
 DATA="${MASKNET_DATA:-../shared/data/modelnet40/modelnet40_1024_int16.npz}"
 MASKNET="${MASKNET_BIN:-.venv/bin/masknet}"
@@ -27,8 +29,9 @@ start)
     mkdir -p "$RUN"
     # The recipe: fixed for the whole run (--resume refuses any change but --epochs,
     # --threads, --max-minutes and --checkpoint-minutes).
-    nohup nice -n 19 "$MASKNET" train --model crossmasknet --loss bce --data "$DATA" \
-        --output "$RUN" --epochs 40 --batch-size 32 --lr 5e-4 --lr-schedule cosine \
+    nohup nice -n 19 "$MASKNET" train --model crossmasknet --model-config '{"descriptors": "fpfh"}' \
+        --loss bce --data "$DATA" \
+        --output "$RUN" --epochs 20 --batch-size 32 --lr 5e-4 --lr-schedule cosine \
         --precision fp32 --threads 2 --seed 0 --checkpoint-minutes 10 --resume \
         >>"$RUN/train.log" 2>&1 &
     echo $! >"$PIDFILE"
