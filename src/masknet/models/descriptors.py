@@ -28,6 +28,7 @@ from torch import Tensor
 from masknet._open3d import open3d_threads, require_open3d
 from masknet.errors import MaskNetError
 from masknet.geometry.clouds import median_spacing
+from masknet.geometry.features import fpfh_features
 from masknet.geometry.open3d_clouds import to_open3d
 
 __all__ = ["DESCRIPTOR_CHANNELS", "fpfh_descriptors", "pair_descriptors"]
@@ -54,17 +55,10 @@ def fpfh_descriptors(points: np.ndarray, o3d: object | None = None) -> np.ndarra
     spacing = median_spacing(cloud) if len(cloud) > 1 else 0.0
     if spacing <= 0:
         return np.zeros((len(cloud), 33), np.float32)
-    # The settings of the registration's FPFH (solvers.correspondences.fpfh_features, in
-    # the layer below this one): normals from points within 2 scales (at most 30), turned
-    # towards the centroid; features from points within 5.
-    scale = FPFH_SPACINGS * spacing
-    search = o3d.geometry.KDTreeSearchParamHybrid
+    # Normals from points within 2 scales (at most 30), turned towards the centroid;
+    # features from points within 5: the registration's settings.
     pc = to_open3d(cloud, feature=FEATURE)
-    pc.estimate_normals(search(radius=2 * scale, max_nn=30))
-    pc.orient_normals_towards_camera_location(cloud.mean(0))
-    feature = o3d.pipelines.registration.compute_fpfh_feature(
-        pc, search(radius=5 * scale, max_nn=FPFH_NEIGHBOURS)
-    )
+    feature = fpfh_features(o3d, pc, FPFH_SPACINGS * spacing, FPFH_NEIGHBOURS, orient=True)
     return (np.asarray(feature.data).T / 200.0).astype(np.float32)
 
 
