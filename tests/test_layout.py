@@ -414,8 +414,8 @@ def test_a_moved_name_still_imports_with_a_warning_naming_its_new_place(old, nam
 
 # --- No pose is compared with another outside registration/arbiter.py ------------------
 #
-# The rule, by AST over ``src/masknet/registration/**`` (every top-level function and every
-# method), arbiter.py aside:
+# The rule, by AST over ``src/masknet/registration/**`` and ``src/masknet/tracking/**``
+# (every top-level function and every method), arbiter.py aside:
 #
 # * A **measure** is an attribute or a local name one of whose ``_``-separated words is a
 #   measure word (score, fitness, fit, fits, rmse, verdict, overlap, rank, coverage:
@@ -583,12 +583,15 @@ def decisions(fn: ast.AST) -> list[str]:
     return found
 
 
+CHECKED = ("registration/", "tracking/")  # the folders whose poses only the arbiter compares
+
+
 def registration_decisions() -> set[tuple[str, str]]:
-    """("file:function", source) of every decision in ``src/masknet/registration``."""
+    """("file:function", source) of every decision in the folders of CHECKED."""
     return {
         (where, text)
         for where, fn in top_level_functions()
-        if where.startswith("registration/")
+        if where.startswith(CHECKED)
         for text in decisions(fn)
     }
 
@@ -599,6 +602,17 @@ def test_no_pose_is_compared_outside_the_arbiter():
     assert not outside, f"decisions between poses outside arbiter.py: {outside}"
     stale = sorted(set(ALLOWED) - found)
     assert not stale, f"allowed decisions that are gone (drop them from ALLOWED): {stale}"
+
+
+def test_the_tracker_is_checked_and_ranks_through_the_arbiter():
+    """The tracker's files are read, and its pick of a candidate is the arbiter's rule
+    (its former key, verdict then fitness, was a decision)."""
+    checked = {where for where, _ in top_level_functions() if where.startswith(CHECKED)}
+    assert "tracking/tracker.py:_best" in checked
+    assert _found("def _best(c):\n    return min(c, key=lambda c: (RANKS[c.verdict], -c.fitness))")
+    tracker = (SRC / "tracking" / "tracker.py").read_text()
+    best = next(n for n in ast.parse(tracker).body if getattr(n, "name", "") == "_best")
+    assert "best_judged" in called_names(best)
 
 
 def test_the_arbiter_holds_the_decisions():

@@ -39,7 +39,8 @@ import numpy as np
 from masknet.errors import MaskNetError
 from masknet.geometry.clouds import MIN_POINTS, centroid_radius, median_spacing
 from masknet.io_checks import ARRAY_NONFINITE_HINT, check_cloud
-from masknet.registration.assessment import VERDICTS
+from masknet.registration.arbiter import best_judged
+from masknet.registration.assessment import Assessment
 
 __all__ = ["STATES", "TrackResult", "Tracker", "points_near", "track"]
 
@@ -176,11 +177,14 @@ class Tracker:
         points = self._checked(frame, name or f"frame {index}")
         if points is None:
             self._history = []
-            found = _Found(NO_POSE, 0.0, "", 0, "the frame holds fewer than 3 points")
+            found = _Found(NO_POSE, None, 0, "the frame holds fewer than 3 points")
             state = "lost"
         else:
             state, found = self._step(points)
-        return TrackResult(index, *found[:3], state, time.perf_counter() - start, *found[3:])
+        seconds = time.perf_counter() - start
+        return TrackResult(
+            index, found.transform, found.fitness, found.verdict, state, seconds, *found[2:]
+        )
 
     def _checked(self, frame: np.ndarray, name: str) -> np.ndarray | None:
         from masknet.registration.units import check_units
@@ -253,9 +257,10 @@ class Tracker:
 
         if len(near) < self.min_points:
             reason = f"{how}only {len(near)} frame points near the object"
-            return _Found(transform, 0.0, "likely wrong", len(near), reason)
+            unjudged = Assessment("likely wrong", reason, 0.0, 0.0, 0.0, *[np.nan] * 3)
+            return _Found(transform, unjudged, len(near), reason)
         check = assess_registration(self.template, near, transform)
-        return _Found(transform, check.fitness, check.verdict, len(near), how + check.reason)
+        return _Found(transform, check, len(near), how + check.reason)
 
     def _follow(self, points: np.ndarray, predicted: np.ndarray) -> _Found:
         """Point-to-plane ICP from ``predicted`` (4, 4) on the frame's points near it."""
@@ -294,13 +299,22 @@ def points_near(
 
 
 class _Found(NamedTuple):
-    """A pose and its verdict, before the state is decided."""
+    """A pose and its verdict (None for an empty frame), before the state is decided."""
 
     transform: np.ndarray
-    fitness: float
-    verdict: str
+    check: Assessment | None
     points: int
     reason: str
+
+    @property
+    def verdict(self) -> str:
+        """The verdict's words; ``""`` without one."""
+        return "" if self.check is None else self.check.verdict
+
+    @property
+    def fitness(self) -> float:
+        """The verdict's fitness (0 without one)."""
+        return 0.0 if self.check is None else self.check.fitness
 
 
 def _as_pose(value: Any) -> np.ndarray:
@@ -332,13 +346,11 @@ def _turned(transform: np.ndarray, centre: np.ndarray) -> list[np.ndarray]:
 # Frame-to-frame motions beyond these are jumps, not velocities (the sequences move a few
 # degrees and per cent of the radius a frame).
 MAX_STEP_DEG, MAX_STEP_SHIFT = 10.0, 0.1
-# The verdicts best first, as the verdict orders them (assessment.VERDICTS), then no pose.
-RANKS = {verdict: rank for rank, verdict in enumerate((*VERDICTS, ""))}
 
 
 def _best(candidates: Iterable[_Found]) -> _Found:
-    """The candidate with the best verdict, then the best fitness."""
-    return min(candidates, key=lambda c: (RANKS[c.verdict], -c.fitness))
+    """The judged candidate the arbiter ranks best (its verdict, then its overlap fit)."""
+    return best_judged(candidates, lambda c: c.check)
 
 
 def _predicted(history: list[np.ndarray], centre: np.ndarray, radius: float) -> np.ndarray:
