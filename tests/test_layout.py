@@ -472,6 +472,13 @@ ALLOWED = {
     ("registration/assessment.py:judge", "min(source_fit, template_fit)"): (
         "the verdict's overlap fit of one pose: the worse of its two directions"
     ),
+    ("tracking/tracker.py:Tracker", "self._uncertain < self.max_uncertain"): (
+        "a count of uncertain frames in a row against the caller's limit (``self`` is read as"
+        " a measure where a method assigns it from a verdict)"
+    ),
+    ("tracking/tracker.py:_quick_check", "min(source_fit, template_fit)"): (
+        "the tracker's quick verdict's overlap fit of one pose: the worse of its two directions"
+    ),
     ("registration/correspondences.py:ransac_poses", "max(best, int(near.sum(1).max()))"): (
         "RANSAC's stopping rule (how many draws): the best inlier share so far"
     ),

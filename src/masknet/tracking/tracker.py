@@ -9,17 +9,20 @@ Each frame is one of four states:
   it from the last two poses; the frame is cut to the points within the template's radius
   times ``margin`` of the predicted centre (clutter and far surfaces do not pull the fit);
   point-to-plane ICP (Open3D) refines the prediction on them; the verdict on those points
-  keeps the track (``likely correct``, or ``uncertain`` for at most ``max_uncertain``
+  (a quick check of the overlap fit on most frames, the full verdict on every
+  ``FULL_EVERY``-th and where the quick one is not clearly right) keeps the track (``likely correct``, or ``uncertain`` for at most ``max_uncertain``
   frames in a row; then the frame is searched, and where no search finds a ``likely
   correct`` pose the track goes on, ``uncertain``, and searches again after as many);
 * ``"refound"``: the track slipped (too few points near the prediction, a ``likely
-  wrong`` verdict, too many ``uncertain`` ones) and a search found the object again,
+  wrong`` verdict, too many ``uncertain`` ones, ICP carried the pose beyond a frame's
+  motion) and a search found the object again,
   ``likely correct``: first ICP from the last trusted pose turned about the template's
   axes (a sudden turn, or the object back where it was hidden: a few dozen short ICPs),
   then the full default on the whole frame;
 * ``"lost"``: no search found a pose that the verdict calls ``likely correct``; the pose
   is the best guess, never to be trusted (the verdict says how bad). The next frame is
-  searched again.
+  searched again; where the guess read ``uncertain``, ICP from it first (``tracked`` if
+  that reads ``likely correct``).
 
 Every pose is a (4, 4) transform in :func:`masknet.register`'s convention
 (:mod:`masknet.geometry.se3`): it maps **frame points into the template frame**,
@@ -166,6 +169,7 @@ class Tracker:
         self._uncertain = 0
         self._frame = 0
         self._since_full = 0  # tracked frames since the last full verdict
+        self._guess = False  # whether the history is a lost frame's uncertain guess
         self._last = None  # the last trusted pose: a later search is a re-find, near it first
 
     def update(self, frame: np.ndarray, name: str | None = None) -> TrackResult:
@@ -228,22 +232,26 @@ class Tracker:
             why = f"the track slipped ({moved}{followed.reason}); "
         found = self._refind(points, why)
         if found.verdict != "likely correct":
-            if followed is not None and followed.verdict == "uncertain":
+            if followed is not None and followed.verdict == "uncertain" and not self._guess:
                 # No better pose anywhere: the track goes on, uncertain, and searches
                 # again after max_uncertain more frames.
                 self._uncertain = 0
                 return "tracked", self._keep(followed)
-            self._history = []
+            # An uncertain best guess is where the next frame looks first: ICP from it
+            # that reads likely correct takes the track up; anything less searches again.
+            self._history = [found.transform] if found.verdict == "uncertain" else []
+            self._uncertain, self._guess = self.max_uncertain, True
             return "lost", found
         state = "refound" if self._last is not None else "found"
         self._history, self._uncertain, self._last = [found.transform], 0, found.transform
-        self._since_full = 0
+        self._since_full, self._guess = 0, False
         return state, found
 
     def _keep(self, followed: _Found) -> _Found:
         """Take a tracked pose: it joins the history that predicts the next."""
         self._uncertain = 0 if followed.verdict == "likely correct" else self._uncertain + 1
         self._since_full = 0 if followed.full else self._since_full + 1
+        self._guess = False
         self._history = [*self._history[-1:], followed.transform]
         self._last = followed.transform
         return followed
