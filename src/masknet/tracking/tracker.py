@@ -218,7 +218,9 @@ class Tracker:
         why, followed = "", None
         if self._history:
             predicted = _predicted(self._history, self.centre, self.radius)
-            followed = self._follow(points, predicted, self._since_full + 1 < FULL_EVERY)
+            # A lost frame's guess is taken up on the full verdict only.
+            quick = not self._guess and self._since_full + 1 < FULL_EVERY
+            followed = self._follow(points, predicted, quick)
             # ICP carried the pose further than a frame's motion: a jump, or a slide into
             # another fit (a near-symmetric shape turned about its axis); search near.
             jumped = _beyond_step(followed.transform, predicted, self.centre, self.radius)
