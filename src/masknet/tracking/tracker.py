@@ -10,9 +10,10 @@ Each frame is one of four states:
   times ``margin`` of the predicted centre (clutter and far surfaces do not pull the fit);
   point-to-plane ICP (Open3D) refines the prediction on them; the verdict on those points
   (a quick check of the overlap fit on most frames, the full verdict on every
-  ``FULL_EVERY``-th and where the quick one is not clearly right) keeps the track (``likely correct``, or ``uncertain`` for at most ``max_uncertain``
-  frames in a row; then the frame is searched, and where no search finds a ``likely
-  correct`` pose the track goes on, ``uncertain``, and searches again after as many);
+  ``FULL_EVERY``-th and where the quick one is not clearly right) keeps the track
+  (``likely correct``, or ``uncertain`` for at most ``max_uncertain`` frames in a row;
+  then the frame is searched, and where no search finds a ``likely correct`` pose the
+  track goes on, ``uncertain``, and searches again after as many);
 * ``"refound"``: the track slipped (too few points near the prediction, a ``likely
   wrong`` verdict, too many ``uncertain`` ones, ICP carried the pose beyond a frame's
   motion) and a search found the object again,
