@@ -460,8 +460,8 @@ def test_a_moved_name_still_imports_with_a_warning_naming_its_new_place(old, nam
 
 # --- No pose is compared with another outside registration/judge/arbiter.py ------------------
 #
-# The rule, by AST over ``src/masknet/registration/**`` (every top-level function and every
-# method), arbiter.py aside:
+# The rule, by AST over ``src/masknet/registration/**`` and ``src/masknet/tracking/**``
+# (every top-level function and every method), arbiter.py aside:
 #
 # * A **measure** is an attribute or a local name one of whose ``_``-separated words is a
 #   measure word (score, fitness, fit, fits, rmse, verdict, overlap, rank, coverage:
@@ -517,6 +517,13 @@ ARBITER = "registration/judge/arbiter.py:"
 ALLOWED = {
     ("registration/judge/assessment.py:judge", "min(source_fit, template_fit)"): (
         "the verdict's overlap fit of one pose: the worse of its two directions"
+    ),
+    ("tracking/tracker.py:Tracker", "self._uncertain < self.max_uncertain"): (
+        "a count of uncertain frames in a row against the caller's limit (``self`` is read as"
+        " a measure where a method assigns it from a verdict)"
+    ),
+    ("tracking/tracker.py:_quick_check", "min(source_fit, template_fit)"): (
+        "the tracker's quick verdict's overlap fit of one pose: the worse of its two directions"
     ),
     ("registration/solvers/correspondences.py:ransac_poses", "max(best, int(near.sum(1).max()))"): (
         "RANSAC's stopping rule (how many draws): the best inlier share so far"
@@ -629,12 +636,15 @@ def decisions(fn: ast.AST) -> list[str]:
     return found
 
 
+CHECKED = ("registration/", "tracking/")  # the folders whose poses only the arbiter compares
+
+
 def registration_decisions() -> set[tuple[str, str]]:
-    """("file:function", source) of every decision in ``src/masknet/registration``."""
+    """("file:function", source) of every decision in the folders of CHECKED."""
     return {
         (where, text)
         for where, fn in top_level_functions()
-        if where.startswith("registration/")
+        if where.startswith(CHECKED)
         for text in decisions(fn)
     }
 
@@ -645,6 +655,17 @@ def test_no_pose_is_compared_outside_the_arbiter():
     assert not outside, f"decisions between poses outside arbiter.py: {outside}"
     stale = sorted(set(ALLOWED) - found)
     assert not stale, f"allowed decisions that are gone (drop them from ALLOWED): {stale}"
+
+
+def test_the_tracker_is_checked_and_ranks_through_the_arbiter():
+    """The tracker's files are read, and its pick of a candidate is the arbiter's rule
+    (its former key, verdict then fitness, was a decision)."""
+    checked = {where for where, _ in top_level_functions() if where.startswith(CHECKED)}
+    assert "tracking/tracker.py:_best" in checked
+    assert _found("def _best(c):\n    return min(c, key=lambda c: (RANKS[c.verdict], -c.fitness))")
+    tracker = (SRC / "tracking" / "tracker.py").read_text()
+    best = next(n for n in ast.parse(tracker).body if getattr(n, "name", "") == "_best")
+    assert "best_judged" in called_names(best)
 
 
 def test_the_arbiter_holds_the_decisions():

@@ -18,19 +18,22 @@ def sequence():
 
 
 def test_the_truth_scores_all_within_and_a_shifted_pose_none(sequence):
-    truth = [(t, True, 0.01) for t in sequence.truth]
+    truth = [(t, True, 0.01 * (1 + k), k > 0) for k, t in enumerate(sequence.truth)]
     row = score(sequence, truth)
     assert row["within"] == 1 and row["frames_to_refind"] == 0 and row["trusted_wrong"] == 0
-    assert row["hidden_not_trusted"] == 0 and row["ms_per_frame"] == pytest.approx(10)
+    assert row["hidden_not_trusted"] == 0 and row["ms_per_frame"] == pytest.approx(35)
+    assert row["median_ms"] == pytest.approx(40)  # frames 1-5 timed: 20-60 ms
+    sizes = [len(f) for f in sequence.frames]
+    assert row["scene_points"] == [min(sizes), max(sizes)]
     shifted = np.array(sequence.truth)
     shifted[:, :3, 3] += 0.3  # 30% of the radius off, and trusted
-    row = score(sequence, [(t, True, 0.0) for t in shifted])
+    row = score(sequence, [(t, True, 0.0, True) for t in shifted])
     assert row["within"] == 0 and row["frames_to_refind"] is None and row["trusted_wrong"] == 1
 
 
 def test_no_pose_on_the_hidden_frames_counts_as_honest(sequence):
     answers = [
-        (np.full((4, 4), np.nan), False, 0.0) if hidden else (t, True, 0.0)
+        (np.full((4, 4), np.nan), False, 0.0, True) if hidden else (t, True, 0.0, True)
         for t, hidden in zip(sequence.truth, sequence.occluded, strict=True)
     ]
     row = score(sequence, answers)

@@ -9,17 +9,21 @@ Each frame is one of four states:
   it from the last two poses; the frame is cut to the points within the template's radius
   times ``margin`` of the predicted centre (clutter and far surfaces do not pull the fit);
   point-to-plane ICP (Open3D) refines the prediction on them; the verdict on those points
-  keeps the track (``likely correct``, or ``uncertain`` for at most ``max_uncertain``
-  frames in a row; then the frame is searched, and where no search finds a ``likely
-  correct`` pose the track goes on, ``uncertain``, and searches again after as many);
+  (a quick check of the overlap fit on most frames, the full verdict on every
+  ``FULL_EVERY``-th and where the quick one is not clearly right) keeps the track
+  (``likely correct``, or ``uncertain`` for at most ``max_uncertain`` frames in a row;
+  then the frame is searched, and where no search finds a ``likely correct`` pose the
+  track goes on, ``uncertain``, and searches again after as many);
 * ``"refound"``: the track slipped (too few points near the prediction, a ``likely
-  wrong`` verdict, too many ``uncertain`` ones) and a search found the object again,
+  wrong`` verdict, too many ``uncertain`` ones, ICP carried the pose beyond a frame's
+  motion) and a search found the object again,
   ``likely correct``: first ICP from the last trusted pose turned about the template's
   axes (a sudden turn, or the object back where it was hidden: a few dozen short ICPs),
   then the full default on the whole frame;
 * ``"lost"``: no search found a pose that the verdict calls ``likely correct``; the pose
   is the best guess, never to be trusted (the verdict says how bad). The next frame is
-  searched again.
+  searched again; where the guess read ``uncertain``, ICP from it first (``tracked`` if
+  that reads ``likely correct``).
 
 Every pose is a (4, 4) transform in :func:`masknet.register`'s convention
 (:mod:`masknet.geometry.se3`): it maps **frame points into the template frame**,
@@ -39,7 +43,8 @@ import numpy as np
 from masknet.errors import MaskNetError
 from masknet.geometry.clouds import MIN_POINTS, centroid_radius, median_spacing
 from masknet.io_checks import ARRAY_NONFINITE_HINT, check_cloud
-from masknet.registration.judge.assessment import VERDICTS
+from masknet.registration.judge.arbiter import best_judged
+from masknet.registration.judge.assessment import Assessment
 
 __all__ = ["STATES", "TrackResult", "Tracker", "points_near", "track"]
 
@@ -52,6 +57,11 @@ MAX_POINTS = 4096  # the cut-out frame is brought to this many points (evenly) f
 NO_POSE = np.full((4, 4), np.nan)
 MARGIN = 1.5  # the frame is cut to this many template radii around the predicted centre
 MIN_NEAR = 30  # fewer frame points near the object: it is hidden or out of view
+# A tracked frame's verdict: the quick check (the overlap fit both ways at the pose, the
+# verdict's first rule) where it reads CORRECT_FIT or more; the full verdict (its nearest
+# fit and slide search, 5-10 times the cost) where it does not, on every FULL_EVERY-th
+# tracked frame (a slow drift along a loosely pinned motion), and after a search.
+FULL_EVERY = 5
 
 
 class TrackResult(NamedTuple):
@@ -159,6 +169,8 @@ class Tracker:
         self._history: list[np.ndarray] = [] if self._start is None else [self._start]
         self._uncertain = 0
         self._frame = 0
+        self._since_full = 0  # tracked frames since the last full verdict
+        self._guess = False  # whether the history is a lost frame's uncertain guess
         self._last = None  # the last trusted pose: a later search is a re-find, near it first
 
     def update(self, frame: np.ndarray, name: str | None = None) -> TrackResult:
@@ -176,11 +188,14 @@ class Tracker:
         points = self._checked(frame, name or f"frame {index}")
         if points is None:
             self._history = []
-            found = _Found(NO_POSE, 0.0, "", 0, "the frame holds fewer than 3 points")
+            found = _Found(NO_POSE, None, 0, "the frame holds fewer than 3 points")
             state = "lost"
         else:
             state, found = self._step(points)
-        return TrackResult(index, *found[:3], state, time.perf_counter() - start, *found[3:])
+        seconds = time.perf_counter() - start
+        return TrackResult(
+            index, found.transform, found.fitness, found.verdict, state, seconds, *found[2:4]
+        )
 
     def _checked(self, frame: np.ndarray, name: str) -> np.ndarray | None:
         from masknet.registration.terms.units import check_units
@@ -203,29 +218,43 @@ class Tracker:
         """The state and the answer for a checked frame (P, 3)."""
         why, followed = "", None
         if self._history:
-            followed = self._follow(points, _predicted(self._history, self.centre, self.radius))
-            holds = followed.verdict == "likely correct" or (
-                followed.verdict == "uncertain" and self._uncertain < self.max_uncertain
+            predicted = _predicted(self._history, self.centre, self.radius)
+            # A lost frame's guess is taken up on the full verdict only.
+            quick = not self._guess and self._since_full + 1 < FULL_EVERY
+            followed = self._follow(points, predicted, quick)
+            # ICP carried the pose further than a frame's motion: a jump, or a slide into
+            # another fit (a near-symmetric shape turned about its axis); search near.
+            jumped = _beyond_step(followed.transform, predicted, self.centre, self.radius)
+            holds = not jumped and (
+                followed.verdict == "likely correct"
+                or (followed.verdict == "uncertain" and self._uncertain < self.max_uncertain)
             )
             if holds:
                 return "tracked", self._keep(followed)
-            why = f"the track slipped ({followed.reason}); "
+            moved = "ICP moved the pose beyond a frame's motion; " if jumped else ""
+            why = f"the track slipped ({moved}{followed.reason}); "
         found = self._refind(points, why)
         if found.verdict != "likely correct":
-            if followed is not None and followed.verdict == "uncertain":
+            if followed is not None and followed.verdict == "uncertain" and not self._guess:
                 # No better pose anywhere: the track goes on, uncertain, and searches
                 # again after max_uncertain more frames.
                 self._uncertain = 0
                 return "tracked", self._keep(followed)
-            self._history = []
+            # An uncertain best guess is where the next frame looks first: ICP from it
+            # that reads likely correct takes the track up; anything less searches again.
+            self._history = [found.transform] if found.verdict == "uncertain" else []
+            self._uncertain, self._guess = self.max_uncertain, True
             return "lost", found
         state = "refound" if self._last is not None else "found"
         self._history, self._uncertain, self._last = [found.transform], 0, found.transform
+        self._since_full, self._guess = 0, False
         return state, found
 
     def _keep(self, followed: _Found) -> _Found:
         """Take a tracked pose: it joins the history that predicts the next."""
         self._uncertain = 0 if followed.verdict == "likely correct" else self._uncertain + 1
+        self._since_full = 0 if followed.full else self._since_full + 1
+        self._guess = False
         self._history = [*self._history[-1:], followed.transform]
         self._last = followed.transform
         return followed
@@ -247,18 +276,29 @@ class Tracker:
         the template's centre placed by ``transform`` (frame -> template)."""
         return points_near(points, transform, self.centre, self.margin * self.radius)
 
-    def _judged(self, near: np.ndarray, transform: np.ndarray, how: str) -> _Found:
-        """The verdict on the frame points ``near`` (K, 3) the object at ``transform``."""
-        from masknet.registration.judge.assessment import assess_registration
+    def _judged(
+        self, near: np.ndarray, transform: np.ndarray, how: str, quick: bool = False
+    ) -> _Found:
+        """The verdict on the frame points ``near`` (K, 3) the object at ``transform``
+        (:func:`masknet.assess_registration`'s, the frame's units checked already); with
+        ``quick``, :func:`_quick_check`'s where it reads the pose right."""
+        from masknet.registration.judge.assessment import judge
+        from masknet.registration.judge.prepared import prepare_check
 
         if len(near) < self.min_points:
             reason = f"{how}only {len(near)} frame points near the object"
-            return _Found(transform, 0.0, "likely wrong", len(near), reason)
-        check = assess_registration(self.template, near, transform)
-        return _Found(transform, check.fitness, check.verdict, len(near), how + check.reason)
+            unjudged = Assessment("likely wrong", reason, 0.0, 0.0, 0.0, *[np.nan] * 3)
+            return _Found(transform, unjudged, len(near), reason)
+        prepared = prepare_check(self.template, near)
+        check = _quick_check(prepared, transform) if quick else None
+        full = check is None
+        if full:
+            check = judge(prepared, transform)
+        return _Found(transform, check, len(near), how + check.reason, full)
 
-    def _follow(self, points: np.ndarray, predicted: np.ndarray) -> _Found:
-        """Point-to-plane ICP from ``predicted`` (4, 4) on the frame's points near it."""
+    def _follow(self, points: np.ndarray, predicted: np.ndarray, quick: bool = False) -> _Found:
+        """Point-to-plane ICP from ``predicted`` (4, 4) on the frame's points near it;
+        ``quick``: the quick check first (:meth:`_judged`)."""
         from masknet.geometry.open3d_clouds import to_open3d
         from masknet.geometry.sampling import grid_subset
         from masknet.registration.solvers.open3d_icp import point_to_plane_at_cuts
@@ -272,7 +312,7 @@ class Tracker:
             self._target, to_open3d(even, feature="tracking"), predicted, cuts, ICP_ITERATIONS
         )
         # Judged on the points near where ICP ended: a pose that moved keeps its object.
-        return self._judged(self._near(points, pose), pose, "")
+        return self._judged(self._near(points, pose), pose, "", quick)
 
     def _find(self, points: np.ndarray, why: str) -> _Found:
         """The full default, :func:`masknet.register`, on the whole frame."""
@@ -294,13 +334,23 @@ def points_near(
 
 
 class _Found(NamedTuple):
-    """A pose and its verdict, before the state is decided."""
+    """A pose and its verdict (None for an empty frame), before the state is decided."""
 
     transform: np.ndarray
-    fitness: float
-    verdict: str
+    check: Assessment | None
     points: int
     reason: str
+    full: bool = True  # the full verdict (False: the quick check's)
+
+    @property
+    def verdict(self) -> str:
+        """The verdict's words; ``""`` without one."""
+        return "" if self.check is None else self.check.verdict
+
+    @property
+    def fitness(self) -> float:
+        """The verdict's fitness (0 without one)."""
+        return 0.0 if self.check is None else self.check.fitness
 
 
 def _as_pose(value: Any) -> np.ndarray:
@@ -332,13 +382,36 @@ def _turned(transform: np.ndarray, centre: np.ndarray) -> list[np.ndarray]:
 # Frame-to-frame motions beyond these are jumps, not velocities (the sequences move a few
 # degrees and per cent of the radius a frame).
 MAX_STEP_DEG, MAX_STEP_SHIFT = 10.0, 0.1
-# The verdicts best first, as the verdict orders them (assessment.VERDICTS), then no pose.
-RANKS = {verdict: rank for rank, verdict in enumerate((*VERDICTS, ""))}
+
+
+def _quick_check(prepared: Any, transform: np.ndarray) -> Assessment | None:
+    """The verdict's first rule alone, for a tracked pose: ``likely correct`` where the
+    overlap fit at ``transform`` (4, 4) reads ``CORRECT_FIT`` or more both ways on
+    ``prepared`` (:func:`~masknet.registration.judge.assessment.prepare_check`); None (ask the
+    full verdict) otherwise. Its nearest fit and slide fields are NaN and 0: not measured."""
+    from masknet.geometry.knn import cloud_tree
+    from masknet.geometry.se3 import transform_points
+    from masknet.registration.judge.assessment import CORRECT_FIT, NEAR
+    from masknet.registration.judge.fit import overlap_fit
+
+    moved = transform_points(transform, prepared.source_points)
+    source_fit, fitness, overlap = overlap_fit(prepared.tree, moved, prepared.limit, NEAR)
+    template_fit = overlap_fit(cloud_tree(moved), prepared.template_points, prepared.limit, NEAR)[0]
+    if source_fit < CORRECT_FIT or template_fit < CORRECT_FIT:
+        return None
+    worse = min(source_fit, template_fit)
+    reason = (
+        f"quick check: {worse:.0%} of the overlap fits within {prepared.limit:.3g} (input "
+        "units; the worse of the two directions)"
+    )
+    return Assessment(
+        "likely correct", reason, worse, fitness, overlap, np.nan, np.nan, prepared.limit
+    )
 
 
 def _best(candidates: Iterable[_Found]) -> _Found:
-    """The candidate with the best verdict, then the best fitness."""
-    return min(candidates, key=lambda c: (RANKS[c.verdict], -c.fitness))
+    """The judged candidate the arbiter ranks best (its verdict, then its overlap fit)."""
+    return best_judged(candidates, lambda c: c.check)
 
 
 def _predicted(history: list[np.ndarray], centre: np.ndarray, radius: float) -> np.ndarray:
@@ -351,15 +424,22 @@ def _predicted(history: list[np.ndarray], centre: np.ndarray, radius: float) -> 
     prediction as far off."""
     if len(history) < 2:
         return history[-1]
+    previous, last = history[-2:]
+    if _beyond_step(last, previous, centre, radius):
+        return last
+    return last @ np.linalg.inv(previous) @ last
+
+
+def _beyond_step(a: np.ndarray, b: np.ndarray, centre: np.ndarray, radius: float) -> bool:
+    """Whether transforms ``a`` and ``b`` (4, 4, frame -> template) lie more than a frame's
+    motion apart: a turn over :data:`MAX_STEP_DEG`, or the template's ``centre`` (3,)
+    placed more than :data:`MAX_STEP_SHIFT` template radii (``radius``) apart."""
     from masknet.geometry.se3 import rotation_angle_deg
 
-    previous, last = history[-2:]
-    step = last @ np.linalg.inv(previous)  # in template coordinates
+    step = a @ np.linalg.inv(b)  # in template coordinates
     point = np.append(centre, 1.0)
     shift = np.linalg.norm(np.linalg.solve(step, point) - point)
-    if rotation_angle_deg(step[:3, :3]) > MAX_STEP_DEG or shift > MAX_STEP_SHIFT * radius:
-        return last
-    return step @ last
+    return bool(rotation_angle_deg(step[:3, :3]) > MAX_STEP_DEG or shift > MAX_STEP_SHIFT * radius)
 
 
 def track(

@@ -31,7 +31,7 @@ Example::
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING, Any, NamedTuple, TypeVar
 
 import numpy as np
@@ -50,6 +50,7 @@ __all__ = [
     "alike",
     "apart",
     "best_first",
+    "best_judged",
     "best_quarter",
     "best_score",
     "close_rival",
@@ -241,6 +242,12 @@ def verdict_rank(check: Assessment) -> tuple[int, float]:
     from masknet.registration.judge.assessment import VERDICTS
 
     return -VERDICTS.index(check.verdict), check.overlap_fit
+
+
+def best_judged(candidates: Iterable[T], check: Callable[[T], Assessment]) -> T:
+    """The candidate (at least one) whose verdict ``check(candidate)`` ranks best
+    (:func:`verdict_rank`: the verdict, then the overlap fit); the first on a tie."""
+    return max(candidates, key=lambda candidate: verdict_rank(check(candidate)))
 
 
 def settles(check: Assessment) -> bool:
