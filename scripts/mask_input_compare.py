@@ -22,6 +22,7 @@ from pathlib import Path
 
 import torch
 
+from masknet.cli import run_script
 from masknet.data import load_modelnet40
 from masknet.training import MaskNetTask
 from masknet.training.loop import split_train_val
@@ -91,4 +92,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_script(main)
