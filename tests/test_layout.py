@@ -518,6 +518,11 @@ ALLOWED = {
     ("registration/judge/assessment.py:judge", "min(source_fit, template_fit)"): (
         "the verdict's overlap fit of one pose: the worse of its two directions"
     ),
+    ("registration/stages/auto.py:_fast_path", "len(fine_template) == len(template)"): (
+        "a count of rows, not a pose: whether the fit view holds the whole template, so that"
+        " its KD-tree serves the returned mask (``fine_template`` is read as a measure because"
+        " it comes from the pair's ``fit`` view)"
+    ),
     ("tracking/tracker.py:Tracker", "self._uncertain < self.max_uncertain"): (
         "a count of uncertain frames in a row against the caller's limit (``self`` is read as"
         " a measure where a method assigns it from a verdict)"
