@@ -1,6 +1,6 @@
 """masknet.registration.judge.arbiter: each rule between poses on small hand-made candidates.
 
-That no pose is compared with another anywhere else is tests/test_layout.py's
+That no pose is compared with another anywhere else is tests/test_arbiter_rule.py's
 ``test_no_pose_is_compared_outside_the_arbiter``."""
 
 from __future__ import annotations
