@@ -164,7 +164,11 @@ def test_readme_python_example_runs(index, one_thread, tmp_path, monkeypatch, ca
     if "tracked" in namespace:  # tracking: found in the first frame, then followed
         seq = namespace["seq"]
         assert printed[0] == "0 found likely correct"
-        assert [line.split()[1] for line in printed[1:]] == ["tracked"] * 5
+        # Frame 4 is the sequence's 30-degree jump (jump_at 0.65 of 6 frames): more than a
+        # frame's motion, so it is searched near the last pose and found again.
+        assert seq.jump == 4
+        states = [line.split()[1] for line in printed[1:]]
+        assert states == ["tracked", "tracked", "tracked", "refound", "tracked"]
         rot, trans = pose_errors(np.stack(namespace["tracked"]), seq.truth)
         assert rot.max() < 2 and trans.max() < 0.2, (rot, trans)  # translation: template frame
         checked.append("tracked")
