@@ -21,9 +21,17 @@ LAYERS = [
 ]
 
 
-def _imports(path: Path) -> set[str]:
+def _imports(path: Path, runtime_only: bool = False) -> set[str]:
+    """The masknet modules ``path`` imports; with ``runtime_only``, those under ``if
+    TYPE_CHECKING:`` aside (type names only: ``terms/result.py`` names the scene search's
+    result type)."""
+    tree = ast.parse(path.read_text())
+    if runtime_only:
+        for node in ast.walk(tree):
+            if isinstance(node, ast.If) and getattr(node.test, "id", "") == "TYPE_CHECKING":
+                node.body = []
     names = set()
-    for node in ast.walk(ast.parse(path.read_text())):
+    for node in ast.walk(tree):
         if isinstance(node, ast.ImportFrom) and node.module:
             names.add(node.module)
         elif isinstance(node, ast.Import):
@@ -56,22 +64,6 @@ def test_the_architecture_doc_lists_the_layers_in_this_order():
 CALL = {"api", "plan", "pipeline", "many"}
 
 
-def _runtime_imports(path: Path) -> set[str]:
-    """The masknet modules ``path`` imports, those under ``if TYPE_CHECKING:`` aside (type
-    names only: ``terms/result.py`` names the scene search's result type)."""
-    tree = ast.parse(path.read_text())
-    for node in ast.walk(tree):
-        if isinstance(node, ast.If) and getattr(node.test, "id", "") == "TYPE_CHECKING":
-            node.body = []
-    names = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.ImportFrom) and node.module:
-            names.add(node.module)
-        elif isinstance(node, ast.Import):
-            names.update(alias.name for alias in node.names)
-    return {n for n in names if n.startswith("masknet.")}
-
-
 def test_registration_folders_import_only_down():
     wrong = []
     reg = SRC / "registration"
@@ -82,7 +74,7 @@ def test_registration_folders_import_only_down():
         ("terms", {"stages", "solvers", "judge"} | CALL),
     ):
         for path in (reg / role).rglob("*.py"):
-            for name in _runtime_imports(path):
+            for name in _imports(path, runtime_only=True):
                 rest = name.removeprefix("masknet.registration.")
                 if any(rest == b or rest.startswith(b + ".") for b in banned):
                     wrong.append(f"{path.relative_to(SRC)} imports {name}")
