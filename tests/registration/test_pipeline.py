@@ -6,7 +6,6 @@ import pytest
 from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
 from masknet.errors import MaskNetError
 from masknet.registration.pipeline import (
-    Estimate,
     check_clouds,
     enter_frame,
     leave_frame,
@@ -15,6 +14,7 @@ from masknet.registration.pipeline import (
 )
 from masknet.registration.plan import CallPlan, plan_call
 from masknet.registration.terms.methods import method_options
+from masknet.registration.terms.result import Solution
 
 ARGUMENTS = dict(
     use_mask=False,
@@ -101,14 +101,8 @@ def test_leave_frame_maps_the_transform_out_and_spreads_masks(clouds):
     pair, plan = enter_frame(check_clouds(template * 50 + 3, source * 50 + 3, plan), plan, {})
     sampled_mask = np.zeros((1, 256), bool)
     sampled_mask[0, :100] = True
-    found = Estimate(
-        np.eye(4)[None],
-        sampled_mask,
-        None,
-        {"inlier_rmse": np.array([0.01])},
-        None,
-        [np.eye(4)],
-        False,
+    found = Solution(
+        np.eye(4)[None], sampled_mask, None, {"inlier_rmse": np.array([0.01])}, [np.eye(4)]
     )
     result = leave_frame(pair, found, plan, {})
     np.testing.assert_allclose(result.transform, np.eye(4), atol=1e-12)  # identity in any frame
@@ -121,7 +115,7 @@ def test_measure_fit_measures_once_and_leaves_a_one_round_pipeline(clouds):
     template, source = clouds
     plan = plan_for()
     pair, plan = enter_frame(check_clouds(template, template, plan), plan, {})
-    found = Estimate(np.eye(4)[None], None, None, {"fitness": np.array([0.25])}, None, [], True)
+    found = Solution(np.eye(4)[None], info={"fitness": np.array([0.25])}, rounds=[])
     measured = measure_fit(pair, found, plan)
     assert measured.info["fitness"][0] == 1.0  # the source is the template: every point fits
     auto = plan_for("auto")
@@ -135,7 +129,7 @@ def test_refine_plain_runs_only_when_asked(clouds):
     pair, plan = enter_frame(check_clouds(template, template, plan), plan, {})
     start = np.eye(4)[None].copy()
     start[0, :3, 3] = 0.02
-    found = Estimate(start, None, None, {}, None, [], True)
+    found = Solution(start, info={}, rounds=[])
     assert refine_plain(pair, found, plan, {}) is found
     refined = refine_plain(pair, found, plan_for(refine_iterations=20), {"refine": 0.0})
     assert np.abs(refined.transform[0, :3, 3]).max() < 1e-3  # back on the template

@@ -12,11 +12,12 @@ from scipy.spatial.transform import Rotation
 from masknet.data import bundled_sample_path, load_modelnet40
 from masknet.geometry.sampling import NetworkClouds
 from masknet.models import MaskNet, TwoSidedMaskNet
-from masknet.registration.solvers.backends.base import MaskModels, PipelineRun
+from masknet.registration.solvers.backends.base import MaskModels
 from masknet.registration.stages.auto import PATHS
 from masknet.registration.stages.auto import auto_register as run_auto
 from masknet.registration.stages.robust import robust_register as run_robust
 from masknet.registration.terms.options import RobustOptions
+from masknet.registration.terms.result import Solution
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -64,7 +65,7 @@ def test_auto_settles_near_pairs_on_its_fast_path(known_pairs, networks, pose_er
     IoU of 0.92 and 0.94 (bound 0.85)."""
     t, s, truth, mask = known_pairs
     run = _run(run_auto, t, s, networks)
-    assert isinstance(run, PipelineRun)
+    assert isinstance(run, Solution)
     degrees, shift = pose_error(run.transform, truth)
     assert degrees.max() < 1e-4 and shift.max() < 1e-6, (degrees, shift)
     assert run.info["path"].tolist() == ["fast", "fast"]

@@ -8,7 +8,7 @@ __getattr__ = moved_names(
     {
         **{
             name: "masknet.registration.stages.search"
-            for name in ("REFINE_TOLERANCE", "CoarseRun", "coarse_to_fine")
+            for name in ("REFINE_TOLERANCE", "coarse_to_fine")
         },
         "check_points": "masknet.registration.judge.prepared",
     },

@@ -34,13 +34,12 @@ from masknet.registration.stages.rounds import mask_and_register
 from masknet.registration.stages.scene import SceneMatch, SceneSearch, is_scene, locate, polish
 from masknet.registration.terms.methods import METHOD_TABLE, adapter
 from masknet.registration.terms.options import ICPCriteria
-from masknet.registration.terms.result import RegistrationResult
+from masknet.registration.terms.result import RegistrationResult, Solution
 from masknet.registration.terms.units import warn_mixed_units
 from masknet.registration.terms.validation import as_numpy_batch, finite_rows, spread_rows
 
 __all__ = [
     "CheckedClouds",
-    "Estimate",
     "FramedPair",
     "REFINE_POINTS",
     "check_clouds",
@@ -93,21 +92,6 @@ class FramedPair(NamedTuple):
     @property
     def source_index(self) -> np.ndarray | None:
         return self.nets.sampled[3]
-
-
-class Estimate(NamedTuple):
-    """What the method found, in the frame: transform (B, 4, 4); mask (B, N') and
-    source_mask (B, M') bool or None, over the sampled clouds unless ``full_masks``;
-    info: the method's report; inliers: (B, N') correspondence inliers or None; rounds:
-    the transform after each round, (4, 4) or (B, 4, 4) each."""
-
-    transform: np.ndarray
-    mask: np.ndarray | None
-    source_mask: np.ndarray | None
-    info: dict
-    inliers: np.ndarray | None
-    rounds: list[np.ndarray]
-    full_masks: bool
 
 
 def _search_scene(
@@ -209,28 +193,23 @@ def enter_frame(
     return pair, plan
 
 
-def run_method(pair: FramedPair, plan: CallPlan, times: dict[str, float]) -> Estimate:
+def run_method(pair: FramedPair, plan: CallPlan, times: dict[str, float]) -> Solution:
     """The method: a pipeline on the full clouds (and its refined rounds), or the rounds
     of a back-end on the sampled ones."""
     single = pair.single
     if plan.entry.kind == "pipeline":  # full resolution; the networks see the sampled clouds
         models = MaskModels(plan.model, plan.search_model)
-        total, mask, source_mask, info = adapter(plan.method)(
-            pair.template,
-            pair.source,
-            pair.nets,
-            models,
-            plan.options,
-            times,
-            plan.precision,
+        found = adapter(plan.method)(
+            pair.template, pair.source, pair.nets, models, plan.options, times, plan.precision
         )
+        total, mask, source_mask, info = found.transform, found.mask, found.source_mask, found.info
         rounds = [total[0] if single else total]
         if plan.iterations > 1:  # refined Mask-ICP rounds from the pipeline's pose
             total, mask, source_mask, refined = _refined_rounds(
                 pair.template, pair.source, total, plan, times
             )
             rounds += [r[0] if single else r for r in refined]
-        return Estimate(total, mask, source_mask, info, None, rounds, full_masks=True)
+        return Solution(total, mask, source_mask, info, rounds)
     state = mask_and_register(
         pair.sampled_template,
         pair.sampled_source,
@@ -245,15 +224,7 @@ def run_method(pair: FramedPair, plan: CallPlan, times: dict[str, float]) -> Est
         init=plan.init,
         refiner=plan.refiner,
     )
-    return Estimate(
-        state.transform,
-        state.mask,
-        state.source_mask,
-        state.run.info,
-        state.run.correspondence_inliers,
-        [r[0] if single else r for r in state.rounds],
-        full_masks=False,
-    )
+    return state._replace(rounds=[r[0] if single else r for r in state.rounds])
 
 
 def _refined_rounds(
@@ -289,8 +260,8 @@ def _refined_rounds(
 
 
 def refine_plain(
-    pair: FramedPair, found: Estimate, plan: CallPlan, times: dict[str, float]
-) -> Estimate:
+    pair: FramedPair, found: Solution, plan: CallPlan, times: dict[str, float]
+) -> Solution:
     """``refine_iterations`` of plain ICP on the whole (sampled) template from the pose
     found; the estimate unchanged when there are none."""
     if not plan.refine_iterations:
@@ -303,7 +274,7 @@ def refine_plain(
     return found._replace(transform=run.transform @ found.transform)
 
 
-def measure_fit(pair: FramedPair, found: Estimate, plan: CallPlan) -> Estimate:
+def measure_fit(pair: FramedPair, found: Solution, plan: CallPlan) -> Solution:
     """Open3D's fitness and inlier RMSE of the pose returned, over every source point against
     the whole template, at the cut-off given or else 1.5 template spacings. A pipeline
     with one round reports its own fit (on its even subsets) and is left as it is; the
@@ -319,7 +290,7 @@ def measure_fit(pair: FramedPair, found: Estimate, plan: CallPlan) -> Estimate:
 
 
 def leave_frame(
-    pair: FramedPair, found: Estimate, plan: CallPlan, times: dict[str, float]
+    pair: FramedPair, found: Solution, plan: CallPlan, times: dict[str, float]
 ) -> RegistrationResult:
     """The result in input units: the transforms and report out of the frame, back to the
     whole scene after a search, and every mask spread once to every input row."""
@@ -330,7 +301,7 @@ def leave_frame(
     ]
     info = _info_out(found.info, frame)
     mask, source_mask, inliers = found.mask, found.source_mask, found.inliers
-    if not found.full_masks:  # the sampled clouds' masks to every point
+    if plan.entry.kind != "pipeline":  # the sampled clouds' masks to every point
         mask, source_mask, inliers = _spread_sampled(pair, mask, source_mask, inliers)
     if pair.scene is not None:
         total, rounds, source_mask = _leave_scene(

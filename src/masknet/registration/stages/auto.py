@@ -92,14 +92,14 @@ from masknet.registration.judge.assessment import Assessment, judge
 from masknet.registration.judge.fit import PoseFit, covered_points, pose_fit
 from masknet.registration.judge.prepared import PreparedPair, check_points
 from masknet.registration.judge.shape import SHAPE, PairShape, classify_template
-from masknet.registration.solvers.backends.base import MaskModels, PipelineRun
+from masknet.registration.solvers.backends.base import MaskModels
 from masknet.registration.solvers.icp import icp
 from masknet.registration.stages.consensus import ConsensusRun, consensus_register
 from masknet.registration.stages.robust import NetworkMasks, pipeline_run
 from masknet.registration.stages.rounds import mask_and_register
 from masknet.registration.stages.search import REFINE_TOLERANCE, coarse_to_fine
 from masknet.registration.terms.options import ICPCriteria, RobustOptions
-from masknet.registration.terms.result import PipelineInfo, info_arrays
+from masknet.registration.terms.result import PipelineInfo, Solution, info_arrays
 
 __all__ = ["PATHS", "auto_register"]
 
@@ -127,7 +127,7 @@ def auto_register(
     options: RobustOptions,
     times: dict[str, float],
     precision: str = "auto",
-) -> PipelineRun:
+) -> Solution:
     """The pipeline of the module docstring for template (B, N, 3) and source (B, M, 3),
     float64, pair by pair, at full resolution; the networks see ``nets`` (B, n, 3) and
     (B, m, 3), the clouds sampled to their size on first use. ``models.first`` masks the fast
@@ -145,7 +145,7 @@ def auto_register(
     def stacked(parts: list) -> np.ndarray | None:
         return None if any(p is None for p in parts) else np.concatenate(parts)
 
-    return PipelineRun(
+    return Solution(
         np.concatenate([r.transform for r in runs]),
         stacked([r.mask for r in runs]),
         stacked([r.source_mask for r in runs]),
@@ -162,7 +162,7 @@ def _one(
     options: RobustOptions,
     times: dict[str, float],
     precision: str,
-) -> PipelineRun:
+) -> Solution:
     """One pair: template (N, 3), source (M, 3); ``nets`` the clouds the networks see. The
     pair is prepared once here, and every stage and the verdict read its views."""
     pair = PreparedPair(template, source, options.fine_points)
@@ -282,7 +282,7 @@ class _Fast(NamedTuple):
     """The fast path: its result where it fits (``accepted``), else what the escalation
     uses: its transform (4, 4), fit, the check's fitness and masks."""
 
-    accepted: PipelineRun | None
+    accepted: Solution | None
     transform: np.ndarray
     fit: PoseFit
     right: float
@@ -364,7 +364,7 @@ def _fast_path(
             whole = tree if len(fine_template) == len(template) else None
             mask = covered_points(template, moved, limit, whole)[None]
         info = _info("fast", fit, np.nan)
-        accepted = PipelineRun(
+        accepted = Solution(
             transform[None], mask, None if source_mask is None else source_mask[None], info
         )
     fast_mask = None if fast.mask is None else fast.mask[0]
@@ -380,7 +380,7 @@ def _escalate(
     options: RobustOptions,
     times: dict[str, float],
     precision: str,
-) -> PipelineRun:
+) -> Solution:
     """Stage 5 of the module docstring: the coarse-to-fine search, the fast path's pose one
     more answer (``fast`` None: a pair the principal-axes gate sent to the search)."""
     reuse = fast is not None and fast.mask is not None
@@ -398,7 +398,7 @@ def _escalate(
     info = dict(run.info)
     info["path"] = np.array([f"robust/{run.info['path'][0]}"])
     info["escalated_fitness"] = np.array([np.nan if fast is None else fast.right])
-    return PipelineRun(run.transform, run.mask, run.source_mask, info)
+    return Solution(run.transform, run.mask, run.source_mask, info)
 
 
 def _fast_candidate(fast: _Fast) -> Candidate:
@@ -406,7 +406,7 @@ def _fast_candidate(fast: _Fast) -> Candidate:
     return Candidate(fast.transform, "fast", fast.fit)
 
 
-def _searched(run: PipelineRun) -> list[Candidate]:
+def _searched(run: Solution) -> list[Candidate]:
     """The search's answer and, where it has one, its runner-up, as candidates (their
     fitness and score from ``run.info``; the runner-up's RMSE is not reported: NaN)."""
     info = run.info
@@ -418,7 +418,7 @@ def _searched(run: PipelineRun) -> list[Candidate]:
     return found
 
 
-def _fast_after_all(run: PipelineRun, fast: _Fast, options: RobustOptions) -> PipelineRun:
+def _fast_after_all(run: Solution, fast: _Fast, options: RobustOptions) -> Solution:
     """The fast path's pose, which fits better than the search's answer; ambiguous where
     one of the search's answers lies elsewhere and fits about as well
     (:func:`~masknet.registration.judge.arbiter.close_rival`)."""
@@ -432,7 +432,7 @@ def _fast_after_all(run: PipelineRun, fast: _Fast, options: RobustOptions) -> Pi
         info["runner_up"] = rival.pose[None].copy()
         info["runner_up_fitness"] = np.array([rival.fitness])
         info["runner_up_score"] = np.array([rival.score])
-    return PipelineRun(transform[None], run.mask, run.source_mask, info)
+    return Solution(transform[None], run.mask, run.source_mask, info)
 
 
 def _consensus_run(
@@ -442,7 +442,7 @@ def _consensus_run(
     model: MaskNet | TwoSidedMaskNet | None,
     path: str,
     escalated: float = np.nan,
-) -> PipelineRun:
+) -> Solution:
     """The consensus front end's answer as the pipeline's result (``escalated``: the fast
     path's fit where it ran before): its fit on the check's
     grid; with a network, the template points the moved source covers (measured on that
@@ -462,7 +462,7 @@ def _consensus_run(
             source_mask = spread_labels(source, grid_source, on_template)[None]
     info = _info(path, fit, escalated)
     info["source"] = np.array(["consensus"])
-    return PipelineRun(found.transform[None], mask, source_mask, info)
+    return Solution(found.transform[None], mask, source_mask, info)
 
 
 def _info(path: str, fit: PoseFit, escalated: float) -> dict[str, np.ndarray]:

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import functools
 import time
-from typing import Any, NamedTuple, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -34,12 +34,12 @@ from masknet._moved import moved_names
 from masknet.errors import MaskNetError
 from masknet.geometry.clouds import median_spacing
 from masknet.geometry.se3 import transform_points
+from masknet.registration.terms.result import Solution
 
 __all__ = [
     "DEFAULT_REFINER",
     "REFINERS",
     "NearestNeighbourMasks",
-    "RefinedPose",
     "MaskPredictor",
     "Refiner",
     "refine_pose",
@@ -160,17 +160,6 @@ def resolve_refiner(spec: Any, first_round_model: Any) -> Refiner | None:
     return spec
 
 
-class RefinedPose(NamedTuple):
-    """transform: (4, 4) source -> template after the last round. mask: (N,) bool template
-    points the refiner marks at that pose (None without a refiner). source_mask: (M,) bool
-    source points it keeps, likewise. rounds: (4, 4) transform after each round."""
-
-    transform: np.ndarray
-    mask: np.ndarray | None
-    source_mask: np.ndarray | None
-    rounds: list[np.ndarray]
-
-
 def refine_pose(
     template: np.ndarray,
     source: np.ndarray,
@@ -181,7 +170,7 @@ def refine_pose(
     cut: float,
     times: dict[str, float],
     max_iterations: int = 10,
-) -> RefinedPose:
+) -> Solution:
     """Refined Mask-ICP rounds from a pose another stage found, for one pair.
 
     Each round the refiner masks the pair as it stands (on ``sampled``, its masks spread to
@@ -270,7 +259,7 @@ def refine_pose(
         times["register"] += time.perf_counter() - tic
     if refiner is not None:
         mask, source_mask, _ = masks_at(total)
-    return RefinedPose(total, mask, source_mask, history)
+    return Solution(total, mask, source_mask, rounds=history)
 
 
 def _masks(refiner: Refiner, template: np.ndarray, source: np.ndarray) -> tuple:

@@ -17,10 +17,10 @@ import numpy as np
 from masknet.geometry.sampling import NetworkClouds, spread_labels
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
-from masknet.registration.solvers.backends.base import MaskModels, PipelineRun
-from masknet.registration.stages.search import CoarseRun, coarse_to_fine
+from masknet.registration.solvers.backends.base import MaskModels
+from masknet.registration.stages.search import coarse_to_fine
 from masknet.registration.terms.options import RobustOptions
-from masknet.registration.terms.result import info_arrays
+from masknet.registration.terms.result import Solution, info_arrays
 
 __all__ = ["NetworkMasks", "pipeline_run", "robust_register"]
 
@@ -64,7 +64,7 @@ def robust_register(
     options: RobustOptions,
     times: dict[str, float],
     precision: str = "auto",
-) -> PipelineRun:
+) -> Solution:
     """The coarse-to-fine pipeline for template (B, N, 3) and source (B, M, 3), float64,
     one pair at a time, at full resolution; the network (``models.first``, None: no masks)
     sees ``nets`` (B, n, 3) and (B, m, 3), the clouds sampled to its size.
@@ -80,11 +80,11 @@ def robust_register(
     return pipeline_run(runs)
 
 
-def pipeline_run(runs: list[CoarseRun]) -> PipelineRun:
-    """The :class:`PipelineRun` of a batch from each pair's :class:`CoarseRun`."""
+def pipeline_run(runs: list[Solution]) -> Solution:
+    """A batch's :class:`~masknet.registration.terms.result.Solution` from each pair's."""
     masks = [r.mask for r in runs]
     source_masks = [r.source_mask for r in runs]
-    return PipelineRun(
+    return Solution(
         np.stack([r.transform for r in runs]),
         None if any(m is None for m in masks) else np.stack(masks),
         None if any(m is None for m in source_masks) else np.stack(source_masks),

@@ -8,32 +8,19 @@ frame; only the networks' own calls hold tensors.
 from __future__ import annotations
 
 import time
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 
 from masknet._moved import moved_names
 from masknet.geometry.se3 import transform_points
 from masknet.registration.judge import fit
-from masknet.registration.solvers.backends.base import BackendRun, check_template_points, usable
+from masknet.registration.solvers.backends.base import check_template_points, usable
 from masknet.registration.stages.refinement import Refiner
 from masknet.registration.terms.methods import adapter
+from masknet.registration.terms.result import Solution
 
-__all__ = ["RoundsResult", "initial_transform", "mask_and_register"]
-
-
-class RoundsResult(NamedTuple):
-    """transform: (B, 4, 4) source -> template after the last round. mask: (B, N) bool
-    template points in use in the last round (with a refiner and >= 2 rounds: its mask at
-    the returned pose), or None. source_mask: (B, M) bool source points kept likewise (a
-    two-sided MaskNet's or the refiner's), or None. run: the last round's back-end run.
-    rounds: (B, 4, 4) transform after each round."""
-
-    transform: np.ndarray
-    mask: np.ndarray | None
-    source_mask: np.ndarray | None
-    run: BackendRun
-    rounds: list[np.ndarray]
+__all__ = ["initial_transform", "mask_and_register"]
 
 
 def mask_and_register(
@@ -50,7 +37,7 @@ def mask_and_register(
     init: str = "centroid",
     start: np.ndarray | None = None,
     refiner: Refiner | None = None,
-) -> RoundsResult:
+) -> Solution:
     """``iterations`` rounds on template (B, N, 3) and source (B, M, 3), float64.
 
     ``model``: a mask network (``predict_masks(template, source) -> (template mask,
@@ -110,7 +97,7 @@ def mask_and_register(
         tic = time.perf_counter()
         mask, source_mask = refiner.predict_masks(template, transform_points(total, source))
         times["mask"] += time.perf_counter() - tic
-    return RoundsResult(total, mask, source_mask, run, rounds)
+    return Solution(total, mask, source_mask, run.info, rounds, run.correspondence_inliers)
 
 
 def initial_transform(

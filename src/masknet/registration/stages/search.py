@@ -48,7 +48,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -70,7 +70,7 @@ from masknet.registration.solvers.correspondences import (
 )
 from masknet.registration.solvers.icp import icp, icp_from_starts
 from masknet.registration.terms.options import RobustOptions
-from masknet.registration.terms.result import PipelineInfo
+from masknet.registration.terms.result import PipelineInfo, Solution
 
 if TYPE_CHECKING:
     from masknet.registration.stages.refinement import MaskPredictor
@@ -79,7 +79,7 @@ from masknet.registration.judge.prepared import (
     random_subset,
 )
 
-__all__ = ["REFINE_TOLERANCE", "CoarseRun", "coarse_to_fine"]
+__all__ = ["REFINE_TOLERANCE", "coarse_to_fine"]
 
 # The refinement's ICP stops once its mean squared error changes by less than this
 # fraction: finer steps move a pose by far less than its error.
@@ -109,20 +109,6 @@ CANDIDATE_BASIN = 0.1
 AS_GIVEN_GAP = 0.1
 
 
-class CoarseRun(NamedTuple):
-    """transform: (4, 4) source -> template. mask: (N,) bool template points within the
-    inlier distance of the moved kept source, or None without masks. source_mask: (M,)
-    bool source points kept, or None without a two-sided network. info: the pair's
-    :class:`~masknet.registration.terms.result.PipelineInfo`; its ``path`` is
-    ``"correspondences"`` (the early exit) or ``"search"`` (the learned side ran), its
-    ``source`` ``"fpfh"``, ``"fpfh-masked"``, ``"rotation"``, ...)."""
-
-    transform: np.ndarray
-    mask: np.ndarray | None
-    source_mask: np.ndarray | None
-    info: PipelineInfo
-
-
 def coarse_to_fine(
     template: np.ndarray,
     source: np.ndarray,
@@ -130,7 +116,7 @@ def coarse_to_fine(
     options: RobustOptions,
     times: dict[str, float],
     prepared: PreparedPair | None = None,
-) -> CoarseRun:
+) -> Solution:
     """The pipeline of the module docstring for template (N, 3) and source (M, 3), float64
     numpy, at any size: the features see the whole clouds, the fit and ICP the even
     subsets of the pair's fit view (:attr:`~masknet.registration.judge.prepared.PreparedPair.fit`;
@@ -170,7 +156,7 @@ def coarse_to_fine(
         hypotheses=len(search.scored),
         runner_up=None if rival is None else rival.pose,
     )
-    return CoarseRun(transform, mask, source_mask, info)
+    return Solution(transform, mask, source_mask, info)
 
 
 class _Search:

@@ -4,7 +4,7 @@ names (``transformation``, ``fitness``, ``inlier_rmse``) beside masknet's own.""
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, TypedDict
+from typing import TYPE_CHECKING, Any, NamedTuple, TypedDict
 
 import numpy as np
 
@@ -13,7 +13,14 @@ from masknet.geometry.se3 import rotation_angle_deg
 if TYPE_CHECKING:
     from masknet.registration.stages.scene import SceneMatch
 
-__all__ = ["AUTO_INFO", "PIPELINE_INFO", "PipelineInfo", "RegistrationResult", "info_arrays"]
+__all__ = [
+    "AUTO_INFO",
+    "PIPELINE_INFO",
+    "PipelineInfo",
+    "RegistrationResult",
+    "Solution",
+    "info_arrays",
+]
 
 
 class PipelineInfo(TypedDict):
@@ -51,6 +58,26 @@ def info_arrays(pairs: list[PipelineInfo]) -> dict[str, np.ndarray]:
         [none if p["runner_up"] is None else p["runner_up"] for p in pairs]
     )
     return info
+
+
+class Solution(NamedTuple):
+    """What a stage of a call found, before :func:`~masknet.register` turns it into a
+    :class:`RegistrationResult` (the one inner result type: the search, the refinement, the
+    rounds, the pipelines and the method all return it).
+
+    transform: (4, 4) for one pair or (B, 4, 4) for a batch, float64, source -> template.
+    mask: (N,) or (B, N) bool template points on the overlap, or None without masks.
+    source_mask: (M,) or (B, M) bool source points kept, or None. info: the stage's report
+    (a :class:`PipelineInfo`, or (B,) arrays per key; empty where the stage reports none).
+    rounds: the transform after each round, (4, 4) or (B, 4, 4) each. inliers: (B, N) bool
+    correspondence inliers of a correspondence method, or None."""
+
+    transform: np.ndarray
+    mask: np.ndarray | None = None
+    source_mask: np.ndarray | None = None
+    info: dict[str, Any] | None = None
+    rounds: list[np.ndarray] | None = None
+    inliers: np.ndarray | None = None
 
 
 @dataclass

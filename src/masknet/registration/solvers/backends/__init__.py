@@ -7,6 +7,6 @@ are :func:`~masknet.registration.stages.auto.auto_register` and
 use.
 """
 
-from masknet.registration.solvers.backends.base import Backend, BackendRun, Pipeline, PipelineRun
+from masknet.registration.solvers.backends.base import Backend, BackendRun, Pipeline
 
-__all__ = ["Backend", "BackendRun", "Pipeline", "PipelineRun"]
+__all__ = ["Backend", "BackendRun", "Pipeline"]

@@ -9,13 +9,13 @@ import numpy as np
 
 from masknet.errors import MaskNetError
 from masknet.geometry.clouds import MIN_POINTS
+from masknet.registration.terms.result import Solution
 
 __all__ = [
     "Backend",
     "BackendRun",
     "MaskModels",
     "Pipeline",
-    "PipelineRun",
     "check_template_points",
     "keep_source_points",
     "points_in_use",
@@ -31,19 +31,6 @@ class BackendRun(NamedTuple):
     correspondence_inliers: np.ndarray | None = None  # (B, N) bool
 
 
-class PipelineRun(NamedTuple):
-    """A whole pipeline's answer (``auto``, ``robust``) for a batch of pairs, one by one.
-
-    transform: (B, 4, 4) source -> template. mask: (B, N) bool template points on the
-    overlap, or None without a network. source_mask: (B, M) bool source points kept, or
-    None. info: (B,) or (B, 4, 4) arrays (``path``, ``fitness``, ``runner_up``, ...)."""
-
-    transform: np.ndarray
-    mask: np.ndarray | None
-    source_mask: np.ndarray | None
-    info: dict[str, np.ndarray]
-
-
 # A back-end adapter: one round of a method on a batch, all numpy float64.
 #   (template (B, N, 3), source (B, M, 3), template_mask (B, N) bool | None,
 #    source_mask (B, M) bool | None, options: the method's typed options) -> BackendRun
@@ -55,8 +42,8 @@ Backend = Callable[
 # A pipeline adapter: a whole call at full resolution, pair by pair.
 #   (template (B, N, 3), source (B, M, 3), nets: geometry.sampling.NetworkClouds, the
 #    clouds sampled to the networks' size on first use, models: MaskModels, options,
-#    times: seconds per stage (added to), precision: the networks') -> PipelineRun
-Pipeline = Callable[..., PipelineRun]
+#    times: seconds per stage (added to), precision: the networks') -> Solution
+Pipeline = Callable[..., Solution]
 
 
 class MaskModels(NamedTuple):
