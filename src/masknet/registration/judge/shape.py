@@ -32,6 +32,7 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
+from scipy.stats import spearmanr
 
 from masknet.geometry.clouds import median_spacing
 from masknet.geometry.knn import cloud_tree
@@ -168,10 +169,10 @@ def seen_from_inside(
     tree = cloud_tree(cloud) if tree is None else tree
     near = tree.query(cloud, k=2)[0][:, 1]
     far = np.linalg.norm(cloud - cloud.mean(0), axis=1)
-    ranks = [np.argsort(np.argsort(v)).astype(np.float64) for v in (near, far)]
-    ranks = [r - r.mean() for r in ranks]
-    scale = np.sqrt((ranks[0] ** 2).sum() * (ranks[1] ** 2).sum())
-    return float((ranks[0] * ranks[1]).sum() / scale) if scale > 0 else 0.0
+    if np.ptp(near) == 0 or np.ptp(far) == 0:  # a constant has no rank correlation
+        return 0.0
+    # Ties share their mean rank (mutual nearest neighbours have equal distances).
+    return float(spearmanr(near, far).statistic)
 
 
 def measure_shape(points: np.ndarray, table: ShapeTable = SHAPE) -> tuple[float, float]:
