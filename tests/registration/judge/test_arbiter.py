@@ -177,6 +177,20 @@ def test_verdicts_rank_before_overlap_fits():
     )
 
 
+def test_the_best_judged_wins_by_verdict_then_overlap_fit_the_first_on_a_tie():
+    """``best_judged`` reads each entry's verdict through ``check``; it takes any iterable."""
+    checks = {
+        "wrong": _check("likely wrong", 0.99),
+        "unsure": _check("uncertain", 0.70),
+        "unsure, closer": _check("uncertain", 0.75),
+        "unsure, closer too": _check("uncertain", 0.75),
+    }
+    assert arbiter.best_judged(iter(checks), checks.__getitem__) == "unsure, closer"
+    checks["right"] = _check("likely correct", 0.50)
+    assert arbiter.best_judged(checks, checks.__getitem__) == "right"
+    assert arbiter.best_judged(["wrong"], checks.__getitem__) == "wrong"
+
+
 def test_only_a_likely_correct_pose_settles_and_only_an_uncertain_one_competes():
     assert arbiter.settles(_check("likely correct", 0.6))
     assert not arbiter.settles(_check("uncertain", 0.99))
