@@ -7,9 +7,10 @@ Each frame is one of four states:
   (:func:`masknet.assess_registration`) called the pose ``likely correct``;
 * ``"tracked"``: the pose came from the last ones. Constant velocity in SE(3) predicts
   it from the last two poses; the frame is cut to the points within the template's radius
-  times ``margin`` of the predicted centre (clutter and far surfaces do not pull the fit);
+  times ``margin`` of the predicted centre (clutter and far surfaces do not pull the fit),
+  less the scene's planes there (a floor, a wall: :mod:`masknet.tracking.view`);
   point-to-plane ICP (Open3D) refines the prediction on them; the verdict on those points
-  (a quick check of the overlap fit on most frames, the full verdict on every
+  against the template's side the sensor sees (where the ``viewpoint`` is known) (a quick check of the overlap fit on most frames, the full verdict on every
   ``FULL_EVERY``-th and where the quick one is not clearly right) keeps the track
   (``likely correct``, or ``uncertain`` for at most ``max_uncertain`` frames in a row;
   then the frame is searched, and where no search finds a ``likely correct`` pose the
@@ -57,6 +58,14 @@ MAX_POINTS = 4096  # the cut-out frame is brought to this many points (evenly) f
 NO_POSE = np.full((4, 4), np.nan)
 MARGIN = 1.5  # the frame is cut to this many template radii around the predicted centre
 MIN_NEAR = 30  # fewer frame points near the object: it is hidden or out of view
+# The scene's plane in that ball (a floor, a wall: tracking.view.background_plane) is
+# dropped before ICP and the verdict: the plane that most points beyond the object's reach
+# (its radius and a frame's motion, MAX_STEP_SHIFT, from the predicted centre) lie within
+# PLANE_BAND template spacings of, found in PLANE_TRIES samples and held by MIN_NEAR of
+# them; at most BACKGROUND_PLANES such planes (a floor and a wall behind).
+PLANE_BAND = 1.0
+PLANE_TRIES = 100
+BACKGROUND_PLANES = 2
 # A tracked frame's verdict: the quick check (the overlap fit both ways at the pose, the
 # verdict's first rule) where it reads CORRECT_FIT or more; the full verdict (its nearest
 # fit and slide search, 5-10 times the cost) where it does not, on every FULL_EVERY-th
@@ -73,7 +82,8 @@ class TrackResult(NamedTuple):
     at that pose. verdict: ``"likely correct"``, ``"uncertain"`` or ``"likely wrong"``
     (:func:`masknet.assess_registration` on the frame's points near the object); ``""``
     for an empty frame. state: one of :data:`STATES`. seconds: the frame's wall time.
-    points: how many frame points the pose was judged on (those near the object).
+    points: how many frame points the pose was judged on (those near the object, less the
+    scene's planes).
     reason: one line saying why the state is what it is.
     """
 
@@ -119,7 +129,9 @@ class Tracker:
         viewpoint: (3,) the sensor's position in frame coordinates (``(0, 0, 0)`` for depth
             frames in camera coordinates): the searches then place the template as the
             sensor sees it (``register(..., scene=SceneSearch(viewpoint=...))``), which finds
-            a full model in a one-sided view more often.
+            a full model in a one-sided view more often, and a pose is judged on the
+            template's side that the sensor sees at it (its far side is no evidence
+            against the pose).
         register_options: other keywords for :func:`masknet.register` where it searches a
             frame.
 
@@ -152,6 +164,7 @@ class Tracker:
         self.seed, self.margin, self.min_points = seed, margin, min_points
         self.max_uncertain, self.drop_nonfinite = max_uncertain, drop_nonfinite
         self.register_options = dict(register_options or {})
+        self.viewpoint = None if viewpoint is None else np.asarray(viewpoint, dtype=np.float64)
         if viewpoint is not None:
             from masknet.registration.terms.options import SceneSearch
 
@@ -273,15 +286,36 @@ class Tracker:
 
     def _near(self, points: np.ndarray, transform: np.ndarray) -> np.ndarray:
         """The frame points (K, 3) within the template's radius times ``margin`` of
-        the template's centre placed by ``transform`` (frame -> template)."""
-        return points_near(points, transform, self.centre, self.margin * self.radius)
+        the template's centre placed by ``transform`` (frame -> template), less those on
+        the scene's planes (:data:`PLANE_BAND`, :func:`~masknet.tracking.view.
+        without_planes`): what of the frame may be the object's."""
+        from masknet.tracking.view import without_planes
+
+        near = points_near(points, transform, self.centre, self.margin * self.radius)
+        placed = np.linalg.solve(transform, np.append(self.centre, 1.0))[:3]
+        reach, band = self.radius * (1 + MAX_STEP_SHIFT), PLANE_BAND * self.spacing
+        return without_planes(
+            near, placed, reach, band, BACKGROUND_PLANES, PLANE_TRIES, self.min_points, self.seed
+        )
+
+    def _seen(self, transform: np.ndarray) -> np.ndarray:
+        """The template points (N', 3) the sensor sees with the object at ``transform``
+        (:func:`~masknet.tracking.view.visible_side`); the whole template without a
+        ``viewpoint``, or where it sees fewer than ``min_points``."""
+        from masknet.tracking.view import visible_side
+
+        if self.viewpoint is None:
+            return self.template
+        seen = visible_side(self.template, transform, self.viewpoint)
+        return self.template[seen] if seen.sum() >= self.min_points else self.template
 
     def _judged(
         self, near: np.ndarray, transform: np.ndarray, how: str, quick: bool = False
     ) -> _Found:
         """The verdict on the frame points ``near`` (K, 3) the object at ``transform``
-        (:func:`masknet.assess_registration`'s, the frame's units checked already); with
-        ``quick``, :func:`_quick_check`'s where it reads the pose right."""
+        (:func:`masknet.assess_registration`'s, the frame's units checked already) against
+        the template's side the sensor sees there (:meth:`_seen`); with ``quick``,
+        :func:`_quick_check`'s where it reads the pose right."""
         from masknet.registration.judge.assessment import judge
         from masknet.registration.judge.prepared import prepare_check
 
@@ -289,7 +323,7 @@ class Tracker:
             reason = f"{how}only {len(near)} frame points near the object"
             unjudged = Assessment("likely wrong", reason, 0.0, 0.0, 0.0, *[np.nan] * 3)
             return _Found(transform, unjudged, len(near), reason)
-        prepared = prepare_check(self.template, near)
+        prepared = prepare_check(self._seen(transform), near)
         check = _quick_check(prepared, transform) if quick else None
         full = check is None
         if full:
