@@ -58,7 +58,8 @@ def _tracker(seq: Sequence) -> Iterator[Answer]:
 def _register_each(seq: Sequence) -> Iterator[Answer]:
     from masknet import assess_registration, register
     from masknet.geometry.clouds import centroid_radius
-    from masknet.tracking.tracker import MARGIN, MIN_NEAR, points_near
+    from masknet.tracking.tracker import MARGIN, MIN_NEAR
+    from masknet.tracking.view import points_near
 
     for frame in seq.frames:
         tic = time.perf_counter()

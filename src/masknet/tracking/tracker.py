@@ -46,6 +46,7 @@ from masknet.geometry.clouds import MIN_POINTS, centroid_radius, median_spacing
 from masknet.io_checks import ARRAY_NONFINITE_HINT, check_cloud
 from masknet.registration.judge.arbiter import best_judged
 from masknet.registration.judge.assessment import Assessment
+from masknet.tracking.view import points_near
 
 __all__ = ["STATES", "TrackResult", "Tracker", "points_near", "track"]
 
@@ -289,7 +290,7 @@ class Tracker:
         the template's centre placed by ``transform`` (frame -> template), less those on
         the scene's planes (:data:`PLANE_BAND`, :func:`~masknet.tracking.view.
         without_planes`): what of the frame may be the object's."""
-        from masknet.tracking.view import without_planes
+        from masknet.tracking.view import without_planes  # noqa: PLC0415
 
         near = points_near(points, transform, self.centre, self.margin * self.radius)
         placed = np.linalg.solve(transform, np.append(self.centre, 1.0))[:3]
@@ -355,16 +356,6 @@ class Tracker:
         result = register(self.template, points, **self.register_options)
         transform = np.asarray(result.transform, dtype=np.float64)
         return self._judged(self._near(points, transform), transform, why + "searched: ")
-
-
-def points_near(
-    points: np.ndarray, transform: np.ndarray, centre: np.ndarray, reach: float
-) -> np.ndarray:
-    """The frame points (K, 3) of ``points`` (P, 3) within ``reach`` (input units) of the
-    template point ``centre`` (3,) placed in the frame by ``transform`` (4, 4), frame ->
-    template: the object's surroundings, where its verdict is asked."""
-    placed = np.linalg.solve(transform, np.append(centre, 1.0))[:3]
-    return points[np.linalg.norm(points - placed, axis=1) <= reach]
 
 
 class _Found(NamedTuple):

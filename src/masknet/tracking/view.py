@@ -1,7 +1,6 @@
 """What of a tracked frame is the object's, and what of the template the camera sees.
 
-A tracked frame is cut to a ball around the predicted object (:func:`~masknet.tracking.
-tracker.points_near`), and that ball holds more than the object: the floor it stands on
+A tracked frame is cut to a ball around the predicted object (:func:`points_near`), and that ball holds more than the object: the floor it stands on
 (and a wall behind it) crosses the whole ball. Those points pull ICP towards the floor and
 count against the pose in the verdict's overlap fit (a floor point under a wing lies within
 the overlap band of the template but not on it), so a right pose read ``likely wrong``.
@@ -21,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["background_plane", "visible_side", "without_planes"]
+__all__ = ["background_plane", "points_near", "visible_side", "without_planes"]
 
 SCORED_POINTS = 2048  # a RANSAC plane is scored on at most this many points beyond the reach
 
@@ -102,3 +101,13 @@ def visible_side(template: np.ndarray, transform: np.ndarray, viewpoint: np.ndar
 
     eye = transform[:3, :3] @ np.asarray(viewpoint, dtype=np.float64) + transform[:3, 3]
     return hidden_point_removal(template, eye)
+
+
+def points_near(
+    points: np.ndarray, transform: np.ndarray, centre: np.ndarray, reach: float
+) -> np.ndarray:
+    """The frame points (K, 3) of ``points`` (P, 3) within ``reach`` (input units) of the
+    template point ``centre`` (3,) placed in the frame by ``transform`` (4, 4), frame ->
+    template: the object's surroundings, where its verdict is asked."""
+    placed = np.linalg.solve(transform, np.append(centre, 1.0))[:3]
+    return points[np.linalg.norm(points - placed, axis=1) <= reach]
