@@ -44,6 +44,10 @@ _NOT_BUILT = object()
 # Prepared templates rebuilt in this process from a pickle (a register_many worker), by
 # token: a worker keeps one per template for every job that brings it, not one per job.
 KEPT_IN_WORKER = 4
+# Views kept per prepared template, at most: those keyed by the template's own parameters
+# are a handful; those keyed by a source's (the consensus front end's voxel edge, set by
+# both clouds' spacings) would otherwise grow with every source.
+MAX_VIEWS = 64
 _ACTIVE: ContextVar[PreparedTemplate | None] = ContextVar("masknet_prepared", default=None)
 
 
@@ -113,20 +117,30 @@ class PreparedTemplate:
             return None
         return self._known.get(_memory(array))
 
-    def view(self, key: Hashable, build: Callable[[], View]) -> View:
-        """The view ``key``: ``build()`` on first use, then the same object."""
+    def view(
+        self, key: Hashable, build: Callable[[], View], hands_out: Hashable | None = None
+    ) -> View:
+        """The view ``key``: ``build()`` on first use, then the same object. Once
+        ``MAX_VIEWS`` are kept (views keyed by a source's parameters, as a voxel edge,
+        accumulate), a new one is built as a cold call builds it and not kept.
+        ``hands_out``: the view is a template array, remembered under this name."""
         with self._lock:
             found = self._views.get(key, _NOT_BUILT)
-            if found is _NOT_BUILT:
-                found = self._views[key] = _frozen_view(build())
-            else:
+            if found is not _NOT_BUILT:
                 self.hits += 1
+                return found
+            found = build()
+            if len(self._views) >= MAX_VIEWS:
+                return found
+            self._views[key] = _frozen_view(found)
+            if hands_out is not None:
+                _remember_batch(self, found, hands_out)
             return found
 
     def frame_points(self, key: Hashable, build: Callable[[], np.ndarray]) -> np.ndarray:
         """The template in a call's frame (``key``: the frame's parameters), (N, 3) or
         (1, N, 3), built once and remembered, so the stages' views of it are cached."""
-        return self.view(("frame", key), lambda: _remember_batch(self, build(), ("frame", key)))
+        return self.view(("frame", key), build, hands_out=("frame", key))
 
 
 _WORKER: dict[str, PreparedTemplate] = {}
@@ -194,14 +208,7 @@ def template_view(
     name = None if prepared is None else prepared.name_of(template)
     if name is None:
         return build()
-    if not hands_out:
-        return prepared.view((name, key), build)
-
-    def remembered() -> Any:
-        array = build()
-        return _remember_batch(prepared, array, (name, key))
-
-    return prepared.view((name, key), remembered)
+    return prepared.view((name, key), build, (name, key) if hands_out else None)
 
 
 def _remember_batch(prepared: PreparedTemplate, array: np.ndarray, name: Hashable) -> np.ndarray:

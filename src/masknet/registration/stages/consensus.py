@@ -234,19 +234,24 @@ def _grids(
     spacing = max(side.spacing, median_spacing(small[1], sample=2048))
     voxel = max(side.voxel(options.consensus_points), MIN_SPACINGS * spacing)
     clouds = side.cloud, to_open3d(source)
-    coarse = [side.grid(voxel, "coarse"), clouds[1].voxel_down_sample(voxel)]
+    search = o3d.geometry.KDTreeSearchParamHybrid
+    # The template's normals on both grids, for point-to-plane ICP: the 30 nearest points
+    # within 2 voxels on the first (as the features take them), FINE_NORMALS on the finer.
+    coarse = [
+        side.grid(voxel, search(radius=2 * voxel, max_nn=30), ("coarse", voxel)),
+        clouds[1].voxel_down_sample(voxel),
+    ]
     if min(len(c.points) for c in coarse) < 3 * 3:
         return None
     if len(coarse[1].points) > MAX_SOURCE_SHARE * len(coarse[0].points):
         return None  # an object in a scene: the scene search's work, not this one's
     scan = options.is_scan(len(template)) if scan is None else scan
-    # The template's normals on both grids, for point-to-plane ICP: the 30 nearest points
-    # within 2 voxels on the first (as the features take them), FINE_NORMALS on the finer.
-    search = o3d.geometry.KDTreeSearchParamHybrid
-    side.normals(coarse[0], ("coarse", voxel), search(radius=2 * voxel, max_nn=30))
-    fine = [side.grid(voxel / FINE_GRID, "fine"), clouds[1].voxel_down_sample(voxel / FINE_GRID)]
     within = SCAN_FINE_NORMALS if scan else FINE_NORMALS
-    side.normals(fine[0], ("fine", voxel, within), search(radius=within * voxel, max_nn=30))
+    normals = search(radius=within * voxel, max_nn=30)
+    fine = [
+        side.grid(voxel / FINE_GRID, normals, ("fine", voxel, within)),
+        clouds[1].voxel_down_sample(voxel / FINE_GRID),
+    ]
     template_grid = side.points(voxel / CHECK_GRID)
     source_grid = np.asarray(clouds[1].voxel_down_sample(voxel / CHECK_GRID).points)
     # Scans of scenes are judged with a plane-to-plane nearest fit (point-to-plane ICP
@@ -279,15 +284,17 @@ class _TemplateSide:
         radius = float(rms_radius(self.subset))
         return self.view(("voxel", target), lambda: voxel_for(self.subset, target, radius))
 
-    def grid(self, voxel: float, role: str) -> Any:
-        """The template's Open3D cloud on the grid of edge ``voxel``, one per ``role``
-        (``"coarse"``, ``"fine"``): each gets its own normals."""
-        return self.view(("grid", role, voxel), lambda: self.cloud.voxel_down_sample(voxel))
+    def grid(self, voxel: float, normals: Any, key: Any) -> Any:
+        """The template's Open3D cloud on the grid of edge ``voxel``, its normals estimated
+        with ``normals`` (Open3D's search parameter), once per ``key`` (a second estimate
+        would be turned towards the first)."""
 
-    def normals(self, cloud: Any, key: Any, search: Any) -> None:
-        """Estimate ``cloud``'s normals (a grid of :meth:`grid`) once per ``key``: Open3D
-        would turn a second estimate towards the first."""
-        self.view(("normals", key), lambda: cloud.estimate_normals(search) or True)
+        def build() -> Any:
+            grid = self.cloud.voxel_down_sample(voxel)
+            grid.estimate_normals(normals)
+            return grid
+
+        return self.view(("grid", key), build)
 
     def points(self, voxel: float) -> np.ndarray:
         """(P, 3) the template's points on the grid of edge ``voxel``."""
