@@ -76,6 +76,17 @@ def test_views_are_kept_apart_by_key_and_array():
         prepared.points[0, 0] = 1.0
 
 
+def test_a_full_cache_builds_new_views_cold(one_shape, monkeypatch):
+    from masknet.geometry import prepared_template
+
+    template, sources = one_shape
+    monkeypatch.setattr(prepared_template, "MAX_VIEWS", 2)
+    prepared = prepare_template(template)
+    for source in sources:
+        _same(register(template, source), register(prepared, source))
+    assert prepared.views == 2  # the frame and one more; the rest built as cold calls do
+
+
 @pytest.mark.parametrize(
     "bad, words",
     [
