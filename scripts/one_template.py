@@ -9,8 +9,8 @@ ModelNet40 test shape (``--data``, ``--shape``), cuts of the Stanford bunny
 (``--template bunny``: its first 50-80% along a seeded direction, turned up to 45 degrees),
 or the 3DMatch pair's source fragment thinned at random to 50-90% of its points against
 its reference fragment (``--template 3dmatch``, the scans beside ``--bunny``).
-Timed, each over the same sources: the cold loop (``register(template, s)``), the prepared
-loop (``register(prepared, s)``), and ``register_many`` on ``--workers`` processes with
+Timed, each over the same sources: the cold call (``register(template, s)``) and the
+prepared one (``register(prepared, s)``), in turn source by source, and ``register_many`` on ``--workers`` processes with
 the plain template and with the prepared one (each pair also judged there). Reported: the
 median seconds per source, the totals, their ratios to the cold loop, and the largest
 difference between a prepared call's transform and its cold call's.
@@ -59,14 +59,16 @@ def sources_of(args: argparse.Namespace) -> tuple[np.ndarray, list[np.ndarray]]:
     return pairs.template[0].double().numpy(), list(pairs.source.double().numpy())
 
 
-def timed(call, items: list) -> tuple[list, list[float], float]:
-    """``call`` on each item: results, seconds each, seconds in all."""
-    results, seconds, start = [], [], time.perf_counter()
+def timed_in_turn(calls: list, items: list) -> list[tuple[list, list[float]]]:
+    """Each of ``calls`` on each item, in turn item by item (a drift of the CPU's speed
+    weighs on every call alike): per call, its results and seconds for each item."""
+    out: list[tuple[list, list[float]]] = [([], []) for _ in calls]
     for item in items:
-        tic = time.perf_counter()
-        results.append(call(item))
-        seconds.append(time.perf_counter() - tic)
-    return results, seconds, time.perf_counter() - start
+        for call, (results, seconds) in zip(calls, out, strict=True):
+            tic = time.perf_counter()
+            results.append(call(item))
+            seconds.append(time.perf_counter() - tic)
+    return out
 
 
 def main() -> None:
@@ -91,11 +93,13 @@ def main() -> None:
 
     template, sources = sources_of(args)
     register(template, sources[0])  # the networks' weights, loaded once
-    cold, cold_each, cold_total = timed(lambda s: register(template, s), sources)
     tic = time.perf_counter()
     prepared = prepare_template(template)
     prepare_seconds = time.perf_counter() - tic
-    warm, warm_each, warm_total = timed(lambda s: register(prepared, s), sources)
+    (cold, cold_each), (warm, warm_each) = timed_in_turn(
+        [lambda s: register(template, s), lambda s: register(prepared, s)], sources
+    )
+    cold_total, warm_total = sum(cold_each), sum(warm_each)
     gaps = [float(np.abs(a.transform - b.transform).max()) for a, b in zip(cold, warm, strict=True)]
     out = {
         "template": args.template,
