@@ -3,6 +3,7 @@ change of structure leaves every result as it was.
 
     git stash; python scripts/register_fingerprint.py --out before.npz; git stash pop
     python scripts/register_fingerprint.py --out after.npz --compare before.npz
+    python scripts/register_fingerprint.py --out prepared.npz --compare before.npz --prepared
 
 The calls cover every method of the table, single pairs and batches, one and several
 rounds, refinement, masks given by k or a threshold, a cut-off in the clouds' unit, NaN
@@ -25,11 +26,15 @@ import numpy as np
 from masknet.cli import run_script
 
 
-def calls(bunny_path: Path) -> dict[str, Callable]:
-    """Name -> a zero-argument call of ``register``."""
+def calls(bunny_path: Path, prepared: bool = False) -> dict[str, Callable]:
+    """Name -> a zero-argument call of ``register``; with ``prepared``, every single
+    template is given prepared (:func:`masknet.prepare_template`), one per template."""
     from scipy.spatial.transform import Rotation
 
     from masknet import register
+
+    if prepared:
+        register = _with_prepared_templates(register)
     from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
     from masknet.io import read_points
 
@@ -95,6 +100,24 @@ def calls(bunny_path: Path) -> dict[str, Callable]:
     return out
 
 
+def _with_prepared_templates(register: Callable) -> Callable:
+    """``register`` given each single template prepared, one prepared template per
+    template's values (reused by every call on it)."""
+    from masknet import prepare_template
+
+    kept: dict[bytes, object] = {}
+
+    def call(template, source, **options):
+        if np.ndim(template) == 2 and np.isfinite(template).all():
+            key = np.asarray(template, dtype=np.float64).tobytes()
+            if key not in kept:
+                kept[key] = prepare_template(template)
+            template = kept[key]
+        return register(template, source, **options)
+
+    return call
+
+
 FIELDS = ("transform", "mask", "source_mask", "correspondence_inliers")
 
 
@@ -142,6 +165,9 @@ def main() -> None:
     parser.add_argument("--out", required=True, help="the .npz to write")
     parser.add_argument("--compare", help="a .npz written before: list what differs")
     parser.add_argument(
+        "--prepared", action="store_true", help="give every single template prepared once"
+    )
+    parser.add_argument(
         "--bunny",
         default=str(
             Path(__file__).resolve().parents[1] / "../shared/data/scans/bun_zipper_res3.ply"
@@ -152,7 +178,7 @@ def main() -> None:
     os.environ.setdefault("OMP_NUM_THREADS", "1")  # Open3D's RANSAC repeats on one thread
     warnings.simplefilter("ignore")
     results: dict[str, np.ndarray] = {}
-    todo = calls(Path(args.bunny))
+    todo = calls(Path(args.bunny), args.prepared)
     for name, call in todo.items():
         record(results, name, call)
     np.savez(args.out, **results)

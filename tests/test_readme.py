@@ -172,6 +172,12 @@ def test_readme_python_example_runs(index, one_thread, tmp_path, monkeypatch, ca
         rot, trans = pose_errors(np.stack(namespace["tracked"]), seq.truth)
         assert rot.max() < 2 and trans.max() < 0.2, (rot, trans)  # translation: template frame
         checked.append("tracked")
+    if "prepared" in namespace:  # a template prepared once: the cold calls' poses, exactly
+        from masknet import register
+
+        for part, result in zip((source, source[::2]), namespace["results"], strict=True):
+            np.testing.assert_array_equal(result.transform, register(template, part).transform)
+        checked.append("prepared")
     if "pairs" in namespace:  # pairs to try: the truth moves the source onto the template
         assert namespace["pairs"].template.shape == (8, 1024, 3)
         moved = namespace["source"] @ namespace["truth"][:3, :3].T + namespace["truth"][:3, 3]

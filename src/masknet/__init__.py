@@ -47,6 +47,8 @@ __all__ = [
     "evaluate_registration",
     "RegistrationResult",
     *_OPTIONS,
+    "PreparedTemplate",
+    "prepare_template",
     "register",
     "register_many",
     "select_mask",
@@ -66,6 +68,8 @@ _LAZY = {
     "assess_registration": "masknet.registration",
     "evaluate_registration": "masknet.registration",
     "register": "masknet.registration",
+    "PreparedTemplate": "masknet.geometry.prepared_template",
+    "prepare_template": "masknet.geometry.prepared_template",
     "register_many": "masknet.registration.many",
     "track": "masknet.tracking",
     "Tracker": "masknet.tracking",
@@ -74,6 +78,7 @@ _LAZY = {
 
 if TYPE_CHECKING:
     from masknet.denoising import DenoiseResult, denoise
+    from masknet.geometry.prepared_template import PreparedTemplate, prepare_template
     from masknet.models import MaskNet, select_mask
     from masknet.registration import (
         RegistrationResult,

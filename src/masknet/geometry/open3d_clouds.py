@@ -28,13 +28,20 @@ def to_open3d(
 
     o3d = require_open3d(feature)
     vectors = o3d.utility.Vector3dVector
-    points = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+    points = _writable(points)
     cloud = o3d.geometry.PointCloud(vectors(points))
     for name, values in (("normals", normals), ("colors", colors)):
         if values is not None and len(values) == len(points):
-            values = np.ascontiguousarray(np.asarray(values, dtype=np.float64).reshape(-1, 3))
+            values = _writable(values)
             setattr(cloud, name, vectors(values))
     return cloud
+
+
+def _writable(values: Any) -> np.ndarray:
+    """(P, 3) contiguous float64 that Open3D's vectors take: it copies them, but refuses a
+    read-only buffer (a prepared template's), which is copied here first."""
+    array = np.ascontiguousarray(np.asarray(values, dtype=np.float64).reshape(-1, 3))
+    return array if array.flags.writeable else array.copy()
 
 
 def from_open3d(cloud: Any) -> np.ndarray | None:

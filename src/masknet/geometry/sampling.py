@@ -222,7 +222,13 @@ def fit_to_network(
             f"batched clouds must have at most max_points={max_points} points "
             f"(got template {n}, source {m}); pass large clouds one pair at a time"
         )
-    kept = farthest_point_sample(template[0], max_points)
+    from masknet.geometry.prepared_template import template_view
+
+    kept = template_view(
+        template,
+        ("farthest points", max_points),
+        lambda: farthest_point_sample(template[0], max_points),
+    )
     # The source at the template's spacing, so its size still reflects the overlap
     # (top-k selection uses it): from a pool as dense as the template's, whose radius
     # that spacing is.
@@ -230,7 +236,10 @@ def fit_to_network(
     src_idx = farthest_point_sample(
         source[0], max_points, min_spacing=kept.radius, pool=int(np.ceil(share * m))
     ).indices
-    return template[:, kept.indices], source[:, src_idx], kept.indices, src_idx
+    sampled = template_view(
+        template, ("network sample", max_points), lambda: template[:, kept.indices], True
+    )
+    return sampled, source[:, src_idx], kept.indices, src_idx
 
 
 class NetworkClouds:

@@ -64,8 +64,38 @@ class FusedMaskNet(nn.Module):
             x = torch.relu(torch.addmm(b, x, w.t()))
         return x
 
+    def _centred_template(self, template: Tensor) -> Tensor:
+        """The template (B, N, 3) as the encoder sees it: centred on its own centroid
+        (``centring="each"``), in the path's precision."""
+        return (template.float() - template.float().mean(dim=1, keepdim=True)).to(
+            self.head_global.dtype
+        )
+
     @torch.inference_mode()
-    def forward(self, template: Tensor, source: Tensor, chunk_size: int | None = None) -> Tensor:
+    def encode_template(self, template: Tensor, chunk_size: int | None = None) -> list[Tensor]:
+        """The per-point template encoding, before the source's global feature is added:
+        one (B * n, H) tensor per chunk of ``chunk_size`` template points (B, N, 3). It
+        depends on the template alone where ``centring="each"``: computed once, it serves
+        every source (:meth:`forward`'s ``template_features``), the same values as its own."""
+        if self.centring != "each":
+            raise ValueError("the template's encoding depends on the source: centring='source'")
+        tpl = self._centred_template(template)
+        step = tpl.shape[1] if chunk_size is None else chunk_size
+        return [
+            self._encode(tpl[:, start : start + step].reshape(-1, 3)) @ self.head_template[0].t()
+            for start in range(0, tpl.shape[1], step)
+        ]
+
+    @torch.inference_mode()
+    def forward(
+        self,
+        template: Tensor,
+        source: Tensor,
+        chunk_size: int | None = None,
+        template_features: list[Tensor] | None = None,
+    ) -> Tensor:
+        """Scores (B, N) of template (B, N, 3) and source (B, M, 3); ``template_features``:
+        :meth:`encode_template` of this template at this ``chunk_size``, computed before."""
         dtype = self.head_global.dtype
         b, n, _ = template.shape
         tpl, src = centre_pair(template.float(), source.float(), self.centring)
@@ -84,9 +114,12 @@ class FusedMaskNet(nn.Module):
         ).amax(0)
         g = g @ self.head_global.t() + self.head_template[1]  # (B, H): once per cloud
         out = []
-        for start in range(0, n, step):
+        for index, start in enumerate(range(0, n, step)):
             part = tpl[:, start : start + step]
-            x = self._encode(part.reshape(-1, 3)) @ self.head_template[0].t()
+            if template_features is None:
+                x = self._encode(part.reshape(-1, 3)) @ self.head_template[0].t()
+            else:
+                x = template_features[index]
             x = x.reshape(b, part.shape[1], -1) + g[:, None, :]
             x = x.reshape(-1, x.shape[-1])
             for w, bias in self.head:

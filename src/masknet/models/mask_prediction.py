@@ -9,7 +9,7 @@ pairs at a time and selects masks (top-k with k = M, or a threshold).
 from __future__ import annotations
 
 import warnings
-from typing import Literal, NamedTuple
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 import torch
@@ -154,6 +154,10 @@ class MaskPredictionMixin:
             precision = self.auto_precision(device)
         t, s, single, precision = prepare_inputs(template, source, normalize, precision, device)
         fused = self.scorer(precision)
+        encoded = _template_encoding(fused, template, t, device, chunk_size, normalize)
+        if encoded is not None:  # one pair, its template's encoding prepared
+            scores = fused(t.to(device), s.to(device), chunk_size, encoded).float().cpu()
+            return scores, single
         step = max(1, pairs_per_call)
         scores = torch.cat(
             [
@@ -284,3 +288,24 @@ class MaskPredictionMixin:
                 self.train(was_training)
 
         return scores
+
+
+def _template_encoding(
+    fused: Any,
+    template: np.ndarray,
+    t: Tensor,
+    device: torch.device,
+    chunk_size: int | None,
+    normalize: bool,
+) -> list[Tensor] | None:
+    """The fused path's per-point encoding of one template (``t``: (1, N, 3), the network's
+    input made from the numpy ``template``), from the active prepared template's cache
+    (:mod:`masknet.geometry.prepared_template`) where it handed ``template`` out; None
+    where there is none to use (a batch, another scorer, a source-centred network)."""
+    from masknet.geometry.prepared_template import active, template_view
+
+    encode = getattr(fused, "encode_template", None)
+    if active() is None or encode is None or t.shape[0] != 1 or fused.centring != "each":
+        return None
+    key = ("network encoding", fused, chunk_size, normalize, str(device))
+    return template_view(template, key, lambda: encode(t.to(device), chunk_size))

@@ -29,6 +29,7 @@ import numpy as np
 
 from masknet._moved import moved_names
 from masknet.errors import checks_done, warn, warns_once
+from masknet.geometry.prepared_template import PreparedTemplate, prepare_template, using
 from masknet.geometry.se3 import transform_points
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
@@ -71,7 +72,9 @@ __all__ = [
     "METHODS",
     "METHOD_TITLES",
     "NETWORK_METHODS",
+    "PreparedTemplate",
     "RegistrationResult",
+    "prepare_template",
     "register",
 ]
 
@@ -79,7 +82,7 @@ __all__ = [
 @small_blas
 @warns_once
 def register(
-    template: np.ndarray,
+    template: np.ndarray | PreparedTemplate,
     source: np.ndarray,
     *,
     method: str | None = None,
@@ -104,7 +107,11 @@ def register(
     Everything after the two clouds is keyword-only.
 
     Args:
-        template: (N, 3) or (B, N, 3) full template cloud(s), any units.
+        template: (N, 3) or (B, N, 3) full template cloud(s), any units; or a
+            :class:`~masknet.geometry.prepared_template.PreparedTemplate`
+            (:func:`prepare_template`), whose template-only views (its frame, network
+            sample and encoding, fit and verdict subsets, trees, shape measure) are
+            computed once and reused by every call given it, the results unchanged.
         source: (M, 3) or (B, M, 3) partial source cloud(s), same units.
         method: a name of the method table (:data:`~masknet.registration.terms.methods.METHOD_TABLE`).
             None (default) runs ``"auto"``, or the method of a typed ``options`` object; no
@@ -220,6 +227,9 @@ def register(
             values, or (for the Open3D methods) no Open3D.
     """
     start = time.perf_counter()
+    prepared = template if isinstance(template, PreparedTemplate) else None
+    if prepared is not None:
+        template = prepared.points
     cut_off = {"threshold": threshold, "mask_threshold": mask_threshold}  # as spelled
     threshold = mask_threshold_of(mask_threshold, threshold)
     named, method = method is not None, default_method(method, options)
@@ -252,7 +262,7 @@ def register(
         clouds = clouds._replace(source=transform_points(start_pose, clouds.source))
     # Checked once, here: the stages (the networks check clouds given to them) do not
     # check or warn again.
-    with checks_done():
+    with checks_done(), using(prepared):
         pair, plan = enter_frame(clouds, plan, times)
         found = run_method(pair, plan, times)
         found = refine_plain(pair, found, plan, times)

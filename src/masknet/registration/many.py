@@ -12,6 +12,13 @@ Example (as written in a script too, on Linux: see :func:`start_method`)::
     results = register_many([(model, scan) for scan in scans])
     poses = [r.transform for r in results if not isinstance(r, MaskNetError)]
 
+One template for every source: give it prepared (:func:`masknet.prepare_template`), and
+each worker computes its template-only views once, for every pair it registers (the
+prepared template travels as its points and a token; a worker keeps the one it rebuilt)::
+
+    prepared = masknet.prepare_template(model)
+    results = register_many([(prepared, scan) for scan in scans])
+
 A worker process that dies (killed, out of memory) stops the call with a
 :class:`MaskNetError`: the pairs it held have no result to put in their place.
 """
@@ -109,6 +116,7 @@ def _register_and_judge(job: PairJob, options: dict[str, Any]) -> tuple[Any, str
     from threadpoolctl import threadpool_limits
 
     from masknet.geometry.clouds import points_of
+    from masknet.geometry.prepared_template import PreparedTemplate
     from masknet.io import read_points
     from masknet.registration.api import register
     from masknet.registration.judge.assessment import assess_registration
@@ -116,7 +124,9 @@ def _register_and_judge(job: PairJob, options: dict[str, Any]) -> tuple[Any, str
     drop = bool(options.get("drop_nonfinite", False))
     with threadpool_limits(1):
         clouds = [
-            read_points(c, drop_nonfinite=drop)
+            c
+            if isinstance(c, PreparedTemplate)
+            else read_points(c, drop_nonfinite=drop)
             if isinstance(c, str | os.PathLike)
             else np.asarray(points_of(c), dtype=np.float64)
             for c in (job.template, job.source)
@@ -124,6 +134,8 @@ def _register_and_judge(job: PairJob, options: dict[str, Any]) -> tuple[Any, str
         result = register(*clouds, **options)
         if result.transform.ndim != 2:
             return result, "", ""
+        if isinstance(clouds[0], PreparedTemplate):  # checked: every row finite
+            clouds[0] = clouds[0].points
         template, source = (c[np.isfinite(c).all(-1)] for c in clouds)
         if result.source_mask is not None:  # over every input row
             source = clouds[1][result.source_mask]
@@ -247,8 +259,11 @@ def register_many(
 
     Args:
         pairs: (template, source) clouds, (N, 3) and (M, 3) arrays or file paths (read
-            with :func:`masknet.io.read_points` in the worker).
-        workers: processes on this machine, one thread each (default: one per core).
+            with :func:`masknet.io.read_points` in the worker); a template may be a
+            :class:`~masknet.geometry.prepared_template.PreparedTemplate`, prepared once
+            per worker for all its pairs.
+        workers: processes on this machine, one thread each (default: one per core); 0
+            registers the pairs here, one after another (BLAS on one thread, as a worker).
         scheduler: a Dask scheduler's address to run on instead (``masknet[cluster]``).
         **options: :func:`masknet.register`'s keywords, the same for every pair.
 
@@ -261,8 +276,11 @@ def register_many(
             spawned, a script without an ``if __name__ == "__main__":`` guard).
     """
     jobs = [PairJob(str(i), t, s) for i, (t, s) in enumerate(pairs)]
-    with executor(workers, scheduler) as pool:
-        outcomes = run_jobs(jobs, options, pool)
+    if workers == 0 and scheduler is None:
+        outcomes = [run_job(job, options) for job in jobs]
+    else:
+        with executor(workers, scheduler) as pool:
+            outcomes = run_jobs(jobs, options, pool)
     return [o.result if not o.error else MaskNetError(o.error) for o in outcomes]
 
 

@@ -24,6 +24,7 @@ import numpy as np
 
 from masknet.errors import MaskNetError
 from masknet.geometry.clouds import MIN_POINTS, SPACING_SAMPLE, Frame, median_spacing
+from masknet.geometry.prepared_template import active
 from masknet.geometry.sampling import NetworkClouds, fit_to_network, spread_mask
 from masknet.geometry.se3 import transform_points
 from masknet.registration.judge.fit import inlier_fit
@@ -177,7 +178,7 @@ def enter_frame(
     if cut is not None:
         options = dataclasses.replace(plan.options, max_correspondence_distance=cut / frame.scale)
         plan = dataclasses.replace(plan, options=options)
-    in_template, in_source = frame.points_in(template), frame.points_in(source)
+    in_template, in_source = _template_in_frame(frame, template), frame.points_in(source)
     nets = NetworkClouds(in_template, in_source, single, plan.max_points, times)
     pair = FramedPair(
         frame,
@@ -191,6 +192,21 @@ def enter_frame(
         scene,
     )
     return pair, plan
+
+
+def _template_in_frame(frame: Frame, template: np.ndarray) -> np.ndarray:
+    """``frame.points_in(template)`` (1, N, 3): from the call's prepared template where it is
+    that template (:mod:`masknet.geometry.prepared_template`; the frame's centre, scale and
+    rounding its key), so that the stages' views of it are prepared once."""
+    prepared = active()
+    if (
+        prepared is None
+        or template.shape[0] != 1
+        or not np.array_equal(template[0], prepared.points)
+    ):
+        return frame.points_in(template)
+    key = (frame.centre.tobytes(), frame.scale, frame.snap)
+    return prepared.frame_points(key, lambda: frame.points_in(template))
 
 
 def run_method(pair: FramedPair, plan: CallPlan, times: dict[str, float]) -> Solution:

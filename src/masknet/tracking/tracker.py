@@ -43,6 +43,7 @@ import numpy as np
 
 from masknet.errors import MaskNetError
 from masknet.geometry.clouds import MIN_POINTS, centroid_radius, median_spacing
+from masknet.geometry.prepared_template import PreparedTemplate
 from masknet.io_checks import ARRAY_NONFINITE_HINT, check_cloud
 from masknet.registration.judge.arbiter import best_judged
 from masknet.registration.judge.assessment import Assessment
@@ -113,7 +114,8 @@ class Tracker:
     """Follow ``template`` through frames given one at a time (a live stream).
 
     Args:
-        template: (N, 3) the object's points, any unit (the frames' unit).
+        template: (N, 3) the object's points, any unit (the frames' unit), or a
+            :class:`~masknet.geometry.prepared_template.PreparedTemplate` (prepared here else).
         init: (4, 4) frame -> template transform of the first frame, to track from it
             instead of searching the first frame; None searches.
         seed: the seed of the even subset that ICP sees of a cut-out frame of over 4,096
@@ -156,7 +158,10 @@ class Tracker:
         from masknet.geometry.normals import estimate_normals
         from masknet.geometry.open3d_clouds import to_open3d
 
-        self.template, _ = check_cloud(template, "template", nonfinite_hint=ARRAY_NONFINITE_HINT)
+        given = template.points if isinstance(template, PreparedTemplate) else template
+        self.template, _ = check_cloud(given, "template", nonfinite_hint=ARRAY_NONFINITE_HINT)
+        # Every search registers against one prepared template: its views are built once.
+        self.prepared = template if given is not template else PreparedTemplate(self.template)
         if margin <= 0 or min_points < MIN_POINTS or max_uncertain < 0:
             raise MaskNetError(
                 f"margin must be > 0, min_points >= {MIN_POINTS} and max_uncertain >= 0; got "
@@ -353,7 +358,7 @@ class Tracker:
         """The full default, :func:`masknet.register`, on the whole frame."""
         from masknet.registration.api import register
 
-        result = register(self.template, points, **self.register_options)
+        result = register(self.prepared, points, **self.register_options)
         transform = np.asarray(result.transform, dtype=np.float64)
         return self._judged(self._near(points, transform), transform, why + "searched: ")
 

@@ -53,6 +53,7 @@ from masknet.errors import MaskNetError
 from masknet.geometry.clouds import MIN_POINTS, SPACING_SAMPLE, median_spacing
 from masknet.geometry.knn import cloud_tree
 from masknet.geometry.normals import plane_offsets
+from masknet.geometry.prepared_template import template_view
 from masknet.geometry.sampling import grid_subset, random_subset
 from masknet.registration.judge.fit import FIT_SPACINGS
 from masknet.registration.terms.options import DEFAULT_SPACINGS, RobustOptions, inlier_cutoff
@@ -193,13 +194,21 @@ class FitClouds(NamedTuple):
 
 def fit_clouds(template: np.ndarray, source: np.ndarray, fine_points: int) -> FitClouds:
     """The :class:`FitClouds` of template (N, 3) and source (M, 3), float64."""
-    template = template[grid_subset(template, TEMPLATE_FACTOR * fine_points)]
+    template, tree, spacing = template_view(
+        template, ("fit", fine_points), lambda: _fit_template(template, fine_points)
+    )
     source = source[grid_subset(source, fine_points)]
-    tree = cloud_tree(template)
-    spacing = median_spacing(template, tree, sample=SPACING_SAMPLE) or 1.0
     surface, strict, attached = surface_points(source, SURFACE_SPACINGS * spacing, spacing)
     checked = check_points(surface, strict, attached)
     return FitClouds(template, tree, spacing, source, surface, strict, attached, checked)
+
+
+def _fit_template(template: np.ndarray, fine_points: int) -> tuple[np.ndarray, Any, float]:
+    """The template's side of :class:`FitClouds`: its even subset (N', 3), that subset's
+    KD-tree and median spacing; it depends on the template alone."""
+    template = template[grid_subset(template, TEMPLATE_FACTOR * fine_points)]
+    tree = cloud_tree(template)
+    return template, tree, median_spacing(template, tree, sample=SPACING_SAMPLE) or 1.0
 
 
 View = TypeVar("View")
@@ -290,12 +299,22 @@ def even_pair(
     ``CLOUD_POINTS`` of larger clouds, the others as given; then (with ``halve_uneven``)
     an even half of each where both hold ``MIN_HALVED`` points or more and either is
     uneven (:data:`UNEVEN_SPREAD`)."""
-    template, source = _subset(template, CLOUD_POINTS, 0), _subset(source, CLOUD_POINTS, 1)
+    template = _template_subset(template, CLOUD_POINTS)
+    source = _subset(source, CLOUD_POINTS, 1)
     if not halve_uneven or min(len(template), len(source)) < MIN_HALVED:
         return template, source
-    if max(_spread(c) for c in (template, source)) > UNEVEN_SPREAD:
-        return _subset(template, len(template) // 2, 0), _subset(source, len(source) // 2, 1)
+    spread = template_view(template, "spread", lambda: _spread(template))
+    if max(spread, _spread(source)) > UNEVEN_SPREAD:
+        return _template_subset(template, len(template) // 2), _subset(source, len(source) // 2, 1)
     return template, source
+
+
+def _template_subset(template: np.ndarray, count: int) -> np.ndarray:
+    """The template's even subset of ``count`` points (seed 0), prepared once where the
+    call's template is (:func:`~masknet.geometry.prepared_template.template_view`)."""
+    return template_view(
+        template, ("subset", count), lambda: _subset(template, count, 0), hands_out=True
+    )
 
 
 class PreparedCheck(NamedTuple):
@@ -343,10 +362,15 @@ def prepare_check(
         raise MaskNetError(f"nearest_fit must be one of {NEAREST_FITS}, got {nearest_fit!r}")
 
     even_template, even_source = even_pair(template, source, even)
-    tree = cloud_tree(even_template)  # the spacing's tree and the verdict's, built once
+    # the spacing's tree and the verdict's, built once
+    tree = template_view(even_template, "tree", lambda: cloud_tree(even_template))
     spacing = float("nan")
     if max_correspondence_distance is None:
-        spacing = median_spacing(even_template, tree, sample=CHECK_SPACING_SAMPLE)
+        spacing = template_view(
+            even_template,
+            "check spacing",
+            lambda: median_spacing(even_template, tree, sample=CHECK_SPACING_SAMPLE),
+        )
         spacing_source = median_spacing(even_source, sample=CHECK_SPACING_SAMPLE)
         limit = DEFAULT_SPACINGS * max(spacing, spacing_source)
     else:
@@ -355,7 +379,7 @@ def prepare_check(
         raise MaskNetError("every point of a cloud is the same point: no spacing to measure by")
     return PreparedCheck(
         even_template,
-        _subset(even_template, MAX_POINTS, 0),
+        _template_subset(even_template, MAX_POINTS),
         _subset(even_source, MAX_POINTS, 1),
         tree,
         limit,

@@ -82,6 +82,7 @@ from typing import NamedTuple
 import numpy as np
 
 from masknet.geometry.clouds import MIN_POINTS, principal_turn_deg
+from masknet.geometry.prepared_template import template_view
 from masknet.geometry.sampling import NetworkClouds, spread_labels
 from masknet.geometry.se3 import transform_points
 from masknet.models.masknet import MaskNet
@@ -237,7 +238,10 @@ class _Route(NamedTuple):
         if self.sparse:
             return self
         tic = time.perf_counter()
-        shape = classify_template(template, large=options.is_scan(len(template)))
+        large = options.is_scan(len(template))
+        shape = template_view(
+            template, ("shape", large), lambda: classify_template(template, large=large)
+        )
         times["route"] = times.get("route", 0.0) + time.perf_counter() - tic
         return self._replace(shape=shape)
 

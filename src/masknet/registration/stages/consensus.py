@@ -50,6 +50,7 @@ from masknet._open3d import open3d_threads
 from masknet.geometry.clouds import median_spacing, rms_radius
 from masknet.geometry.knn import cloud_tree
 from masknet.geometry.open3d_clouds import to_open3d
+from masknet.geometry.prepared_template import template_view
 from masknet.geometry.sampling import random_subset
 from masknet.io import has_open3d
 from masknet.registration.judge import arbiter
@@ -151,6 +152,7 @@ class ConsensusGrids(NamedTuple):
     check: PreparedCheck
     cuts: tuple[float, ...] = CUTS
     scan: bool = False
+    template: np.ndarray | None = None  # the pair's template, whose features may be prepared
 
     def template_fit(self) -> tuple[Any, float]:
         """The KD-tree of ``template_grid`` and the fit's inlier cut-off on it (1.5 of its
@@ -227,35 +229,80 @@ def _grids(
     too few points for RANSAC, or holds a scene around the template)."""
     # A large cloud's voxel and spacing floor are measured on a random subset: each pass
     # over a million points costs more than the rest of the front end.
-    small = [random_subset(c, SUBSET_POINTS) for c in (template, source)]
-    spacing = max(median_spacing(c, sample=2048) for c in small)
-    # The RMS radius: a random subset's is close to the whole cloud's, and a scan's few far
-    # points barely move it (the robust search gives voxel_for the centroid radius).
-    radius = float(rms_radius(small[0]))
-    voxel = max(voxel_for(small[0], options.consensus_points, radius), MIN_SPACINGS * spacing)
-    clouds = to_open3d(template), to_open3d(source)
-    coarse = [c.voxel_down_sample(voxel) for c in clouds]
+    side = _TemplateSide(template)  # the template's own views, prepared once where it is
+    small = side.subset, random_subset(source, SUBSET_POINTS)
+    spacing = max(side.spacing, median_spacing(small[1], sample=2048))
+    voxel = max(side.voxel(options.consensus_points), MIN_SPACINGS * spacing)
+    clouds = side.cloud, to_open3d(source)
+    search = o3d.geometry.KDTreeSearchParamHybrid
+    # The template's normals on both grids, for point-to-plane ICP: the 30 nearest points
+    # within 2 voxels on the first (as the features take them), FINE_NORMALS on the finer.
+    coarse = [
+        side.grid(voxel, search(radius=2 * voxel, max_nn=30), ("coarse", voxel)),
+        clouds[1].voxel_down_sample(voxel),
+    ]
     if min(len(c.points) for c in coarse) < 3 * 3:
         return None
     if len(coarse[1].points) > MAX_SOURCE_SHARE * len(coarse[0].points):
         return None  # an object in a scene: the scene search's work, not this one's
     scan = options.is_scan(len(template)) if scan is None else scan
-    # The template's normals on both grids, for point-to-plane ICP: the 30 nearest points
-    # within 2 voxels on the first (as the features take them), FINE_NORMALS on the finer.
-    search = o3d.geometry.KDTreeSearchParamHybrid
-    coarse[0].estimate_normals(search(radius=2 * voxel, max_nn=30))
-    fine = [c.voxel_down_sample(voxel / FINE_GRID) for c in clouds]
     within = SCAN_FINE_NORMALS if scan else FINE_NORMALS
-    fine[0].estimate_normals(search(radius=within * voxel, max_nn=30))
-    template_grid, source_grid = (
-        np.asarray(c.voxel_down_sample(voxel / CHECK_GRID).points) for c in clouds
-    )
+    normals = search(radius=within * voxel, max_nn=30)
+    fine = [
+        side.grid(voxel / FINE_GRID, normals, ("fine", voxel, within)),
+        clouds[1].voxel_down_sample(voxel / FINE_GRID),
+    ]
+    template_grid = side.points(voxel / CHECK_GRID)
+    source_grid = np.asarray(clouds[1].voxel_down_sample(voxel / CHECK_GRID).points)
     # Scans of scenes are judged with a plane-to-plane nearest fit (point-to-plane ICP
     # refined the pose on the planes); sparse objects with point-to-point.
     nearest = "plane" if scan else "point"
     check = prepare_check(template_grid, source_grid, open3d=True, nearest_fit=nearest, even=False)
     cuts = SCAN_CUTS if scan else CUTS
-    return ConsensusGrids(coarse, fine, voxel, template_grid, source_grid, check, cuts, scan)
+    grids = ConsensusGrids(coarse, fine, voxel, template_grid, source_grid, check, cuts, scan)
+    return grids._replace(template=template)
+
+
+class _TemplateSide:
+    """The template's side of :func:`_grids`, each part a view of the call's prepared
+    template where it has one (:func:`~masknet.geometry.prepared_template.template_view`,
+    keyed by the voxel edge and the point budget), else built as a cold call builds it."""
+
+    def __init__(self, template: np.ndarray) -> None:
+        self.template = template
+        self.subset = self.view("subset", lambda: random_subset(template, SUBSET_POINTS))
+        self.spacing = self.view("spacing", lambda: median_spacing(self.subset, sample=2048))
+        self.cloud = self.view("open3d", lambda: to_open3d(template))
+
+    def view(self, key: Any, build: Any) -> Any:
+        return template_view(self.template, ("consensus", key), build)
+
+    def voxel(self, target: int) -> float:
+        """:func:`voxel_for` of the subset at its RMS radius: a random subset's is close to
+        the whole cloud's, and a scan's few far points barely move it (the robust search
+        gives voxel_for the centroid radius)."""
+        radius = float(rms_radius(self.subset))
+        return self.view(("voxel", target), lambda: voxel_for(self.subset, target, radius))
+
+    def grid(self, voxel: float, normals: Any, key: Any) -> Any:
+        """The template's Open3D cloud on the grid of edge ``voxel``, its normals estimated
+        with ``normals`` (Open3D's search parameter), once per ``key`` (a second estimate
+        would be turned towards the first)."""
+
+        def build() -> Any:
+            grid = self.cloud.voxel_down_sample(voxel)
+            grid.estimate_normals(normals)
+            return grid
+
+        return self.view(("grid", key), build)
+
+    def points(self, voxel: float) -> np.ndarray:
+        """(P, 3) the template's points on the grid of edge ``voxel``."""
+
+        def build() -> np.ndarray:
+            return np.array(self.cloud.voxel_down_sample(voxel).points)
+
+        return template_view(self.template, ("consensus points", voxel), build, hands_out=True)
 
 
 def _consensus(o3d: Any, grids: ConsensusGrids, options: RobustOptions, start: str) -> ConsensusRun:
@@ -290,7 +337,13 @@ def _ransac_poses(o3d: Any, grids: ConsensusGrids) -> list[np.ndarray]:
     coarse, voxel = grids.coarse, grids.voxel
     # At most a quarter of the smaller grid (see FEATURE_SHARE).
     neighbours = min(FEATURE_NEIGHBOURS, min(len(c.points) for c in coarse) // FEATURE_SHARE)
-    features = [fpfh_features(o3d, c, voxel, neighbours, orient=False) for c in coarse]
+    key = ("consensus features", voxel, neighbours)
+    features = [
+        template_view(
+            grids.template, key, lambda: fpfh_features(o3d, coarse[0], voxel, neighbours, False)
+        ),
+        fpfh_features(o3d, coarse[1], voxel, neighbours, orient=False),
+    ]
     matches = feature_matches(features[1], features[0])
     poses = [_seeded_ransac(o3d, grids, matches)]
     if grids.scan:
