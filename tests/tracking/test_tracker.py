@@ -142,3 +142,36 @@ def test_a_right_pose_on_a_dense_floor_stays_tracked_and_trusted():
     for r in results:
         degrees, shift = _errors(seq, r.transform, r.frame)
         assert degrees < 3 and shift < 0.03, (r.frame, degrees, shift)
+
+
+def test_an_object_back_shifted_and_turned_is_refound_near_not_on_a_far_copy(monkeypatch):
+    # Back in view after a lost frame, turned 100 degrees (the turned starts are switched
+    # off: ICP from the last pose alone does not reach it) and shifted a quarter of its
+    # radius, only its upper half seen; a whole copy of it lies 6 radii away. The whole
+    # frame's search picks the copy; the search around the last pose finds the object.
+    from scipy.spatial.transform import Rotation
+
+    from masknet.geometry.clouds import centroid_radius
+    from masknet.tracking import tracker as tracker_module
+
+    monkeypatch.setattr(tracker_module, "NEAR_TURNS_DEG", (0.0,))
+    template = load_modelnet40(bundled_sample_path(), "test").points[24].astype(np.float64)
+    centre, radius = template.mean(0), centroid_radius(template)
+
+    def placed(degrees, axis, shift):  # the template turned about its centre and shifted
+        rotvec = np.deg2rad(degrees) * np.asarray(axis) / np.linalg.norm(axis)
+        turn = Rotation.from_rotvec(rotvec)
+        return (template - centre) @ turn.as_matrix().T + centre + shift * radius
+
+    moved = placed(100, [1, 1, 1], np.array([0.25, 0, 0]))
+    upper = moved[moved[:, 2] > np.median(moved[:, 2])]
+    copy = placed(40, [0, 1, 0], np.array([6.0, 0, 0]))
+    far = centre + np.random.default_rng(0).uniform(8, 9, (40, 3)) * radius
+    tracker = Tracker(template, init=np.eye(4))
+    assert tracker.update(template).state == "tracked"
+    assert tracker.update(far).state == "lost"
+    back = tracker.update(np.vstack([upper, copy]))
+    assert back.state == "refound" and "around the last pose" in back.reason
+    moved_template = back.transform[:3, :3] @ moved.T + back.transform[:3, 3:]  # (3, N)
+    off = np.linalg.norm(moved_template.T - template, axis=1)  # the points back home
+    assert np.median(off) < 0.05 * radius, np.median(off) / radius

@@ -10,17 +10,17 @@ Each frame is one of four states:
   times ``margin`` of the predicted centre (clutter and far surfaces do not pull the fit),
   less the scene's planes there (a floor, a wall: :mod:`masknet.tracking.view`);
   point-to-plane ICP (Open3D) refines the prediction on them; the verdict on those points
-  against the template's side the sensor sees (where the ``viewpoint`` is known) (a quick check of the overlap fit on most frames, the full verdict on every
-  ``FULL_EVERY``-th and where the quick one is not clearly right) keeps the track
-  (``likely correct``, or ``uncertain`` for at most ``max_uncertain`` frames in a row;
-  then the frame is searched, and where no search finds a ``likely correct`` pose the
-  track goes on, ``uncertain``, and searches again after as many);
+  against the template's side the sensor sees (where the ``viewpoint`` is known; a quick
+  check of the overlap fit on most frames, the full verdict on every ``FULL_EVERY``-th and
+  where the quick one is not clearly right) keeps the track (``likely correct``, or
+  ``uncertain`` for at most ``max_uncertain`` frames in a row; then the frame is searched,
+  and where no search finds a ``likely correct`` pose the track goes on, ``uncertain``,
+  and searches again after as many);
 * ``"refound"``: the track slipped (too few points near the prediction, a ``likely
   wrong`` verdict, too many ``uncertain`` ones, ICP carried the pose beyond a frame's
-  motion) and a search found the object again,
-  ``likely correct``: first ICP from the last trusted pose turned about the template's
-  axes (a sudden turn, or the object back where it was hidden: a few dozen short ICPs),
-  then the full default on the whole frame;
+  motion) and a search found the object again, ``likely correct``: ICP from the last
+  trusted pose turned about the template's axes, then the full default on the frame cut
+  to where the object may have moved since (less its planes), then on the whole frame;
 * ``"lost"``: no search found a pose that the verdict calls ``likely correct``; the pose
   is the best guess, never to be trusted (the verdict says how bad). The next frame is
   searched again; where the guess read ``uncertain``, ICP from it first (``tracked`` if
@@ -47,7 +47,7 @@ from masknet.geometry.prepared_template import PreparedTemplate
 from masknet.io_checks import ARRAY_NONFINITE_HINT, check_cloud
 from masknet.registration.judge.arbiter import best_judged
 from masknet.registration.judge.assessment import Assessment
-from masknet.tracking.view import points_near
+from masknet.tracking.view import points_near, turned
 
 __all__ = ["STATES", "TrackResult", "Tracker", "points_near", "track"]
 
@@ -73,6 +73,14 @@ BACKGROUND_PLANES = 2
 # fit and slide search, 5-10 times the cost) where it does not, on every FULL_EVERY-th
 # tracked frame (a slow drift along a loosely pinned motion), and after a search.
 FULL_EVERY = 5
+# Frame-to-frame motions beyond these are jumps, not velocities (the sequences move a few
+# degrees and per cent of the radius a frame).
+MAX_STEP_DEG, MAX_STEP_SHIFT = 10.0, 0.1
+# A re-find: ICP from the last trusted pose turned by these angles (degrees) about the
+# template's axes, then register on the frame cut to MARGIN plus REFIND_JUMP (a jump) plus
+# REFIND_DRIFT a frame since that pose template radii around it, then the whole frame.
+NEAR_TURNS_DEG = (0.0, 30.0, 60.0, 90.0, 135.0, 180.0)
+REFIND_JUMP, REFIND_DRIFT = 0.2, 0.03
 
 
 class TrackResult(NamedTuple):
@@ -191,6 +199,7 @@ class Tracker:
         self._since_full = 0  # tracked frames since the last full verdict
         self._guess = False  # whether the history is a lost frame's uncertain guess
         self._last = None  # the last trusted pose: a later search is a re-find, near it first
+        self._gap = 0  # frames since the last trusted pose
 
     def update(self, frame: np.ndarray, name: str | None = None) -> TrackResult:
         """The object's pose in the next frame (P, 3), any number of points.
@@ -204,6 +213,7 @@ class Tracker:
         """
         start = time.perf_counter()
         index, self._frame = self._frame, self._frame + 1
+        self._gap += 1
         points = self._checked(frame, name or f"frame {index}")
         if points is None:
             self._history = []
@@ -266,6 +276,7 @@ class Tracker:
             return "lost", found
         state = "refound" if self._last is not None else "found"
         self._history, self._uncertain, self._last = [found.transform], 0, found.transform
+        self._gap = 0
         self._since_full, self._guess = 0, False
         return state, found
 
@@ -275,31 +286,36 @@ class Tracker:
         self._since_full = 0 if followed.full else self._since_full + 1
         self._guess = False
         self._history = [*self._history[-1:], followed.transform]
-        self._last = followed.transform
+        self._last, self._gap = followed.transform, 0
         return followed
 
     def _refind(self, points: np.ndarray, why: str) -> _Found:
-        """Search the frame: first around the last trusted pose (the object turned or
-        moved suddenly, or came back where it was hidden), then the full default."""
+        """Search near the last trusted pose (turned, shifted, back from hiding), then all."""
         near = None
         if self._last is not None:
-            near = _best(self._follow(points, start) for start in _turned(self._last, self.centre))
+            near = _best(
+                self._follow(points, start)
+                for start in turned(self._last, self.centre, NEAR_TURNS_DEG)
+            )
             near = near._replace(reason=f"{why}searched near the last pose: {near.reason}")
             if near.verdict == "likely correct":
                 return near
+            around = self._find(points, why, self._last)
+            if around.verdict == "likely correct":
+                return around
+            near = _best([near, around])
         found = self._find(points, why)
         return found if near is None else _best([found, near])  # the better guess, if lost
 
-    def _near(self, points: np.ndarray, transform: np.ndarray) -> np.ndarray:
-        """The frame points (K, 3) within the template's radius times ``margin`` of
-        the template's centre placed by ``transform`` (frame -> template), less those on
-        the scene's planes (:data:`PLANE_BAND`, :func:`~masknet.tracking.view.
-        without_planes`): what of the frame may be the object's."""
+    def _near(self, points: np.ndarray, transform: np.ndarray, moved: float = 0.0) -> np.ndarray:
+        """The frame points (K, 3) within ``margin`` plus ``moved`` template radii of its
+        centre placed by ``transform`` (frame -> template), less the scene's planes there
+        (:func:`~masknet.tracking.view.without_planes`): what may be the object's."""
         from masknet.tracking.view import without_planes  # noqa: PLC0415
 
-        near = points_near(points, transform, self.centre, self.margin * self.radius)
+        near = points_near(points, transform, self.centre, (self.margin + moved) * self.radius)
         placed = np.linalg.solve(transform, np.append(self.centre, 1.0))[:3]
-        reach, band = self.radius * (1 + MAX_STEP_SHIFT), PLANE_BAND * self.spacing
+        reach, band = self.radius * (1 + MAX_STEP_SHIFT + moved), PLANE_BAND * self.spacing
         return without_planes(
             near, placed, reach, band, BACKGROUND_PLANES, PLANE_TRIES, self.min_points, self.seed
         )
@@ -354,13 +370,21 @@ class Tracker:
         # Judged on the points near where ICP ended: a pose that moved keeps its object.
         return self._judged(self._near(points, pose), pose, "", quick)
 
-    def _find(self, points: np.ndarray, why: str) -> _Found:
-        """The full default, :func:`masknet.register`, on the whole frame."""
+    def _find(self, points: np.ndarray, why: str, last: np.ndarray | None = None) -> _Found:
+        """The full default, :func:`masknet.register`, on the whole frame; with ``last``
+        (4, 4), on the frame cut to where the object may have moved since that pose."""
         from masknet.registration.api import register
 
-        result = register(self.prepared, points, **self.register_options)
+        searched, options, how = points, self.register_options, "searched: "
+        if last is not None:
+            searched = self._near(points, last, REFIND_JUMP + REFIND_DRIFT * self._gap)
+            options = {k: v for k, v in options.items() if k != "scene"}
+            how = "searched around the last pose: "
+            if len(searched) < self.min_points:
+                return self._judged(searched, last, why + how)
+        result = register(self.prepared, searched, **options)
         transform = np.asarray(result.transform, dtype=np.float64)
-        return self._judged(self._near(points, transform), transform, why + "searched: ")
+        return self._judged(self._near(points, transform), transform, why + how)
 
 
 class _Found(NamedTuple):
@@ -387,31 +411,6 @@ def _as_pose(value: Any) -> np.ndarray:
     from masknet.registration.terms.validation import as_rigid_transforms
 
     return np.asarray(as_rigid_transforms(value, 1)[0], dtype=np.float64)
-
-
-# The starts of a search near the last pose: turns about the template's axes through its
-# centre, by these angles (degrees); ICP from each reaches a jump of tens of degrees.
-NEAR_TURNS_DEG = (0.0, 30.0, 60.0, 90.0, 135.0, 180.0)
-
-
-def _turned(transform: np.ndarray, centre: np.ndarray) -> list[np.ndarray]:
-    """``transform`` (4, 4) followed by turns of the template about ``centre`` (3,): the
-    identity and each of :data:`NEAR_TURNS_DEG` about the x, y and z axes, both ways."""
-    from scipy.spatial.transform import Rotation
-
-    starts = [transform]
-    for angle in NEAR_TURNS_DEG[1:]:
-        for axis in np.concatenate([np.eye(3), -np.eye(3)]):
-            turn = np.eye(4)
-            turn[:3, :3] = Rotation.from_rotvec(np.deg2rad(angle) * axis).as_matrix()
-            turn[:3, 3] = centre - turn[:3, :3] @ centre
-            starts.append(turn @ transform)
-    return starts
-
-
-# Frame-to-frame motions beyond these are jumps, not velocities (the sequences move a few
-# degrees and per cent of the radius a frame).
-MAX_STEP_DEG, MAX_STEP_SHIFT = 10.0, 0.1
 
 
 def _quick_check(prepared: Any, transform: np.ndarray) -> Assessment | None:

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["background_plane", "points_near", "visible_side", "without_planes"]
+__all__ = ["background_plane", "points_near", "turned", "visible_side", "without_planes"]
 
 SCORED_POINTS = 2048  # a RANSAC plane is scored on at most this many points beyond the reach
 
@@ -111,3 +111,21 @@ def points_near(
     template: the object's surroundings, where its verdict is asked."""
     placed = np.linalg.solve(transform, np.append(centre, 1.0))[:3]
     return points[np.linalg.norm(points - placed, axis=1) <= reach]
+
+
+def turned(
+    transform: np.ndarray, centre: np.ndarray, angles: tuple[float, ...]
+) -> list[np.ndarray]:
+    """``transform`` (4, 4, frame -> template) followed by turns of the template about
+    ``centre`` (3,): itself, then each nonzero angle of ``angles`` (degrees) about the x, y
+    and z axes, both ways (1 + 6 per angle transforms)."""
+    from scipy.spatial.transform import Rotation
+
+    starts = [transform]
+    for angle in (a for a in angles if a != 0):
+        for axis in np.concatenate([np.eye(3), -np.eye(3)]):
+            turn = np.eye(4)
+            turn[:3, :3] = Rotation.from_rotvec(np.deg2rad(angle) * axis).as_matrix()
+            turn[:3, 3] = centre - turn[:3, :3] @ centre
+            starts.append(turn @ transform)
+    return starts
