@@ -129,6 +129,21 @@ def test_descriptors_do_not_change_with_a_turn_or_the_units(surface_pair):
         assert (off < 5e-3).float().mean() > 0.999 and off.max() < 0.05
 
 
+def test_each_match_distance_is_to_the_nearest_descriptor_of_the_other_cloud(surface_pair):
+    """One distance matrix, read along both axes, gives both clouds' match channels."""
+    pytest.importorskip("open3d")
+    from masknet.models.descriptors import pair_descriptors
+
+    template, source = (torch.as_tensor(c, dtype=torch.float32)[None] for c in surface_pair)
+    t, s = pair_descriptors(template, source)
+    ft, fs = t[0, :, :33].double(), s[0, :, :33].double()
+    # float64 reference; the channels come from a float32 matrix (|a|^2 - 2ab + |b|^2).
+    near = {"atol": 2e-4, "rtol": 0.0}
+    torch.testing.assert_close(t[0, :, 33].double(), torch.cdist(ft, fs).amin(1), **near)
+    torch.testing.assert_close(s[0, :, 33].double(), torch.cdist(fs, ft).amin(1), **near)
+    assert s[0, :, 33].max() > 0  # a distance, not a placeholder
+
+
 def test_descriptor_inputs_round_trip_and_predict(tmp_path, surface_pair):
     pytest.importorskip("open3d")
     model = CrossMaskNet(**DESCRIBED).eval()

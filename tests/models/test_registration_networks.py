@@ -12,7 +12,7 @@ from masknet.geometry import (
 )
 from masknet.geometry.se3 import make_transform, quaternion_to_rotation
 from masknet.models import DCP, PCRNet, PRNet, RPMNet
-from masknet.models.layers import EdgeConvEncoder, sinkhorn, soft_assignment
+from masknet.models.layers import EdgeConvEncoder, gather_points, sinkhorn, soft_assignment
 from masknet.models.rpmnet import point_pair_features
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -96,6 +96,32 @@ def test_edgeconv_matches_the_per_edge_formula():
     expected = torch.nn.functional.leaky_relu(encoder.out(first), 0.2)
     with torch.no_grad():
         torch.testing.assert_close(encoder(points)[0], expected.detach())
+
+
+def test_gather_points_equals_an_expanded_gather_and_carries_gradients():
+    """The index_select form picks the same rows as torch.gather, batch by batch."""
+    torch.manual_seed(2)
+    values = torch.randn(3, 10, 4, dtype=torch.float64, requires_grad=True)
+    idx = torch.randint(0, 10, (3, 10, 5))
+    expected = torch.gather(values, 1, idx.reshape(3, -1, 1).expand(-1, -1, 4)).reshape(3, 10, 5, 4)
+    got = gather_points(values, idx)
+    assert torch.equal(got, expected)
+    got.sum().backward()
+    counts = torch.zeros(3, 10, dtype=torch.float64).scatter_add_(
+        1, idx.reshape(3, -1), torch.ones(3, 50, dtype=torch.float64)
+    )
+    torch.testing.assert_close(values.grad, counts[..., None].expand(-1, -1, 4))
+
+
+def test_static_edgeconv_over_a_batch_equals_each_pair_alone():
+    """Batched gathers keep each cloud's graph to its own points (offsets per batch element)."""
+    torch.manual_seed(3)
+    encoder = EdgeConvEncoder((6, 8), 5, k=4, dynamic=False, extra_channels=2).double().eval()
+    points, extra = torch.randn(2, 9, 3, dtype=torch.float64), torch.randn(2, 9, 2).double()
+    with torch.no_grad():
+        batched = encoder(points, extra)
+        alone = torch.cat([encoder(points[i : i + 1], extra[i : i + 1]) for i in range(2)])
+    torch.testing.assert_close(batched, alone)
 
 
 def test_soft_assignment_rows_sum_to_one_and_sinkhorn_with_slack_is_sub_stochastic():

@@ -62,11 +62,17 @@ def fpfh_descriptors(points: np.ndarray, o3d: object | None = None) -> np.ndarra
     return (np.asarray(feature.data).T / 200.0).astype(np.float32)
 
 
-def _with_match(own: np.ndarray, other: np.ndarray) -> np.ndarray:
-    """(P, 34): ``own`` (P, 33) and each row's distance to the nearest row of ``other``."""
-    # A few hundred to a thousand rows each: one distance matrix, no 33-D tree.
-    distance = torch.cdist(torch.from_numpy(own), torch.from_numpy(other)).amin(1).numpy()
-    return np.concatenate([own, distance[:, None]], axis=1)
+def _with_match(first: np.ndarray, second: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(P, 34) and (Q, 34): ``first`` (P, 33) and ``second`` (Q, 33), each row with its
+    distance to the nearest row of the other."""
+    # A few hundred to a thousand rows each: one distance matrix, no 33-D tree, read
+    # along both axes.
+    distance = torch.cdist(torch.from_numpy(first), torch.from_numpy(second))
+    to_second, to_first = distance.amin(1).numpy(), distance.amin(0).numpy()
+    return (
+        np.concatenate([first, to_second[:, None]], axis=1),
+        np.concatenate([second, to_first[:, None]], axis=1),
+    )
 
 
 def pair_descriptors(template: Tensor, source: Tensor, kind: str = "fpfh") -> tuple[Tensor, Tensor]:
@@ -87,8 +93,8 @@ def pair_descriptors(template: Tensor, source: Tensor, kind: str = "fpfh") -> tu
     t_out, s_out = [], []
     with open3d_threads(torch.get_num_threads()):
         for t, s in zip(t_all, s_all, strict=True):
-            ft, fs = fpfh_descriptors(t, o3d), fpfh_descriptors(s, o3d)
-            t_out.append(_with_match(ft, fs))
-            s_out.append(_with_match(fs, ft))
+            ft, fs = _with_match(fpfh_descriptors(t, o3d), fpfh_descriptors(s, o3d))
+            t_out.append(ft)
+            s_out.append(fs)
     as_tensor = lambda rows: torch.from_numpy(np.stack(rows)).to(template.device)  # noqa: E731
     return as_tensor(t_out), as_tensor(s_out)
