@@ -13,13 +13,8 @@ from pathlib import Path
 
 import pytest
 
-# The shared readers of the source tree (tests/source_tree.py), loaded by path: the tests
-# folder is no package.
-_spec = importlib.util.spec_from_file_location(
-    "source_tree", Path(__file__).with_name("source_tree.py")
-)
-source_tree = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(source_tree)
+import source_tree  # tests/source_tree.py, on pytest's pythonpath
+
 ROOT, SRC = source_tree.ROOT, source_tree.SRC
 top_level_functions, called_names = source_tree.top_level_functions, source_tree.called_names
 _called = source_tree.called
