@@ -253,18 +253,18 @@ def test_the_verdict_on_the_prepared_pair_is_the_verdict_from_scratch(scan_like_
 
 def test_the_front_ends_verdict_view_is_a_fresh_one_of_its_grids(scan_like_pair, o3d):
     from masknet.registration.judge.assessment import judge
-    from masknet.registration.stages.consensus import consensus_register
+    from masknet.registration.stages.consensus import consensus_grids, consensus_register
     from masknet.registration.terms.options import RobustOptions
 
     template, source = scan_like_pair
     pair = PreparedPair(template, source, 4096)
     found = consensus_register(template, source, RobustOptions(), {}, "first", pair)
-    grids = found.grids
+    grids = consensus_grids(pair, RobustOptions())
     fresh = prepare_check(grids.template_grid, grids.source_grid, open3d=True, even=False)
-    assert judge(grids.check, found.transform) == judge(fresh, found.transform)
+    assert judge(grids.check, found.pose) == judge(fresh, found.pose) == found.check
     tree, limit = grids.template_fit()
     assert tree is grids.check.tree and limit == 1.5 * median_spacing(
         grids.template_grid, sample=2048
     )
-    again = consensus_register(template, source, RobustOptions(), {}, "first", pair)
-    assert again.grids is grids  # the pair's grids view, not a second one
+    consensus_register(template, source, RobustOptions(), {}, "first", pair)
+    assert consensus_grids(pair, RobustOptions()) is grids  # the pair's view, not a second one

@@ -12,7 +12,8 @@ from masknet.errors import MaskNetError
 from masknet.evaluation.registration import pose_errors
 from masknet.registration.judge.arbiter import verdict_rank
 from masknet.registration.judge.assessment import Assessment
-from masknet.registration.stages.consensus import consensus_register
+from masknet.registration.judge.prepared import PreparedPair
+from masknet.registration.stages.consensus import consensus_grids, consensus_register
 from masknet.registration.terms.options import RobustOptions
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -31,19 +32,21 @@ def test_the_consensus_registers_the_3dmatch_pair(threedmatch):
     template, source, truth = threedmatch
     times: dict[str, float] = {}
     found = consensus_register(template, source, RobustOptions(), times)
-    rotation, translation = pose_errors(found.transform[None], truth[None])
+    rotation, translation = pose_errors(found.pose[None], truth[None])
     assert rotation[0] < 2.0 and translation[0] < 0.10, (rotation, translation)
     assert found.check.verdict == "likely correct"
     assert times["consensus"] > 0
     # The check's grid is twice as fine as the first (about 1,500 template points).
-    assert 3 * 1500 < len(found.grids.template_grid) < 8 * 1500
+    assert found.stage in ("start", "ransac")
+    grids = consensus_grids(PreparedPair(template, source, 4096), RobustOptions())
+    assert 3 * 1500 < len(grids.template_grid) < 8 * 1500
 
 
 def test_the_consensus_repeats(threedmatch):
     """RANSAC seeded and on one thread: the same pair gives the same pose, to rounding
     (Open3D's ICP and normals sum in parallel: measured 6e-16 apart)."""
     template, source, _ = threedmatch
-    poses = [consensus_register(template, source, RobustOptions(), {}).transform for _ in "ab"]
+    poses = [consensus_register(template, source, RobustOptions(), {}).pose for _ in "ab"]
     np.testing.assert_allclose(*poses, rtol=0, atol=1e-9)
 
 
@@ -237,7 +240,7 @@ def test_a_scan_view_is_not_turned_over_by_the_front_end(scans_dir, o3d):
     rotation, _ = pose_errors(result.transform[None], truth[None])
     assert rotation[0] < 5.0, rotation
     found = consensus_register(template, source, RobustOptions(), {})  # without the start
-    assert pose_errors(found.transform[None], truth[None])[0][0] > 90
+    assert pose_errors(found.pose[None], truth[None])[0][0] > 90
 
 
 def test_a_start_the_verdict_calls_right_spares_ransac(sparse_pairs, o3d, monkeypatch):
@@ -259,7 +262,7 @@ def test_a_start_the_verdict_calls_right_spares_ransac(sparse_pairs, o3d, monkey
     monkeypatch.setattr(consensus, "_ransac_poses", counted)
     found = consensus_register(template, source, RobustOptions(), {}, start="first")
     assert found.check.verdict == "likely correct"
-    assert pose_errors(found.transform[None], truth[None])[0][0] < 2.0
+    assert pose_errors(found.pose[None], truth[None])[0][0] < 2.0
     assert calls == []
     consensus_register(template, source, RobustOptions(), {}, start="never")
     assert calls == [1]
@@ -274,7 +277,7 @@ def test_a_start_the_verdict_calls_right_spares_ransac(sparse_pairs, o3d, monkey
     moved = source @ turn[:3, :3].T + turn[:3, 3]
     found = consensus_register(template, moved, RobustOptions(), {}, start="first")
     assert calls == [1, 1]
-    assert pose_errors(found.transform[None], (truth @ np.linalg.inv(turn))[None])[0][0] < 5.0
+    assert pose_errors(found.pose[None], (truth @ np.linalg.inv(turn))[None])[0][0] < 5.0
 
 
 def test_features_on_a_sparse_grid_stay_local(sparse_pairs, o3d, monkeypatch):
@@ -331,7 +334,7 @@ def test_scans_take_a_third_cut_and_a_plane_to_plane_verdict(threedmatch, monkey
     found = consensus_register(template, source, RobustOptions(), {})
     assert found.check.verdict == "likely correct" and fits
     assert sum(cuts[:2]) == len(consensus.SCAN_CUTS) == 3  # one coarse cut, two fine
-    rotation, translation = pose_errors(found.transform[None], truth[None])
+    rotation, translation = pose_errors(found.pose[None], truth[None])
     assert rotation[0] < 0.8 and translation[0] < 0.08, (rotation, translation)
     cuts.clear(), fits.clear()
     few = RobustOptions(consensus_from=10 * len(template))  # the same clouds as a sparse pair
@@ -359,7 +362,7 @@ def test_scans_take_the_finer_grids_normals_within_two_voxels(threedmatch, monke
         for draw in range(8):
             template, source, truth = _draw(threedmatch, draw)
             found = consensus_register(template, source, RobustOptions(), {})
-            errors.append(pose_errors(found.transform[None], truth[None])[0][0])
+            errors.append(pose_errors(found.pose[None], truth[None])[0][0])
         return float(np.mean(errors))
 
     assert mean_error() < 0.95

@@ -95,7 +95,7 @@ from masknet.registration.judge.prepared import PreparedPair, check_points
 from masknet.registration.judge.shape import SHAPE, PairShape, classify_template
 from masknet.registration.solvers.backends.base import MaskModels
 from masknet.registration.solvers.icp import icp
-from masknet.registration.stages.consensus import ConsensusRun, consensus_register
+from masknet.registration.stages import consensus as front_end
 from masknet.registration.stages.robust import NetworkMasks, pipeline_run
 from masknet.registration.stages.rounds import mask_and_register
 from masknet.registration.stages.search import REFINE_TOLERANCE, coarse_to_fine
@@ -166,17 +166,16 @@ def _one(
 ) -> Solution:
     """One pair: template (N, 3), source (M, 3); ``nets`` the clouds the networks see. The
     pair is prepared once here, and every stage and the verdict read its views."""
+    clouds = template, source
     pair = PreparedPair(template, source, options.fine_points)
     route = _Route.first(template, options, times)
     consensus = None
     if route.on and (route.sparse or route.scan):
-        # The pose as given is judged first, except on scans so large that it seldom is
-        # right and its ICP costs what RANSAC does.
-        large = len(template) >= CONSENSUS_FIRST * options.consensus_from
+        large = len(template) >= CONSENSUS_FIRST * options.consensus_from  # see the constant
         start = "never" if large else "first"
-        consensus = consensus_register(template, source, options, times, start, pair, route.scan)
+        consensus = front_end.consensus_register(*clouds, options, times, start, pair, route.scan)
         if consensus is not None and arbiter.settles(consensus.check):
-            return _consensus_run(consensus, template, source, model, "consensus")
+            return _consensus_run(consensus, pair, options, route.scan, model, "consensus")
     fast = None
     if not _turned(template, source, options, route):  # the fast path starts from the pose
         accept = options.object_accept_fitness if route.dense_object else options.accept_fitness
@@ -188,13 +187,14 @@ def _one(
     if late and route.on and partial:  # both clouds partial: measured now
         route = route.measured(template, options, times)
         if route.scan:  # a scan's front end, its pose to compete with the search's
-            consensus = consensus_register(template, source, options, times, "first", pair, True)
+            consensus = front_end.consensus_register(*clouds, options, times, "first", pair, True)
     run = _escalate(pair, nets, fast, model, search_model, options, times, precision)
     if route.scan and consensus is not None and _competes(consensus.check, late):
         # The search's one-way score can prefer a pose slid along a wall that the verdict
         # sees through. Not on sparse clouds: there the verdict called right search answers
         # worse than consensus poses 60-180 degrees off.
-        searched = judge(consensus.grids.check, run.transform[0])
+        grids = front_end.consensus_grids(pair, options, route.scan)
+        searched = judge(grids.check, run.transform[0])
         if late:  # a thin object reads as one-sided: the search's exact pose is kept
             wins = arbiter.better_verdict(consensus.check, searched)
         else:
@@ -202,7 +202,7 @@ def _one(
         if wins:
             escalated = float(run.info["escalated_fitness"][0])
             path = "robust/consensus"
-            return _consensus_run(consensus, template, source, model, path, escalated)
+            return _consensus_run(consensus, pair, options, route.scan, model, path, escalated)
     return run
 
 
@@ -440,41 +440,40 @@ def _fast_after_all(run: Solution, fast: _Fast, options: RobustOptions) -> Solut
 
 
 def _consensus_run(
-    found: ConsensusRun,
-    template: np.ndarray,
-    source: np.ndarray,
+    found: Candidate,
+    pair: PreparedPair,
+    options: RobustOptions,
+    scan: bool | None,
     model: MaskNet | TwoSidedMaskNet | None,
     path: str,
     escalated: float = np.nan,
 ) -> Solution:
     """The consensus front end's answer as the pipeline's result (``escalated``: the fast
-    path's fit where it ran before): its fit on the check's
-    grid; with a network, the template points the moved source covers (measured on that
-    grid: over the full clouds it cost more than the whole front end on 1M points), and
-    with a two-sided one (a source mask asked for) the source points the pose lays on the
-    template."""
-    grid_template, grid_source = found.grids.template_grid, found.grids.source_grid
-    tree, limit = found.grids.template_fit()
-    fit = pose_fit(tree, grid_source, found.transform, limit)
+    path's fit where it ran before): its fit on the grids it was judged on (``scan`` as the
+    front end took it); with a network, the template points the moved source covers
+    (measured on that grid: over the full clouds it cost more than the whole front end on
+    1M points), and with a two-sided one the source points the pose lays on the template."""
+    grids = front_end.consensus_grids(pair, options, scan)
+    grid_template, grid_source = grids.template_grid, grids.source_grid
+    tree, limit = grids.template_fit()
+    fit = pose_fit(tree, grid_source, found.pose, limit)
     mask = source_mask = None
     if model is not None:  # on the grid, each template point taking its grid point's label
-        moved = transform_points(found.transform, grid_source)
+        moved = transform_points(found.pose, grid_source)
         covered = covered_points(grid_template, moved, limit)
-        mask = spread_labels(template, grid_template, covered)[None]
+        mask = spread_labels(pair.template, grid_template, covered)[None]
         if isinstance(model, TwoSidedMaskNet):
             on_template = covered_points(moved, grid_template, limit)
-            source_mask = spread_labels(source, grid_source, on_template)[None]
-    info = _info(path, fit, escalated)
-    info["source"] = np.array(["consensus"])
-    return Solution(found.transform[None], mask, source_mask, info)
+            source_mask = spread_labels(pair.source, grid_source, on_template)[None]
+    return Solution(found.pose[None], mask, source_mask, _info(path, fit, escalated, "consensus"))
 
 
-def _info(path: str, fit: PoseFit, escalated: float) -> dict[str, np.ndarray]:
+def _info(path: str, fit: PoseFit, escalated: float, source: str = "fast") -> dict[str, np.ndarray]:
     """The info (:data:`~masknet.registration.terms.result.AUTO_INFO`) of a result that is not
-    the search's: one pose, no runner-up."""
+    the search's (``source``: the fast path's or the front end's): one pose, no runner-up."""
     pair = PipelineInfo(
         path=path,
-        source="fast",
+        source=source,
         fitness=fit.fitness,
         inlier_rmse=fit.rmse,
         ambiguous=False,

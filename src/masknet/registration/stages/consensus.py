@@ -35,7 +35,7 @@ larger scans it takes no part.
 Example::
 
     found = consensus_register(template, source, RobustOptions(), times={})
-    found.transform, found.check.verdict
+    found.pose, found.stage, found.check.verdict
 """
 
 from __future__ import annotations
@@ -71,7 +71,7 @@ from masknet.registration.solvers.open3d_global import (
 from masknet.registration.solvers.open3d_icp import point_to_plane_at_cuts
 from masknet.registration.terms.options import RobustOptions, inlier_cutoff
 
-__all__ = ["ConsensusGrids", "ConsensusRun", "consensus_register"]
+__all__ = ["ConsensusGrids", "consensus_grids", "consensus_register"]
 
 MIN_SPACINGS = 2.0  # the grid's edge, at least, in the clouds' point spacings
 # Clouds larger than this are measured (voxel, spacing) on a random subset of this size.
@@ -165,16 +165,6 @@ class ConsensusGrids(NamedTuple):
         return tree, inlier_cutoff(median_spacing(self.template_grid, tree, sample=2048))
 
 
-class ConsensusRun(NamedTuple):
-    """transform: (4, 4) source -> template. check: the verdict on the check's grid.
-    grids: the pair's grids (:class:`ConsensusGrids`: the first grid's edge, the clouds on
-    the check's grid and the verdict's view of them, to judge other poses alike)."""
-
-    transform: np.ndarray
-    check: Assessment
-    grids: ConsensusGrids
-
-
 START_POLICIES = ("never", "first")  # consensus_register's ``start``
 
 
@@ -186,10 +176,13 @@ def consensus_register(
     start: str = "never",
     prepared: PreparedPair | None = None,
     scan: bool | None = None,
-) -> ConsensusRun | None:
+) -> Candidate | None:
     """The front end of the module docstring for template (N, 3) and source (M, 3),
-    float64, any unit. None where Open3D is missing, a grid leaves too few points for
-    RANSAC, or the source's grid holds over ``MAX_SOURCE_SHARE`` times the template's.
+    float64, any unit: its answer, judged (a
+    :class:`~masknet.registration.judge.arbiter.Candidate` of stage ``"start"`` or
+    ``"ransac"``, its check on the grids of :func:`consensus_grids`). None where Open3D is
+    missing, a grid leaves too few points for RANSAC, or the source's grid holds over
+    ``MAX_SOURCE_SHARE`` times the template's.
 
     ``start``, what the pose as given does (:func:`_start_competes`): with ``"never"`` it
     takes no part; ``"first"`` is refined and judged first, ends the call where it is ``likely
@@ -207,15 +200,28 @@ def consensus_register(
 
     tic = time.perf_counter()
     pair = PreparedPair(template, source, options.fine_points) if prepared is None else prepared
-    scan = options.is_scan(len(template)) if scan is None else scan
-    grids = pair.view(
-        ("consensus grids", options, scan), lambda: _grids(o3d, template, source, options, scan)
-    )
+    grids = consensus_grids(pair, options, scan)
     found = None
     if grids is not None:
         found = _consensus(o3d, grids, options, start)
     times["consensus"] = times.get("consensus", 0.0) + time.perf_counter() - tic
     return found
+
+
+def consensus_grids(
+    pair: PreparedPair, options: RobustOptions, scan: bool | None = None
+) -> ConsensusGrids | None:
+    """The front end's grids of the prepared ``pair`` (a view of it, built once; ``scan`` as
+    :func:`consensus_register` takes it), on which its answer was judged: another pose is
+    judged alike on ``.check``. None as :func:`consensus_register` returns None (Open3D
+    is needed)."""
+    import open3d as o3d
+
+    scan = options.is_scan(len(pair.template)) if scan is None else scan
+    return pair.view(
+        ("consensus grids", options, scan),
+        lambda: _grids(o3d, pair.template, pair.source, options, scan),
+    )
 
 
 def _grids(
@@ -305,12 +311,8 @@ class _TemplateSide:
         return template_view(self.template, ("consensus points", voxel), build, hands_out=True)
 
 
-def _consensus(o3d: Any, grids: ConsensusGrids, options: RobustOptions, start: str) -> ConsensusRun:
+def _consensus(o3d: Any, grids: ConsensusGrids, options: RobustOptions, start: str) -> Candidate:
     """Steps 2 to 4 on ``grids``, with the pose as given as ``start`` says."""
-
-    def run(pose: np.ndarray, check: Assessment) -> ConsensusRun:
-        return ConsensusRun(pose, check, grids)
-
     near = near_check = None
     if start == "first":
         # On sparse clouds the pose as given is right about as often as RANSAC's, at a
@@ -319,12 +321,12 @@ def _consensus(o3d: Any, grids: ConsensusGrids, options: RobustOptions, start: s
         near = _point_to_plane(grids, _centroids_matched(o3d, *grids.coarse))
         near_check = judge(grids.check, near)
         if arbiter.settles(near_check):
-            return run(near, near_check)
+            return Candidate(near, "start", check=near_check)
     best = _best_judged(grids, _ransac_poses(o3d, grids), options)
-    pose, check = best.pose, best.check
-    if near is not None:
-        pose, check = _start_competes(pose, check, near, grids.check, options, near_check)
-    return run(pose, check)
+    if near is None:
+        return best
+    pose, check = _start_competes(best.pose, best.check, near, grids.check, options, near_check)
+    return Candidate(pose, "start" if pose is near else "ransac", check=check)
 
 
 def _ransac_poses(o3d: Any, grids: ConsensusGrids) -> list[np.ndarray]:
