@@ -215,6 +215,7 @@ def _picture(template, first, rows: list[dict], path: Path, args: argparse.Names
             [r["state"] for r in rows],
             path,
             every=args.every,
+            viewpoint=args.viewpoint,
             title=f"masknet track: {Path(args.template).name} through {len(rows)} frames",
         )
     except MaskNetError as exc:  # no matplotlib: the poses are the answer
