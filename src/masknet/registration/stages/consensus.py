@@ -236,7 +236,7 @@ def _grids(
     clouds = side.cloud, to_open3d(source)
     # The template's normals on both grids, for point-to-plane ICP: the 30 nearest points
     # within 2 voxels on the first (as the features take them), FINE_NORMALS on the finer;
-    # where those lie on a line (a lidar ring), the 30 nearest (grid_normals).
+    # on a grid where most points have no plane there (lidar rings), the 30 nearest.
     coarse = [side.grid(voxel, 2 * voxel, ("coarse", voxel)), clouds[1].voxel_down_sample(voxel)]
     if min(len(c.points) for c in coarse) < 3 * 3:
         return None
