@@ -49,7 +49,7 @@ from masknet._moved import moved_names
 from masknet._open3d import open3d_threads
 from masknet.geometry.clouds import median_spacing, rms_radius
 from masknet.geometry.knn import cloud_tree
-from masknet.geometry.open3d_clouds import to_open3d
+from masknet.geometry.open3d_clouds import grid_normals, to_open3d
 from masknet.geometry.prepared_template import template_view
 from masknet.geometry.sampling import random_subset
 from masknet.io import has_open3d
@@ -240,22 +240,19 @@ def _grids(
     spacing = max(side.spacing, median_spacing(small[1], sample=2048))
     voxel = max(side.voxel(options.consensus_points), MIN_SPACINGS * spacing)
     clouds = side.cloud, to_open3d(source)
-    search = o3d.geometry.KDTreeSearchParamHybrid
     # The template's normals on both grids, for point-to-plane ICP: the 30 nearest points
-    # within 2 voxels on the first (as the features take them), FINE_NORMALS on the finer.
-    coarse = [
-        side.grid(voxel, search(radius=2 * voxel, max_nn=30), ("coarse", voxel)),
-        clouds[1].voxel_down_sample(voxel),
-    ]
+    # within 2 voxels on the first (as the features take them), FINE_NORMALS on the finer;
+    # on a grid where most points have no plane there (lidar rings), the 30 nearest.
+    coarse = [side.grid(voxel, 2 * voxel, ("coarse", voxel)), clouds[1].voxel_down_sample(voxel)]
     if min(len(c.points) for c in coarse) < 3 * 3:
         return None
     if len(coarse[1].points) > MAX_SOURCE_SHARE * len(coarse[0].points):
         return None  # an object in a scene: the scene search's work, not this one's
+    grid_normals(coarse[1], 2 * voxel)  # the source's, as its features take them
     scan = options.is_scan(len(template)) if scan is None else scan
     within = SCAN_FINE_NORMALS if scan else FINE_NORMALS
-    normals = search(radius=within * voxel, max_nn=30)
     fine = [
-        side.grid(voxel / FINE_GRID, normals, ("fine", voxel, within)),
+        side.grid(voxel / FINE_GRID, within * voxel, ("fine", voxel, within)),
         clouds[1].voxel_down_sample(voxel / FINE_GRID),
     ]
     template_grid = side.points(voxel / CHECK_GRID)
@@ -290,14 +287,14 @@ class _TemplateSide:
         radius = float(rms_radius(self.subset))
         return self.view(("voxel", target), lambda: voxel_for(self.subset, target, radius))
 
-    def grid(self, voxel: float, normals: Any, key: Any) -> Any:
-        """The template's Open3D cloud on the grid of edge ``voxel``, its normals estimated
-        with ``normals`` (Open3D's search parameter), once per ``key`` (a second estimate
-        would be turned towards the first)."""
+    def grid(self, voxel: float, radius: float, key: Any) -> Any:
+        """The template's Open3D cloud on the grid of edge ``voxel``, its normals from the
+        points within ``radius`` (:func:`~masknet.geometry.open3d_clouds.grid_normals`),
+        once per ``key`` (a second estimate would be turned towards the first)."""
 
         def build() -> Any:
             grid = self.cloud.voxel_down_sample(voxel)
-            grid.estimate_normals(normals)
+            grid_normals(grid, radius)
             return grid
 
         return self.view(("grid", key), build)
