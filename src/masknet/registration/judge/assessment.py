@@ -46,6 +46,7 @@ import numpy as np
 from masknet.geometry.clouds import rms_radius
 from masknet.geometry.se3 import transform_points
 from masknet.registration.judge.constraints import (
+    Slide,
     best_slide,
     describe_free,
     direction_text,
@@ -147,7 +148,9 @@ class Assessment(NamedTuple):
     pose. least_pinned: the motion it pins least, in those words, free or not (empty where
     under a dozen pairs fit). slide_gain: how much more of the overlap (both ways) fits at
     the pose slid along its two least pinned motions (up to a quarter of the radius) than
-    at the pose or its nearest fit (:func:`~masknet.registration.judge.constraints.best_slide`)."""
+    at the pose or its nearest fit (:func:`~masknet.registration.judge.constraints.best_slide`;
+    0 where the overlap fit or a nearby fit already makes the pose ``likely wrong``: no slide
+    is searched)."""
 
     verdict: str
     reason: str
@@ -274,7 +277,11 @@ def judge(prepared: PreparedCheck, transform: np.ndarray) -> Assessment:
     pinned = pose_constraint(prepared.template, template_tree, moved, limit)
     constraint = 1.0 if pinned is None else float(pinned.ratios[0])
     free = describe_free(pinned, FREE_RATIO)
-    slide = best_slide(template_tree, prepared.template_points, moved, limit, pinned, overlap_fit)
+    slide = Slide(0.0, np.zeros(3))  # no slide is searched where the verdict is already wrong
+    if RULE_VERDICTS[verdict_rule(overlap_fit, nearby_deg, nearby_shift)] != "likely wrong":
+        slide = best_slide(
+            template_tree, prepared.template_points, moved, limit, pinned, overlap_fit
+        )
     rule = verdict_rule(overlap_fit, nearby_deg, nearby_shift, constraint, slide.gain)
     verdict = RULE_VERDICTS[rule]
     if rule == "overlap":

@@ -193,7 +193,7 @@ def best_slide(
     pose). The gain is over the better of the pose's fit and ``floor`` (the fit at the
     verdict's nearest fit: a pose a few degrees off gains by a slide, its nearest fit more)."""
     from masknet.geometry.knn import cloud_tree
-    from masknet.registration.judge.fit import overlap_fit
+    from masknet.registration.judge.fit import overlap_fits
 
     none = Slide(0.0, np.zeros(3))
     if constraint is None:
@@ -201,37 +201,36 @@ def best_slide(
     # The source slid by an offset is the template slid back by it: one tree serves all.
     source_tree = cloud_tree(moved)
 
-    def fits(offset: np.ndarray, stride: tuple[int, int] = (1, 1)) -> np.ndarray:
-        """(2,) the overlap fit of the source and of the template at ``offset``, on every
-        ``stride``-th point of each."""
-        return np.array(
+    def fits(offsets: np.ndarray, stride: tuple[int, int] = (1, 1)) -> np.ndarray:
+        """(C, 2) the overlap fit of the source and of the template at each of ``offsets``
+        (C, 3), on every ``stride``-th point of each, each tree queried once for all C."""
+        source, template = moved[:: stride[0]], template_points[:: stride[1]]
+        return np.stack(
             [
-                overlap_fit(tree, moved[:: stride[0]] + offset, limit)[0],
-                overlap_fit(source_tree, template_points[:: stride[1]] - offset, limit)[0],
-            ]
+                overlap_fits(tree, source[None] + offsets[:, None], limit)[:, 0],
+                overlap_fits(source_tree, template[None] - offsets[:, None], limit)[:, 0],
+            ],
+            axis=1,
         )
 
-    def gain(offset: np.ndarray, stride: tuple[int, int], base: np.ndarray) -> float:
-        slid = fits(offset, stride)
-        return float(min(*(slid - base), slid.min() - max(base.min(), floor)))
+    def gains(slid: np.ndarray, base: np.ndarray) -> np.ndarray:
+        """(C,) the gain of each slid fit (C, 2) over ``base`` (2,) and ``floor``."""
+        return np.minimum((slid - base).min(1), slid.min(1) - max(base.min(), floor))
 
     stride = (max(1, len(moved) // SEARCH_POINTS), max(1, len(template_points) // SEARCH_POINTS))
-    base = fits(np.zeros(3), stride)
+    base = fits(np.zeros((1, 3)), stride)[0]
     radius = float(rms_radius(moved))
     slides = constraint.motions[3:, :SEARCHED_MOTIONS].T  # (2, 3), orthonormalised below
     first = slides[0] / max(float(np.linalg.norm(slides[0])), 1e-300)
     second = slides[1] - (slides[1] @ first) * first
     second /= max(float(np.linalg.norm(second)), 1e-300)
     lines = (first, second, (first + second) / np.sqrt(2), (first - second) / np.sqrt(2))
-    found, offset = 0.0, None
-    for direction in lines:
-        for step in (*SLIDE_STEPS, *(-s for s in SLIDE_STEPS)):
-            candidate = step * radius * direction
-            sampled = gain(candidate, stride, base)
-            if sampled > found:
-                found, offset = sampled, candidate
-    if offset is None:
+    steps = (*SLIDE_STEPS, *(-s for s in SLIDE_STEPS))
+    candidates = np.array([step * radius * direction for direction in lines for step in steps])
+    sampled = gains(fits(candidates, stride), base)
+    if not (sampled > 0).any():
         return none
+    offset = candidates[int(np.argmax(sampled))]  # the first of the best, as a loop keeps it
     # The search's best, on every point.
-    best = Slide(gain(offset, (1, 1), fits(np.zeros(3))), offset)
+    best = Slide(float(gains(fits(offset[None]), fits(np.zeros((1, 3)))[0])[0]), offset)
     return best if best.gain > 0 else none

@@ -65,6 +65,7 @@ __all__ = [
     "given_cut",
     "inlier_fit",
     "overlap_fit",
+    "overlap_fits",
     "pose_fit",
     "pose_fits",
 ]
@@ -199,10 +200,19 @@ def overlap_fit(
     """(share within ``limit`` among points within ``near`` x ``limit``, share within
     ``limit``, share within ``near`` x ``limit``) of ``points`` (P, 3) against the cloud of the
     KD-tree ``near_to``: the overlap fit of :mod:`masknet.registration.judge.assessment`."""
-    d, _ = near_to.query(points, k=1, distance_upper_bound=near * limit)
-    near = np.isfinite(d)
-    close = int((d <= limit).sum())
-    return close / max(int(near.sum()), 1), close / len(points), float(near.mean())
+    shares = overlap_fits(near_to, np.asarray(points)[None], limit, near)[0]
+    return float(shares[0]), float(shares[1]), float(shares[2])
+
+
+def overlap_fits(near_to: Any, points: np.ndarray, limit: float, near: float = 3.0) -> np.ndarray:
+    """(C, 3) :func:`overlap_fit`'s three shares for each of C clouds ``points`` (C, P, 3)
+    (one cloud moved C ways), the KD-tree queried once for all."""
+    count, size = points.shape[:2]
+    d, _ = near_to.query(points.reshape(-1, 3), k=1, distance_upper_bound=near * limit)
+    d = d.reshape(count, size)
+    within = np.isfinite(d).sum(1)
+    close = (d <= limit).sum(1)
+    return np.stack([close / np.maximum(within, 1), close / size, within / size], axis=1)
 
 
 def covered_points(
