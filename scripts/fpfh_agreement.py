@@ -1,9 +1,9 @@
-"""CrossMaskNet's FPFH descriptors (numpy) against Open3D's, cloud by cloud.
+"""CrossMaskNet's FPFH descriptors by numpy against Open3D's, cloud by cloud.
 
     python scripts/fpfh_agreement.py --data .../modelnet40_1024_int16.npz [--clouds 30]
         [--scans .../scans]
 
-``masknet.models.descriptors.fpfh_descriptors`` against the Open3D path it replaced
+``masknet.models.descriptors.numpy_fpfh_descriptors`` against the Open3D path it replaced
 (``masknet.geometry.features.fpfh_features`` with ``orient=True``, divided by 200, at the
 same scale): the first ``--clouds`` ModelNet40 test clouds, the same clouds each turned by
 a random rotation (up to 180 degrees), and the real scans of ``--scans`` (2,048-point subsamples and whole).
@@ -68,11 +68,11 @@ def _open3d(cloud: np.ndarray) -> np.ndarray:
 
 
 def _report(name: str, clouds: list) -> None:
-    from masknet.models.descriptors import fpfh_descriptors
+    from masknet.models.descriptors import numpy_fpfh_descriptors
 
     worst, total, count, off = 0.0, 0.0, 0, 0
     for cloud in clouds:
-        gap = np.abs(_open3d(cloud) - fpfh_descriptors(cloud))
+        gap = np.abs(_open3d(cloud) - numpy_fpfh_descriptors(cloud))
         worst = max(worst, float(gap.max()))
         total, count = total + float(gap.sum()), count + gap.size
         off += int((gap.max(1) > 1e-4).sum())

@@ -169,9 +169,13 @@ def test_descriptor_inputs_need_no_open3d(monkeypatch, surface_pair):
         raise ImportError("No module named 'open3d'")
 
     monkeypatch.setattr(masknet._open3d, "_load_open3d", broken)
-    model = CrossMaskNet(**DESCRIBED).eval()  # the features are masknet's own (numpy)
+    model = CrossMaskNet(**DESCRIBED).eval()  # the same features, by numpy
     scores = model.predict(*surface_pair, precision="fp32")
     assert scores.shape == (300,) and np.isfinite(scores).all()
+    monkeypatch.undo()
+    if masknet._open3d.has_open3d():
+        with_open3d = model.predict(*surface_pair, precision="fp32")
+        np.testing.assert_allclose(scores, with_open3d, atol=1e-5)
 
 
 def test_an_unknown_descriptor_is_refused():
@@ -201,12 +205,18 @@ def test_fpfh_descriptors_are_open3d_s_features(surface_pair):
     o3d = pytest.importorskip("open3d")
     from masknet.geometry.clouds import median_spacing
     from masknet.geometry.features import fpfh_features
-    from masknet.models.descriptors import FPFH_NEIGHBOURS, FPFH_SPACINGS, fpfh_descriptors
+    from masknet.models.descriptors import (
+        FPFH_NEIGHBOURS,
+        FPFH_SPACINGS,
+        fpfh_descriptors,
+        numpy_fpfh_descriptors,
+    )
 
     for cloud in surface_pair:
         voxel = FPFH_SPACINGS * median_spacing(cloud)
         pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cloud))
         feature = fpfh_features(o3d, pc, voxel, FPFH_NEIGHBOURS, orient=True)
         expected = (np.asarray(feature.data).T / 200.0).astype(np.float32)
-        np.testing.assert_allclose(fpfh_descriptors(cloud), expected, rtol=0, atol=1e-6)
-    np.testing.assert_array_equal(fpfh_descriptors(np.ones((5, 3))), 0.0)  # one point
+        np.testing.assert_allclose(numpy_fpfh_descriptors(cloud), expected, rtol=0, atol=1e-6)
+        np.testing.assert_array_equal(fpfh_descriptors(cloud, o3d), expected)
+    np.testing.assert_array_equal(numpy_fpfh_descriptors(np.ones((5, 3))), 0.0)  # one point

@@ -1,7 +1,7 @@
-"""FPFH features of an Open3D cloud, for the registration's correspondences
-(:mod:`masknet.registration.solvers.correspondences`), which take Open3D ``Feature``
-objects. The mask networks' descriptor inputs (:mod:`masknet.models.descriptors`) get the
-same numbers from :mod:`masknet.geometry.fpfh` (numpy, every point at once)."""
+"""FPFH features of an Open3D cloud: the one implementation by Open3D, for the registration's
+correspondences (:mod:`masknet.registration.solvers.correspondences`) and the mask networks'
+descriptor inputs (:mod:`masknet.models.descriptors`; without Open3D, the same numbers come
+from :mod:`masknet.geometry.fpfh`)."""
 
 from __future__ import annotations
 

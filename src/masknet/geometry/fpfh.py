@@ -1,9 +1,9 @@
 """Open3D's normals and FPFH features in vectorised numpy, without Open3D.
 
 The mask networks' descriptor inputs (:mod:`masknet.models.descriptors`) were trained on
-Open3D's features; Open3D computes them point by point holding Python's lock. This module
-computes the same numbers, every point at once, from one KD-tree query per cloud
-(:func:`masknet.geometry.knn.cloud_tree`). Each step follows Open3D 0.17-0.20's own
+Open3D's features; without Open3D, this module computes the same numbers, every point at
+once (no faster than Open3D's compiled loops), from one KD-tree query per cloud
+(:func:`masknet.geometry.knn.cloud_tree`). Each step follows Open3D 0.20's own
 definition, named in its docstring:
 
 * neighbours: Open3D's hybrid search (``KDTreeFlann::SearchHybrid``): the ``max_nn``
