@@ -236,6 +236,9 @@ ELSEWHERE = {
         "ModelNet40's shapes are float32: unit_radius's float64 radius moves them by up to "
         "1.2e-7 (a float32 step), and every figure was measured on the shapes as they are"
     ),
+    ("rotation angle", "geometry/fpfh.py:_atan2_binned"): (
+        "FPFH's pair-feature angle between two normals (Open3D's atan2, binned), no rotation"
+    ),
     ("inlier cut-off", "registration/judge/prepared.py:prepare_check"): (
         "the verdict's cut-off, on the larger of the two clouds' spacings; it goes through "
         "options.inlier_cutoff with the verdict's next change"

@@ -114,7 +114,6 @@ def _turn(degrees: float) -> np.ndarray:
 
 
 def test_descriptors_do_not_change_with_a_turn_or_the_units(surface_pair):
-    pytest.importorskip("open3d")
     from masknet.models.descriptors import pair_descriptors
 
     template, source = (torch.as_tensor(c, dtype=torch.float32)[None] for c in surface_pair)
@@ -131,7 +130,6 @@ def test_descriptors_do_not_change_with_a_turn_or_the_units(surface_pair):
 
 def test_each_match_distance_is_to_the_nearest_descriptor_of_the_other_cloud(surface_pair):
     """One distance matrix, read along both axes, gives both clouds' match channels."""
-    pytest.importorskip("open3d")
     from masknet.models.descriptors import pair_descriptors
 
     template, source = (torch.as_tensor(c, dtype=torch.float32)[None] for c in surface_pair)
@@ -145,7 +143,6 @@ def test_each_match_distance_is_to_the_nearest_descriptor_of_the_other_cloud(sur
 
 
 def test_descriptor_inputs_round_trip_and_predict(tmp_path, surface_pair):
-    pytest.importorskip("open3d")
     model = CrossMaskNet(**DESCRIBED).eval()
     assert model.config["descriptors"] == "fpfh" and "descriptors" not in CrossMaskNet().config
     model.save(tmp_path / "w.safetensors")
@@ -165,16 +162,20 @@ def test_descriptor_inputs_round_trip_and_predict(tmp_path, surface_pair):
     assert np.abs(plain.predict(template, source, precision="fp32") - scores).max() > 1e-4
 
 
-def test_descriptor_inputs_without_open3d_are_one_clear_error(monkeypatch, surface_pair):
+def test_descriptor_inputs_need_no_open3d(monkeypatch, surface_pair):
     import masknet._open3d
 
     def broken():
         raise ImportError("No module named 'open3d'")
 
     monkeypatch.setattr(masknet._open3d, "_load_open3d", broken)
-    model = CrossMaskNet(**DESCRIBED)  # building needs no Open3D; scoring does
-    with pytest.raises(MaskNetError, match="descriptors='fpfh'.*needs Open3D.*pip install"):
-        model.predict(*surface_pair, precision="fp32")
+    model = CrossMaskNet(**DESCRIBED).eval()  # the same features, by numpy
+    scores = model.predict(*surface_pair, precision="fp32")
+    assert scores.shape == (300,) and np.isfinite(scores).all()
+    monkeypatch.undo()
+    if masknet._open3d.has_open3d():
+        with_open3d = model.predict(*surface_pair, precision="fp32")
+        np.testing.assert_allclose(scores, with_open3d, atol=1e-5)
 
 
 def test_an_unknown_descriptor_is_refused():
@@ -185,7 +186,6 @@ def test_an_unknown_descriptor_is_refused():
 def test_a_training_step_with_descriptor_inputs(surface_pair):
     # `masknet train --model crossmasknet --model-config '{"descriptors": "fpfh"}'`: the
     # task's step computes the descriptors of each batch and trains through them.
-    pytest.importorskip("open3d")
     from masknet.data import PairConfig, make_test_pairs
 
     shapes = np.stack([surface_pair[0] * s for s in (1.0, 0.5, 2.0, 1.5)]).astype(np.float32)
@@ -198,3 +198,25 @@ def test_a_training_step_with_descriptor_inputs(surface_pair):
     assert first.shape == (8, 2 * (3 + 34))  # [x_j - x_i; x_i], each xyz and descriptors
     assert first.grad[:, 3:37].abs().sum() > 0
     assert 0.0 <= metrics["precision"] <= 1.0
+
+
+def test_fpfh_descriptors_are_open3d_s_features(surface_pair):
+    """The networks were trained on Open3D's features: the numpy ones are the same."""
+    o3d = pytest.importorskip("open3d")
+    from masknet.geometry.clouds import median_spacing
+    from masknet.geometry.features import fpfh_features
+    from masknet.models.descriptors import (
+        FPFH_NEIGHBOURS,
+        FPFH_SPACINGS,
+        fpfh_descriptors,
+        numpy_fpfh_descriptors,
+    )
+
+    for cloud in surface_pair:
+        voxel = FPFH_SPACINGS * median_spacing(cloud)
+        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cloud))
+        feature = fpfh_features(o3d, pc, voxel, FPFH_NEIGHBOURS, orient=True)
+        expected = (np.asarray(feature.data).T / 200.0).astype(np.float32)
+        np.testing.assert_allclose(numpy_fpfh_descriptors(cloud), expected, rtol=0, atol=1e-6)
+        np.testing.assert_array_equal(fpfh_descriptors(cloud, o3d), expected)
+    np.testing.assert_array_equal(numpy_fpfh_descriptors(np.ones((5, 3))), 0.0)  # one point

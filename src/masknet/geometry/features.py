@@ -1,6 +1,7 @@
-"""FPFH features of an Open3D cloud: the one implementation, for the registration's
+"""FPFH features of an Open3D cloud: the one implementation by Open3D, for the registration's
 correspondences (:mod:`masknet.registration.solvers.correspondences`) and the mask networks'
-descriptor inputs (:mod:`masknet.models.descriptors`)."""
+descriptor inputs (:mod:`masknet.models.descriptors`; without Open3D, the same numbers come
+from :mod:`masknet.geometry.fpfh`)."""
 
 from __future__ import annotations
 

@@ -21,7 +21,7 @@ the template's radius in :meth:`predict`, as for MaskNet.
 
 ``descriptors="fpfh"`` adds rotation-invariant inputs to the coordinates: each point's FPFH
 descriptor and its distance to the nearest descriptor of the other cloud
-(:mod:`masknet.models.descriptors`; Open3D, the ``open3d`` extra), computed in
+(:mod:`masknet.models.descriptors`: Open3D's, or the same by numpy), computed in
 :meth:`forward` from the clouds themselves, so training and every prediction method get
 them with nothing else to pass. A 45-degree turn of the source hides from coordinates
 what such descriptors still show.
