@@ -329,14 +329,15 @@ def _shares(template: Any) -> bool:
 
 def _prepared(template: Any, options: dict[str, Any]) -> Any:
     """A template that several pairs share, prepared once (its views computed once per
-    worker, the results those of cold calls); as it is where it is prepared already, where
-    ``drop_nonfinite`` may drop its rows, or where it is refused (each pair then says so)."""
-    from masknet.geometry.prepared_template import prepare_template
+    worker, the results those of cold calls) and kept for the workers forked after (those
+    built here so far travel with them); as it is where ``drop_nonfinite`` may drop its
+    rows, or where it is refused (each pair then says so)."""
+    from masknet.geometry.prepared_template import prepare_template, share_with_workers
 
     if options.get("drop_nonfinite", False):
         return template
     try:
-        return prepare_template(template)
+        return share_with_workers(prepare_template(template))
     except MaskNetError:
         return template
 
