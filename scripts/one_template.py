@@ -11,7 +11,8 @@ or the 3DMatch pair's source fragment thinned at random to 50-90% of its points 
 its reference fragment (``--template 3dmatch``, the scans beside ``--bunny``).
 Timed, each over the same sources: the cold call (``register(template, s)``) and the
 prepared one (``register(prepared, s)``), in turn source by source, and ``register_many`` on ``--workers`` processes with
-the plain template and with the prepared one (each pair also judged there). Reported: the
+the plain template and with the prepared one (the sources of the one template sent to the
+workers in jobs of several, worker start-up included). Reported: the
 median seconds per source, the totals, their ratios to the cold loop, and the largest
 difference between a prepared call's transform and its cold call's.
 """

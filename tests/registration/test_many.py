@@ -1,5 +1,6 @@
 """masknet.registration.many: many pairs in parallel give what one call at a time gives, in
-order, a refused pair in its place; and the same on a local Dask cluster. The README's call
+order, a refused pair in its place; and the same on a local Dask cluster. The sources of
+one template travel together, its views prepared once, and give the cold calls' poses. The README's call
 works as written in a script, and a worker that dies stops the call."""
 
 from __future__ import annotations
@@ -17,7 +18,8 @@ import pytest
 
 from masknet import MaskNetError, register
 from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
-from masknet.registration.many import register_many
+from masknet.geometry.prepared_template import PreparedTemplate
+from masknet.registration.many import register_many, source_jobs
 
 
 @pytest.fixture(scope="module")
@@ -121,3 +123,43 @@ def test_spawned_workers_of_a_script_without_the_guard_say_what_to_add(tmp_path)
     refused = [line for line in done.stdout.splitlines() if line.startswith("refused:")]
     assert len(refused) == 1, (done.stdout, done.stderr[-2000:])
     assert 'if __name__ == "__main__":' in refused[0]
+
+
+@pytest.fixture(scope="module")
+def one_template() -> tuple[np.ndarray, list[np.ndarray]]:
+    """One bundled ModelNet40 shape and five partial, moved views of it."""
+    shape = load_modelnet40(bundled_sample_path(), "test").points[1:2]
+    made = make_test_pairs(np.repeat(shape, 5, 0), 5, PairConfig(), seed=5)
+    return made.template[0].double().numpy(), list(made.source.double().numpy())
+
+
+def test_one_template_for_many_sources_gives_the_cold_calls(one_template, one_thread):
+    template, sources = one_template
+    pooled = register_many([(template, s) for s in sources], workers=2)
+    here = register_many([(template, s) for s in sources], workers=0)
+    for source, a, b in zip(sources, pooled, here, strict=True):
+        cold = register(template, source)
+        for result in (a, b):
+            np.testing.assert_array_equal(result.transform, cold.transform)
+            np.testing.assert_array_equal(result.mask, cold.mask)
+            assert result.info["path"] == cold.info["path"]
+
+
+def test_the_sources_of_one_template_travel_together(one_template):
+    template, sources = one_template
+    other = template[::2].copy()
+    pairs = [(template, s) for s in sources * 8] + [(other, sources[0])]
+    jobs = source_jobs(pairs, {}, workers=2)
+    shared = [job for job in jobs if isinstance(job.template, PreparedTemplate)]
+    # 40 sources, 2 workers: jobs of 5 (4 jobs per worker), one template prepared once.
+    assert [len(job.sources) for job in shared] == [5] * 8
+    assert len({id(job.template) for job in shared}) == 1
+    assert [n for job in jobs for n in job.names] == [str(i) for i in range(41)]
+    assert jobs[-1].template is other and jobs[-1].names == ("40",)
+
+
+def test_a_refused_shared_template_is_each_pairs_error(one_template):
+    _, sources = one_template
+    bad = np.full((10, 3), np.nan)
+    results = register_many([(bad, s) for s in sources[:3]], workers=0)
+    assert all(isinstance(r, MaskNetError) and "NaN" in str(r) for r in results)

@@ -110,3 +110,19 @@ def test_register_many_with_one_prepared_template(one_shape, one_thread):
         cold = register(template, source)
         np.testing.assert_array_equal(a.transform, cold.transform)
         np.testing.assert_array_equal(b.transform, cold.transform)
+
+
+def test_a_template_shared_with_workers_is_the_one_they_restore(one_shape):
+    import pickle
+
+    from masknet.geometry.prepared_template import share_with_workers
+
+    template, sources = one_shape
+    prepared = share_with_workers(prepare_template(template))
+    register(prepared, sources[0])
+    views = prepared.views
+    # What a forked worker does with a job's pickle: it finds the parent's, views and all.
+    assert pickle.loads(pickle.dumps(prepared)) is prepared
+    assert prepared.views == views > 0
+    other = pickle.loads(pickle.dumps(prepare_template(template)))
+    assert other is not prepared and other.views == 0

@@ -37,12 +37,20 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-__all__ = ["PreparedTemplate", "active", "prepare_template", "template_view", "using"]
+__all__ = [
+    "PreparedTemplate",
+    "active",
+    "prepare_template",
+    "share_with_workers",
+    "template_view",
+    "using",
+]
 
 View = TypeVar("View")
 _NOT_BUILT = object()
 # Prepared templates rebuilt in this process from a pickle (a register_many worker), by
 # token: a worker keeps one per template for every job that brings it, not one per job.
+# register_many keeps its templates here before its workers fork, views and all.
 KEPT_IN_WORKER = 4
 # Views kept per prepared template, at most: those keyed by the template's own parameters
 # are a handful; those keyed by a source's (the consensus front end's voxel edge, set by
@@ -145,6 +153,17 @@ class PreparedTemplate:
 
 _WORKER: dict[str, PreparedTemplate] = {}
 _WORKER_LOCK = threading.Lock()
+
+
+def share_with_workers(prepared: PreparedTemplate) -> PreparedTemplate:
+    """Keep ``prepared`` in this process's registry of rebuilt templates (the last
+    ``KEPT_IN_WORKER``), so that a worker forked from this process after it finds it there,
+    with every view built here so far, instead of building them again."""
+    with _WORKER_LOCK:
+        _WORKER[prepared.token] = prepared
+        while len(_WORKER) > KEPT_IN_WORKER:
+            _WORKER.pop(next(iter(_WORKER)))
+    return prepared
 
 
 def _restored(token: str, points: np.ndarray) -> PreparedTemplate:

@@ -14,7 +14,9 @@ Example (as written in a script too, on Linux: see :func:`start_method`)::
 
 One template for every source: give it prepared (:func:`masknet.prepare_template`), and
 each worker computes its template-only views once, for every pair it registers (the
-prepared template travels as its points and a token; a worker keeps the one it rebuilt)::
+prepared template travels as its points and a token, once per job of up to
+``CHUNK_SOURCES`` of its sources; a worker keeps the one it rebuilt). One (N, 3) array
+given in every pair is prepared so too::
 
     prepared = masknet.prepare_template(model)
     results = register_many([(prepared, scan) for scan in scans])
@@ -37,7 +39,22 @@ import numpy as np
 
 from masknet.errors import MaskNetError
 
-__all__ = ["PairJob", "PairOutcome", "executor", "register_many", "run_jobs", "start_method"]
+__all__ = [
+    "PairJob",
+    "PairOutcome",
+    "SourcesJob",
+    "executor",
+    "register_many",
+    "run_jobs",
+    "run_sources",
+    "start_method",
+]
+
+# register_many sends the sources of one template to a worker this many at a time, at most:
+# the template (and, in the worker, its prepared views and one BLAS limit) once per job
+# rather than once per pair; fewer when the workers would otherwise get under 4 jobs each
+# (the last job of a worker whose pairs escalate decides when the call ends).
+CHUNK_SOURCES = 16
 
 
 class PairJob(NamedTuple):
@@ -46,6 +63,15 @@ class PairJob(NamedTuple):
     name: str
     template: Any
     source: Any
+
+
+class SourcesJob(NamedTuple):
+    """Sources registered against one template: their names, the template (an (N, 3)
+    array, a file path, or a prepared template) and the sources, in order."""
+
+    names: tuple[str, ...]
+    template: Any
+    sources: tuple[Any, ...]
 
 
 class PairOutcome(NamedTuple):
@@ -92,6 +118,32 @@ def run_job(job: PairJob, options: dict[str, Any]) -> PairOutcome:
     result (one pair: its verdict; a batch in one job is not judged). A refusal, an
     unreadable file, or any other error is returned as the outcome's error, so that the
     other pairs go on; the pair's warnings come with it."""
+    return _outcome(job.name, lambda: _register_and_judge(job, options))
+
+
+def run_sources(job: SourcesJob, options: dict[str, Any]) -> list[PairOutcome]:
+    """Register each source of ``job`` against its one template, in order, unjudged (the
+    verdict is the command line's; :func:`register_many` returns the results alone): one
+    outcome per source, as :func:`run_job` gives it, BLAS on one thread for the whole job."""
+    from threadpoolctl import threadpool_limits
+
+    from masknet.registration.api import register
+
+    drop = bool(options.get("drop_nonfinite", False))
+
+    def one(source: Any) -> tuple[Any, str, str]:
+        return register(_cloud(job.template, drop), _cloud(source, drop), **options), "", ""
+
+    with threadpool_limits(1):
+        return [
+            _outcome(name, lambda s=source: one(s))
+            for name, source in zip(job.names, job.sources, strict=True)
+        ]
+
+
+def _outcome(name: str, work: Callable[[], tuple[Any, str, str]]) -> PairOutcome:
+    """The outcome of one pair's ``work`` (its result, verdict and reason): an error is
+    recorded in one line, and the pair's own warnings are kept."""
     import warnings
 
     from masknet.errors import MaskNetWarning
@@ -100,7 +152,7 @@ def run_job(job: PairJob, options: dict[str, Any]) -> PairOutcome:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", MaskNetWarning)
         try:
-            result, verdict, reason = _register_and_judge(job, options)
+            result, verdict, reason = work()
             error = ""
         except MaskNetError as exc:
             result, verdict, reason, error = None, "", "", str(exc)
@@ -109,28 +161,33 @@ def run_job(job: PairJob, options: dict[str, Any]) -> PairOutcome:
     said = tuple(
         dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, MaskNetWarning))
     )
-    return PairOutcome(job.name, result, verdict, reason, error, time.perf_counter() - tic, said)
+    return PairOutcome(name, result, verdict, reason, error, time.perf_counter() - tic, said)
+
+
+def _cloud(cloud: Any, drop: bool) -> Any:
+    """A pair's cloud as :func:`masknet.register` takes it: a prepared template as it is,
+    a file read, anything else as a float64 array."""
+    from masknet.geometry.clouds import points_of
+    from masknet.geometry.prepared_template import PreparedTemplate
+    from masknet.io import read_points
+
+    if isinstance(cloud, PreparedTemplate):
+        return cloud
+    if isinstance(cloud, str | os.PathLike):
+        return read_points(cloud, drop_nonfinite=drop)
+    return np.asarray(points_of(cloud), dtype=np.float64)
 
 
 def _register_and_judge(job: PairJob, options: dict[str, Any]) -> tuple[Any, str, str]:
     from threadpoolctl import threadpool_limits
 
-    from masknet.geometry.clouds import points_of
     from masknet.geometry.prepared_template import PreparedTemplate
-    from masknet.io import read_points
     from masknet.registration.api import register
     from masknet.registration.judge.assessment import assess_registration
 
     drop = bool(options.get("drop_nonfinite", False))
     with threadpool_limits(1):
-        clouds = [
-            c
-            if isinstance(c, PreparedTemplate)
-            else read_points(c, drop_nonfinite=drop)
-            if isinstance(c, str | os.PathLike)
-            else np.asarray(points_of(c), dtype=np.float64)
-            for c in (job.template, job.source)
-        ]
+        clouds = [_cloud(c, drop) for c in (job.template, job.source)]
         result = register(*clouds, **options)
         if result.transform.ndim != 2:
             return result, "", ""
@@ -227,25 +284,87 @@ def run_jobs(
     order); returns the outcomes in the jobs' order. On Ctrl-C the jobs not started are
     cancelled and KeyboardInterrupt propagates. A pair's own failure is its outcome's
     error; a worker that dies (a broken pool) raises :class:`MaskNetError` for the call."""
+    return _gather(pool, run_job, list(jobs), options, done)
+
+
+def _gather(
+    pool: Executor,
+    runner: Callable[[Any, dict[str, Any]], Any],
+    jobs: list,
+    options: dict[str, Any],
+    done: Callable[[Any], None] | None = None,
+) -> list:
+    """``runner(job, options)`` for each of ``jobs`` on ``pool``; ``done`` sees each answer
+    as it comes; the answers in the jobs' order. Ctrl-C cancels the jobs not started; a
+    worker that dies raises :class:`MaskNetError` for the call."""
     futures: dict[Future, int] = {}
-    jobs = list(jobs)
     try:
         for index, job in enumerate(jobs):
-            futures[pool.submit(run_job, job, options)] = index
-        outcomes: list[PairOutcome | None] = [None] * len(jobs)
+            futures[pool.submit(runner, job, options)] = index
+        answers: list[Any] = [None] * len(jobs)
         for future in as_completed(futures):
             try:
-                outcome = future.result()
+                answer = future.result()
             except Exception as exc:  # the worker itself died: no pair failed, the call did
                 raise _broken(exc) from exc
-            outcomes[futures[future]] = outcome
+            answers[futures[future]] = answer
             if done is not None:
-                done(outcome)
+                done(answer)
     except BaseException:
         for future in futures:
             future.cancel()
         raise
-    return outcomes  # type: ignore[return-value]
+    return answers
+
+
+def _shares(template: Any) -> bool:
+    """Whether pairs holding this very template object are sent as one template's sources:
+    a prepared template, or one (N, 3) array."""
+    from masknet.geometry.prepared_template import PreparedTemplate
+
+    return isinstance(template, PreparedTemplate) or (
+        isinstance(template, np.ndarray) and template.ndim == 2
+    )
+
+
+def _prepared(template: Any, options: dict[str, Any]) -> Any:
+    """A template that several pairs share, prepared once (its views computed once per
+    worker, the results those of cold calls) and kept for the workers forked after (those
+    built here so far travel with them); as it is where ``drop_nonfinite`` may drop its
+    rows, or where it is refused (each pair then says so)."""
+    from masknet.geometry.prepared_template import prepare_template, share_with_workers
+
+    if options.get("drop_nonfinite", False):
+        return template
+    try:
+        return share_with_workers(prepare_template(template))
+    except MaskNetError:
+        return template
+
+
+def source_jobs(
+    pairs: list[tuple[Any, Any]], options: dict[str, Any], workers: int | None
+) -> list[SourcesJob]:
+    """The pairs as jobs, each pair named by its place: pairs that hold the same template
+    object (:func:`_shares`) go together, the template prepared once, in jobs of at most
+    ``CHUNK_SOURCES`` sources (fewer where ``workers`` would get under 4 jobs each); every
+    other pair is a job of its own."""
+    groups: dict[Any, list[int]] = {}
+    for index, (template, _) in enumerate(pairs):
+        key = id(template) if _shares(template) else ("pair", index)
+        groups.setdefault(key, []).append(index)
+    per_worker = 4 * (workers or os.cpu_count() or 1)
+    jobs = []
+    for rows in groups.values():
+        template = pairs[rows[0]][0]
+        if len(rows) > 1:
+            template = _prepared(template, options)
+        size = max(1, min(CHUNK_SOURCES, -(-len(rows) // per_worker)))
+        for start in range(0, len(rows), size):
+            part = rows[start : start + size]
+            names = tuple(str(i) for i in part)
+            jobs.append(SourcesJob(names, template, tuple(pairs[i][1] for i in part)))
+    return jobs
 
 
 def register_many(
@@ -261,7 +380,9 @@ def register_many(
         pairs: (template, source) clouds, (N, 3) and (M, 3) arrays or file paths (read
             with :func:`masknet.io.read_points` in the worker); a template may be a
             :class:`~masknet.geometry.prepared_template.PreparedTemplate`, prepared once
-            per worker for all its pairs.
+            per worker for all its pairs. Pairs that hold the same template object (one
+            prepared template, or one (N, 3) array, which is then prepared here once) go
+            to the workers together, ``CHUNK_SOURCES`` sources at a time at most.
         workers: processes on this machine, one thread each (default: one per core); 0
             registers the pairs here, one after another (BLAS on one thread, as a worker).
         scheduler: a Dask scheduler's address to run on instead (``masknet[cluster]``).
@@ -269,18 +390,23 @@ def register_many(
 
     Returns:
         One entry per pair, in order: its :class:`RegistrationResult`, or the
-        :class:`MaskNetError` that refused it (the other pairs go on).
+        :class:`MaskNetError` that refused it (the other pairs go on). The results are
+        not judged here (``masknet register-many`` gives each pair's verdict).
 
     Raises:
         MaskNetError: a worker process died (killed, out of memory, or, where workers are
             spawned, a script without an ``if __name__ == "__main__":`` guard).
     """
-    jobs = [PairJob(str(i), t, s) for i, (t, s) in enumerate(pairs)]
+    pairs = list(pairs)
+    jobs = source_jobs(pairs, options, workers)
     if workers == 0 and scheduler is None:
-        outcomes = [run_job(job, options) for job in jobs]
+        answers = [run_sources(job, options) for job in jobs]
     else:
         with executor(workers, scheduler) as pool:
-            outcomes = run_jobs(jobs, options, pool)
+            answers = _gather(pool, run_sources, jobs, options)
+    outcomes: list[Any] = [None] * len(pairs)
+    for outcome in (o for answer in answers for o in answer):
+        outcomes[int(outcome.name)] = outcome
     return [o.result if not o.error else MaskNetError(o.error) for o in outcomes]
 
 
