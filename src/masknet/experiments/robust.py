@@ -172,7 +172,7 @@ def run(ctx: BenchmarkContext) -> ExperimentResult:
     """Every pipeline on every set; the best voxel of each peer per set in the summary."""
     count = ctx.pairs if not ctx.quick else min(ctx.pairs, 4)
     voxels = VOXELS if not ctx.quick else (0.05,)
-    sets = _sets(ctx, count)
+    sets = benchmark_sets(ctx, count)
     rows = []
     dense = {name: p.template.shape[1] >= DENSE_POINTS for name, p in sets.items() if p is not None}
     for set_name, pairs in sets.items():
@@ -193,8 +193,9 @@ def run(ctx: BenchmarkContext) -> ExperimentResult:
     return ExperimentResult(shown_rows, summary, plot)
 
 
-def _sets(ctx: BenchmarkContext, count: int) -> dict[str, Pairs | None]:
-    """The benchmark's sets of ``count`` pairs each (None: a set the run leaves out)."""
+def benchmark_sets(ctx: BenchmarkContext, count: int) -> dict[str, Pairs | None]:
+    """The benchmark's sets of ``count`` pairs each, by name (None: a set the run leaves out:
+    the scan sets in a ``--quick`` run or without the evaluation scans)."""
     return {
         "clean": ctx.test_pairs(PairConfig(), count),
         "noise 0.01": ctx.test_pairs(PairConfig(noise_sigma=0.01), count),
