@@ -18,6 +18,7 @@ import time
 import numpy as np
 
 from masknet import register
+from masknet.cli import run_script
 from masknet.evaluation.registration import pair_arrays, pose_errors
 from masknet.experiments.context import BenchmarkContext
 from masknet.experiments.robust import benchmark_sets
@@ -57,4 +58,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_script(main)
