@@ -10,7 +10,7 @@ from torch import Tensor
 
 from masknet.geometry.knn import knn_points
 
-__all__ = ["estimate_normals", "normals_at", "plane_offsets"]
+__all__ = ["estimate_normals", "least_spread_axis", "normals_at", "plane_offsets"]
 
 
 def estimate_normals(points: Tensor | np.ndarray, k: int = 16, tree: Any | None = None) -> tuple:
@@ -75,3 +75,9 @@ def _pca_normals(neighbours: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     centred = neighbours - centres[:, None]
     _, vectors = np.linalg.eigh(centred.transpose(0, 2, 1) @ centred)
     return vectors[..., 0], centres
+
+
+def least_spread_axis(points: np.ndarray) -> np.ndarray:
+    """(3,) unit direction (sign arbitrary) along which ``points`` (P, 3) spread least: the
+    normal of their least-squares plane, through their centroid."""
+    return np.linalg.eigh(np.cov((points - points.mean(0)).T))[1][:, 0]

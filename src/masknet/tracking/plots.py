@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from masknet.geometry.normals import least_spread_axis
 from masknet.geometry.se3 import transform_points
 from masknet.viz import _save, display_points, fit_title, pyplot
 
@@ -31,7 +32,7 @@ def view_axes(points: np.ndarray, viewpoint: np.ndarray | None = None) -> np.nda
     if towards is not None and np.linalg.norm(towards) > 0:
         ahead = towards / np.linalg.norm(towards)
     else:
-        ahead = np.linalg.eigh(np.cov((points - centre).T))[1][:, 0]
+        ahead = least_spread_axis(points)
     world = np.eye(3)[0] if abs(ahead[0]) < 0.9 else np.eye(3)[1]
     right = world - (world @ ahead) * ahead
     right /= np.linalg.norm(right)

@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from masknet.geometry.normals import least_spread_axis
+
 __all__ = ["background_plane", "points_near", "turned", "visible_side", "without_planes"]
 
 SCORED_POINTS = 2048  # a RANSAC plane is scored on at most this many points beyond the reach
@@ -66,7 +68,7 @@ def background_plane(
         return none
     support = beyond[on_best]
     middle = support.mean(0)
-    normal = np.linalg.eigh(np.cov((support - middle).T))[1][:, 0]  # least-squares plane
+    normal = least_spread_axis(support)  # the least-squares plane's, through ``middle``
     return np.abs((points - middle) @ normal) <= band
 
 
