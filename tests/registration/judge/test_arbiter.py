@@ -29,8 +29,8 @@ def _cand(
     return Candidate(_pose(degrees), stage, PoseFit(fitness, rmse, score))
 
 
-def _check(verdict: str, overlap_fit: float) -> Assessment:
-    return Assessment(verdict, "", overlap_fit, 0.0, 0.0, 0.0, 0.0, 1.0)
+def _check(verdict: str, overlap_fit: float, rule: str = "") -> Assessment:
+    return Assessment(verdict, "", overlap_fit, 0.0, 0.0, 0.0, 0.0, 1.0, rule=rule)
 
 
 def _stages(candidates: list[Candidate]) -> list[str]:
@@ -197,6 +197,13 @@ def test_only_a_likely_correct_pose_settles_and_only_an_uncertain_one_competes()
     assert arbiter.may_compete(_check("uncertain", 0.5))
     assert not arbiter.may_compete(_check("likely wrong", 0.9))
     assert not arbiter.may_compete(_check("likely correct", 0.9))
+
+
+def test_only_a_pose_whose_one_fault_is_freedom_competes_on_every_route():
+    assert arbiter.only_free(_check("uncertain", 0.99, "free"))
+    assert not arbiter.only_free(_check("uncertain", 0.99, "between"))
+    assert not arbiter.only_free(_check("likely wrong", 0.99, "slid"))
+    assert not arbiter.only_free(_check("likely correct", 0.99, "correct"))
 
 
 def test_a_pose_displaces_by_verdict_or_by_more_than_the_margin():

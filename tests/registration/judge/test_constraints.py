@@ -155,6 +155,46 @@ def test_a_slide_back_along_a_table_brings_the_box_onto_the_box():
     assert right.gain < SLIDE_GAIN  # at the right pose no slide fits better
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_the_slide_search_finds_what_trying_every_slide_finds(seed):
+    """The search fits the template's side only where the source's side gains; trying every
+    slid pose both ways gives the same best slide."""
+    from masknet.geometry.clouds import rms_radius
+    from masknet.registration.judge.constraints import SEARCH_POINTS, SEARCHED_MOTIONS, SLIDE_STEPS
+    from masknet.registration.judge.fit import overlap_fits
+
+    rng = np.random.default_rng(seed)
+    table = _square(3000, (2.0, 2.0))
+    box = _square(300, (0.4, 0.4)) + [0.8, 0.8, 0.2]
+    template = np.r_[table, box]
+    tree = cloud_tree(template)
+    moved = template[::2] + [*rng.uniform(-0.2, 0.2, 2), 0.0] + rng.normal(0, 0.005, (1650, 3))
+    constraint = pose_constraint(template, tree, moved, 0.04)
+    found = best_slide(tree, template, moved, 0.04, constraint)
+
+    first, second = (m / np.linalg.norm(m) for m in constraint.motions[3:, :SEARCHED_MOTIONS].T)
+    second = second - (second @ first) * first
+    second /= np.linalg.norm(second)
+    lines = (first, second, (first + second) / np.sqrt(2), (first - second) / np.sqrt(2))
+    steps = (*SLIDE_STEPS, *(-s for s in SLIDE_STEPS))
+    offsets = np.array([s * rms_radius(moved) * line for line in lines for s in steps])
+    offsets = np.r_[np.zeros((1, 3)), offsets]
+    source, sampled = (c[:: max(1, len(c) // SEARCH_POINTS)] for c in (moved, template))
+    both = np.stack(
+        [
+            overlap_fits(tree, source[None] + offsets[:, None], 0.04)[:, 0],
+            overlap_fits(cloud_tree(moved), sampled[None] - offsets[:, None], 0.04)[:, 0],
+        ],
+        1,
+    )
+    gains = np.minimum((both[1:] - both[0]).min(1), both[1:].min(1) - both[0].min())
+    if gains.max() <= 0:
+        assert found.gain == 0.0
+    else:
+        np.testing.assert_allclose(found.offset, offsets[1 + int(np.argmax(gains))])
+        assert found.gain > 0
+
+
 @pytest.mark.parametrize(
     ("constraint", "slide_gain", "rule"),
     [

@@ -67,6 +67,7 @@ __all__ = [
     "may_compete",
     "most_agreed",
     "most_matched",
+    "only_free",
     "one_per_basin",
     "polished",
     "rank",
@@ -259,6 +260,16 @@ def may_compete(check: Assessment) -> bool:
     """Whether a pose the front end did not settle on still competes with the search's
     answer on scans: ``uncertain`` (a ``likely wrong`` one does not)."""
     return check.verdict == "uncertain"
+
+
+def only_free(check: Assessment) -> bool:
+    """Whether a judged pose's one fault is that the clouds leave it free (the verdict's
+    rule ``free``: it fits as right poses do and no slide along its free motions fits
+    better, but the fit does not pin it). The front end's such pose competes with any later
+    answer, on every route (:func:`ranks_higher`): it does not end the call, since the
+    slide search does not look along a free turn, but neither does a worse-fitting pose of
+    the fast path or the search replace it."""
+    return check.rule == "free"
 
 
 def displaces(check: Assessment, held: Assessment, margin: float) -> bool:

@@ -147,10 +147,12 @@ class Assessment(NamedTuple):
     words, e.g. ``("slide along (0.71, 0.70, 0.00)",)``; empty where the fit pins the
     pose. least_pinned: the motion it pins least, in those words, free or not (empty where
     under a dozen pairs fit). slide_gain: how much more of the overlap (both ways) fits at
-    the pose slid along its two least pinned motions (up to a quarter of the radius) than
+    the pose slid along its two least pinned motions (up to half the radius) than
     at the pose or its nearest fit (:func:`~masknet.registration.judge.constraints.best_slide`;
     0 where the overlap fit or a nearby fit already makes the pose ``likely wrong``: no slide
-    is searched)."""
+    is searched). rule: the rule of :func:`verdict_rule` that decided (a key of
+    :data:`RULE_VERDICTS`: ``"free"`` is a pose that fits as right poses do, which no slide
+    along its free motions fits better, but which the fit does not pin)."""
 
     verdict: str
     reason: str
@@ -164,6 +166,7 @@ class Assessment(NamedTuple):
     free_directions: tuple[str, ...] = ()
     slide_gain: float = 0.0
     least_pinned: str = ""
+    rule: str = ""
 
 
 def _nearest_fit(prepared: PreparedCheck, transform: np.ndarray) -> np.ndarray:
@@ -318,4 +321,5 @@ def judge(prepared: PreparedCheck, transform: np.ndarray) -> Assessment:
         free,
         slide.gain,
         least_pinned(pinned),
+        rule,
     )

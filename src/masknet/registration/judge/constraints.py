@@ -201,17 +201,15 @@ def best_slide(
     # The source slid by an offset is the template slid back by it: one tree serves all.
     source_tree = cloud_tree(moved)
 
+    def side(near_to: Any, points: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+        """(C,) the overlap fit of ``points`` moved by each of ``offsets`` (C, 3)."""
+        return overlap_fits(near_to, points[None] + offsets[:, None], limit)[:, 0]
+
     def fits(offsets: np.ndarray, stride: tuple[int, int] = (1, 1)) -> np.ndarray:
         """(C, 2) the overlap fit of the source and of the template at each of ``offsets``
         (C, 3), on every ``stride``-th point of each, each tree queried once for all C."""
         source, template = moved[:: stride[0]], template_points[:: stride[1]]
-        return np.stack(
-            [
-                overlap_fits(tree, source[None] + offsets[:, None], limit)[:, 0],
-                overlap_fits(source_tree, template[None] - offsets[:, None], limit)[:, 0],
-            ],
-            axis=1,
-        )
+        return np.stack([side(tree, source, offsets), side(source_tree, template, -offsets)], 1)
 
     def gains(slid: np.ndarray, base: np.ndarray) -> np.ndarray:
         """(C,) the gain of each slid fit (C, 2) over ``base`` (2,) and ``floor``."""
@@ -227,10 +225,19 @@ def best_slide(
     lines = (first, second, (first + second) / np.sqrt(2), (first - second) / np.sqrt(2))
     steps = (*SLIDE_STEPS, *(-s for s in SLIDE_STEPS))
     candidates = np.array([step * radius * direction for direction in lines for step in steps])
-    sampled = gains(fits(candidates, stride), base)
+    # A slid pose gains at most what its source side gains: the template side (the other
+    # half of the queries) is fitted only where that bound is positive. Exact: every other
+    # slide gains nothing.
+    source_side = side(tree, moved[:: stride[0]], candidates)
+    bound = np.minimum(source_side - base[0], source_side - max(base.min(), floor))
+    hopeful = np.flatnonzero(bound > 0)
+    if not len(hopeful):
+        return none
+    template_side = side(source_tree, template_points[:: stride[1]], -candidates[hopeful])
+    sampled = gains(np.stack([source_side[hopeful], template_side], 1), base)
     if not (sampled > 0).any():
         return none
-    offset = candidates[int(np.argmax(sampled))]  # the first of the best, as a loop keeps it
+    offset = candidates[hopeful[int(np.argmax(sampled))]]  # the first of the best, as a loop
     # The search's best, on every point.
     best = Slide(float(gains(fits(offset[None]), fits(np.zeros((1, 3)))[0])[0]), offset)
     return best if best.gain > 0 else none

@@ -81,8 +81,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from masknet.geometry.clouds import MIN_POINTS, principal_turn_deg
-from masknet.geometry.prepared_template import template_view
+from masknet.geometry.clouds import MIN_POINTS
 from masknet.geometry.sampling import NetworkClouds, spread_labels
 from masknet.geometry.se3 import transform_points
 from masknet.models.masknet import MaskNet
@@ -92,12 +91,13 @@ from masknet.registration.judge.arbiter import Candidate
 from masknet.registration.judge.assessment import Assessment, judge
 from masknet.registration.judge.fit import PoseFit, covered_points, pose_fit
 from masknet.registration.judge.prepared import PreparedPair, check_points
-from masknet.registration.judge.shape import SHAPE, PairShape, classify_template
+from masknet.registration.judge.shape import SHAPE
 from masknet.registration.solvers.backends.base import MaskModels
 from masknet.registration.solvers.icp import icp
 from masknet.registration.stages import consensus as front_end
 from masknet.registration.stages.robust import NetworkMasks, pipeline_run
 from masknet.registration.stages.rounds import mask_and_register
+from masknet.registration.stages.route import Route, turned_first
 from masknet.registration.stages.search import REFINE_TOLERANCE, coarse_to_fine
 from masknet.registration.terms.options import ICPCriteria, RobustOptions
 from masknet.registration.terms.result import PipelineInfo, Solution, info_arrays
@@ -168,7 +168,7 @@ def _one(
     pair is prepared once here, and every stage and the verdict read its views."""
     clouds = template, source
     pair = PreparedPair(template, source, options.fine_points)
-    route = _Route.first(template, options, times)
+    route = Route.first(template, options, times)
     consensus = None
     if route.on and (route.sparse or route.scan):
         large = len(template) >= CONSENSUS_FIRST * options.consensus_from  # see the constant
@@ -177,11 +177,11 @@ def _one(
         if consensus is not None and arbiter.settles(consensus.check):
             return _consensus_run(consensus, pair, options, route.scan, model, "consensus")
     fast = None
-    if not _turned(template, source, options, route):  # the fast path starts from the pose
+    if not turned_first(template, source, options, route):  # the fast path starts from the pose
         accept = options.object_accept_fitness if route.dense_object else options.accept_fitness
         fast = _fast_path(pair, nets, model, options, times, precision, accept)
         if fast.accepted is not None:
-            return fast.accepted
+            return _against_consensus(fast.accepted, consensus, pair, options, route, model)
     late = route.shape is None and not route.sparse  # most objects ended above
     partial = arbiter.partial_overlap(None if fast is None else fast.right, SHAPE.partial_fit)
     if late and route.on and partial:  # both clouds partial: measured now
@@ -189,21 +189,40 @@ def _one(
         if route.scan:  # a scan's front end, its pose to compete with the search's
             consensus = front_end.consensus_register(*clouds, options, times, "first", pair, True)
     run = _escalate(pair, nets, fast, model, search_model, options, times, precision)
-    if route.scan and consensus is not None and _competes(consensus.check, late):
-        # The search's one-way score can prefer a pose slid along a wall that the verdict
-        # sees through. Not on sparse clouds: there the verdict called right search answers
-        # worse than consensus poses 60-180 degrees off.
-        grids = front_end.consensus_grids(pair, options, route.scan)
-        searched = judge(grids.check, run.transform[0])
-        if late:  # a thin object reads as one-sided: the search's exact pose is kept
-            wins = arbiter.better_verdict(consensus.check, searched)
-        else:
-            wins = arbiter.ranks_higher(consensus.check, searched)
-        if wins:
-            escalated = float(run.info["escalated_fitness"][0])
-            path = "robust/consensus"
-            return _consensus_run(consensus, pair, options, route.scan, model, path, escalated)
-    return run
+    return _against_consensus(run, consensus, pair, options, route, model, late)
+
+
+def _against_consensus(
+    run: Solution,
+    consensus: Candidate | None,
+    pair: PreparedPair,
+    options: RobustOptions,
+    route: Route,
+    model: MaskNet | TwoSidedMaskNet | None,
+    late: bool = False,
+) -> Solution:
+    """Stage 6 of the module docstring: the answer ``run`` of the fast path or the search,
+    or the front end's pose ``consensus`` (judged, not settled) where it competes and the
+    verdict ranks it higher. It competes where it is only free
+    (:func:`~masknet.registration.judge.arbiter.only_free`), and on scans where
+    :func:`_competes`: the search's one-way score can prefer a pose slid along a wall that
+    the verdict sees through. Not otherwise on sparse clouds: there the verdict called right
+    search answers worse than consensus poses 60-180 degrees off."""
+    if consensus is None:
+        return run
+    if not (arbiter.only_free(consensus.check) or route.scan and _competes(consensus.check, late)):
+        return run
+    grids = front_end.consensus_grids(pair, options, route.scan)
+    answer = judge(grids.check, run.transform[0])
+    if late:  # a thin object reads as one-sided: the search's exact pose is kept
+        wins = arbiter.better_verdict(consensus.check, answer)
+    else:
+        wins = arbiter.ranks_higher(consensus.check, answer)
+    if not wins:
+        return run
+    escalated = float(run.info["escalated_fitness"][0])
+    path = "consensus" if np.isnan(escalated) else "robust/consensus"
+    return _consensus_run(consensus, pair, options, route.scan, model, path, escalated)
 
 
 def _competes(check: Assessment, late: bool) -> bool:
@@ -211,63 +230,6 @@ def _competes(check: Assessment, late: bool) -> bool:
     (:func:`~masknet.registration.judge.arbiter.may_compete`), or, measured late, also
     ``likely correct`` (there it has not ended the call)."""
     return arbiter.may_compete(check) or (late and arbiter.settles(check))
-
-
-class _Route(NamedTuple):
-    """Stage 1 of the module docstring: the pair's class. ``sparse``: a template under
-    ``consensus_below`` points; ``shape``: the template's measured class
-    (:func:`~masknet.registration.judge.shape.classify_template`), None until measured
-    (templates between the sizes are measured once the fast path failed); ``on``: the
-    consensus front end is (``consensus_points`` > 0)."""
-
-    sparse: bool
-    shape: PairShape | None
-    on: bool
-
-    @classmethod
-    def first(cls, template: np.ndarray, options: RobustOptions, times: dict) -> _Route:
-        """The route before any stage: sparse by size; templates of ``consensus_from``
-        points or more measured now (a scan's front end comes before the fast path)."""
-        route = cls(options.is_sparse(len(template)), None, options.consensus_points > 0)
-        if options.is_scan(len(template)):
-            return route.measured(template, options, times)
-        return route
-
-    def measured(self, template: np.ndarray, options: RobustOptions, times: dict) -> _Route:
-        """This route with the template's shape measured (``times["route"]``)."""
-        if self.sparse:
-            return self
-        tic = time.perf_counter()
-        large = options.is_scan(len(template))
-        shape = template_view(
-            template, ("shape", large), lambda: classify_template(template, large=large)
-        )
-        times["route"] = times.get("route", 0.0) + time.perf_counter() - tic
-        return self._replace(shape=shape)
-
-    @property
-    def scan(self) -> bool:
-        """A scan's route: measured as one (sparse templates are not measured)."""
-        return self.shape is not None and self.shape.kind == "scan"
-
-    @property
-    def dense_object(self) -> bool:
-        """An object's route: not sparse, not measured as a scan (the fast path's object
-        accept level and the principal axes' gate)."""
-        return not self.sparse and not self.scan
-
-
-def _turned(
-    template: np.ndarray, source: np.ndarray, options: RobustOptions, route: _Route
-) -> bool:
-    """Whether an object's pair goes to the search first: its principal axes turned
-    ``search_first_turn_deg`` or more. On 100 ModelNet40 pairs turned up to 180 degrees the
-    fast path held on 23 and was paid for before the search on the rest; the axes flagged
-    50, of which the fast path would have held 2."""
-    turn = options.search_first_turn_deg
-    if turn is None or not route.dense_object:
-        return False
-    return principal_turn_deg(template, source) >= turn
 
 
 class _PairNets(NamedTuple):
