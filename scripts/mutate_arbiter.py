@@ -121,6 +121,8 @@ MUTANTS: tuple[Mutant, ...] = (
       'check.verdict != "likely correct"', "all but a likely correct pose settle"),
     M("may_compete", "inverted", 'check.verdict == "uncertain"', 'check.verdict != "uncertain"',
       "all but an uncertain pose compete"),
+    M("only_free", "inverted", 'return check.rule == "free"', 'return check.rule != "free"',
+      "every pose but a free one competes"),
     M("displaces", "inverted", "verdict_rank(check) > (", "verdict_rank(check) < (",
       "a worse pose displaces"),
     M("displaces", "no-head-start", "held.overlap_fit + margin", "held.overlap_fit",

@@ -58,15 +58,18 @@ with the condition under which it runs. Each choice between poses is a rule of
    path's pose takes part: where it fits better (``arbiter.fits_better``) it is the
    answer after all (path ``"fast"``), ambiguous where one of the search's poses lies
    elsewhere and fits about as well (``arbiter.close_rival``).
-6. **Scans' consensus**, on scans whose front end (stage 2 or 4b) ended ``uncertain``
-   (after stage 4b also ``likely correct``; there only a better verdict,
-   ``arbiter.better_verdict``, replaces the search's answer: a thin object reads as
-   one-sided, and the search's pose is exact)
-   (``arbiter.may_compete``): the verdict judges the search's answer, and the consensus
-   pose replaces it where it ranks higher (``arbiter.ranks_higher``; the search's
-   one-way score can prefer a pose slid along a wall): path ``"robust/consensus"``. Not
-   on sparse clouds: there the verdict rated right search answers below consensus poses
-   60-180 degrees off.
+6. **The front end's pose against the answer**, where the front end ended without
+   settling and its pose competes (``arbiter.may_compete``): on every route where its one
+   fault is that the clouds leave it free (``arbiter.only_free``: it fits as right poses
+   do and no slide fits better, but the slide search does not look along a free turn), and
+   on scans where it is ``uncertain`` (after stage 4b also ``likely correct``; there only
+   a better verdict, ``arbiter.better_verdict``, replaces the search's answer: a thin
+   object reads as one-sided, and the search's pose is exact). The verdict judges the
+   answer of stage 4 or 5, and the front end's pose replaces it where it ranks higher
+   (``arbiter.ranks_higher``; the search's one-way score can prefer a pose slid along a
+   wall): path ``"consensus"`` over the fast path's answer, ``"robust/consensus"`` over
+   the search's. Not otherwise on sparse clouds: there the verdict rated right search
+   answers below consensus poses 60-180 degrees off.
 
 The networks' clouds are sampled on first use, so a call the consensus ends never
 samples them. ``info`` holds :data:`~masknet.registration.terms.result.AUTO_INFO`: ``path``
