@@ -19,7 +19,9 @@ NORMAL_NEIGHBOURS = 30  # the most points a normal is taken from (Open3D's max_n
 # A grid over this share of whose points have no plane within the normals' radius is a ring
 # scan's: its normals come from the nearest points (grid_normals).
 RING_GRID = 0.5
-RING_SAMPLE = 512  # the grid points (every n-th) that share is measured on
+# The grid points (every n-th) that share is measured on: a standard error of at most 4.4
+# points of share, where the grids seen hold at most 28% such points or 96%.
+RING_SAMPLE = 128
 
 
 def to_open3d(
