@@ -84,7 +84,7 @@ def test_the_same_object_as_a_scan_would_take_the_front_end(monkeypatch):
     never_closed = shape.ShapeTable(scan_one_sided=0.0, scan_one_sided_large=0.0)
     monkeypatch.setattr(shape, "SHAPE", never_closed)
     monkeypatch.setattr(
-        "masknet.registration.stages.auto.classify_template",
+        "masknet.registration.stages.route.classify_template",
         lambda t, large=False: shape.classify_template(t, never_closed, large),
     )
     result = register(template, template[:12_000] + [0.01, 0.0, 0.0])
