@@ -323,3 +323,14 @@ def test_partial_overlap_by_the_fast_paths_fit():
     """Under the level (or no fast path run): both clouds partial."""
     assert arbiter.partial_overlap(0.3, 0.8) and arbiter.partial_overlap(None, 0.8)
     assert not arbiter.partial_overlap(0.96, 0.8) and not arbiter.partial_overlap(0.8, 0.8)
+
+
+def test_covers_more_needs_the_gain_on_each_cloud():
+    """``covers_more``: at least the gain more of the source and of the template; more of
+    one cloud does not make up for less of the other."""
+    held = np.array([0.75, 0.5])  # binary fractions: the bound is exact
+    assert arbiter.covers_more(np.array([0.9, 0.7]), held, 0.0625)
+    assert arbiter.covers_more(np.array([0.8125, 0.5625]), held, 0.0625)  # the bound itself
+    assert not arbiter.covers_more(np.array([1.0, 0.5]), held, 0.0625)
+    assert not arbiter.covers_more(np.array([0.78, 0.9]), held, 0.0625)
+    assert not arbiter.covers_more(held, held, 0.0625)

@@ -10,7 +10,12 @@ from masknet.registration.judge.assessment import (
     assess_registration,
     verdict_rule,
 )
-from masknet.registration.judge.constraints import best_slide, describe_free, pose_constraint
+from masknet.registration.judge.constraints import (
+    best_slide,
+    covering_slide,
+    describe_free,
+    pose_constraint,
+)
 
 RNG = np.random.default_rng(0)
 
@@ -155,6 +160,25 @@ def test_a_slide_back_along_a_table_brings_the_box_onto_the_box():
     assert right.gain < SLIDE_GAIN  # at the right pose no slide fits better
 
 
+def test_a_view_slid_off_the_end_of_a_channel_is_seen_by_what_it_covers():
+    """A channel (a floor and two walls, 3 long in y) closed at y = 0 by an end wall, and a
+    view of its first 70%, slid 0.3 along it: its end wall hangs in the channel, off the
+    template, and the template's strip behind it is uncovered. The view slid back covers
+    more of both clouds; at the truth no slide does."""
+    floor = _square(3000, (1.0, 3.0))
+    wall = _square(1500, (3.0, 0.5))[:, [2, 0, 1]]
+    end = _square(500, (1.0, 0.5))[:, [0, 2, 1]]
+    template = np.r_[floor, wall, wall + [1.0, 0.0, 0.0], end]
+    tree = cloud_tree(template)
+    view = template[template[:, 1] < 2.1][::2]
+    slid = view + [0.0, 0.3, 0.0]
+    found = covering_slide(tree, template, slid, 0.04, pose_constraint(template, tree, slid, 0.04))
+    assert found.gain > 0.05
+    assert found.offset[1] < -0.2  # back along the channel, towards its end wall
+    right = covering_slide(tree, template, view, 0.04, pose_constraint(template, tree, view, 0.04))
+    assert right.gain == 0.0  # at the truth no slide covers more of both
+
+
 @pytest.mark.parametrize("seed", range(4))
 def test_the_slide_search_finds_what_trying_every_slide_finds(seed):
     """The search fits the template's side only where the source's side gains; trying every
@@ -206,3 +230,18 @@ def test_the_slide_search_finds_what_trying_every_slide_finds(seed):
 )
 def test_the_slide_rules_decide_at_their_bounds(constraint, slide_gain, rule):
     assert verdict_rule(1.0, 0.0, 0.0, constraint, slide_gain) == rule
+
+
+def test_covered_shares_are_each_clouds_points_within_the_limit():
+    """``covered_shares``: the source's and the template's share of all their points
+    within the inlier distance of the other cloud, not of the overlap's."""
+    from masknet.registration.judge.constraints import covered_shares
+    from masknet.registration.judge.prepared import prepare_check
+
+    template = _square(4000, (2.0, 1.0))
+    half = template[template[:, 0] < 1.0]
+    check = prepare_check(template, half, 0.04)
+    np.testing.assert_allclose(covered_shares(check, np.eye(4)), [1.0, 0.5], atol=0.03)
+    away = np.eye(4)
+    away[2, 3] = 1.0  # lifted off the plane: nothing within the limit
+    np.testing.assert_allclose(covered_shares(check, away), [0.0, 0.0])

@@ -243,6 +243,28 @@ def test_a_scan_view_is_not_turned_over_by_the_front_end(scans_dir, o3d):
     assert pose_errors(found.pose[None], truth[None])[0][0] > 90
 
 
+def test_a_view_slid_along_a_box_is_slid_back_before_ransac_flips_it(scans_dir, o3d, monkeypatch):
+    """A re-sampled 70% view of the milk carton (``scripts/slide_views.py --resampled``,
+    view 67): the centroids matched put the view at the template's centroid, slid along the
+    box, and the refined start lies 23% of the radius off; RANSAC's poses are flips of the
+    box, one of them called likely correct. Slid along its least pinned motions to cover
+    more of both clouds and refined again, the start lands on the truth and ends the call."""
+    import masknet.registration.stages.consensus as consensus
+    from masknet.experiments.rounds import scan_eval_set
+
+    pairs, names = scan_eval_set(14, False, 0)
+    assert names[67].startswith("milk")
+    template, source, truth = (
+        x[67].double().numpy() for x in (pairs.template, pairs.source, pairs.transform)
+    )
+    result = register(template, source)
+    assert result.info["path"] == "consensus"
+    assert pose_errors(result.transform[None], truth[None])[0][0] < 2.0
+    monkeypatch.setattr(consensus, "_covering_start", lambda grids, near: None)
+    flipped = register(template, source)
+    assert pose_errors(flipped.transform[None], truth[None])[0][0] > 90
+
+
 def test_a_start_the_verdict_calls_right_spares_ransac(sparse_pairs, o3d, monkeypatch):
     """``start="first"``: the pose as given, refined and judged `likely correct`, ends the
     front end before the features and RANSAC; turned 150 degrees away it does not, and

@@ -53,6 +53,7 @@ __all__ = [
     "best_judged",
     "best_quarter",
     "best_score",
+    "covers_more",
     "close_rival",
     "displaces",
     "exits",
@@ -286,6 +287,14 @@ def ranks_higher(check: Assessment, held: Assessment) -> bool:
     start): on scans, an ``uncertain`` consensus against the search's answer. Unlike
     :func:`displaces`, any higher overlap fit of the same verdict wins."""
     return verdict_rank(check) > verdict_rank(held)
+
+
+def covers_more(shares: np.ndarray, held: np.ndarray, gain: float) -> bool:
+    """Whether a pose covering ``shares`` (2,) of the two clouds (each the share of its
+    points within the inlier distance of the other) covers at least ``gain`` more of each
+    than one covering ``held`` (2,): the consensus front end's start slid to cover more
+    (``COVER_GAIN``), still covering more once refined."""
+    return bool((np.asarray(shares) - np.asarray(held)).min() >= gain)
 
 
 def better_verdict(check: Assessment, held: Assessment) -> bool:

@@ -95,6 +95,10 @@ FREE_RATIO = 2e-4
 # A pose slid along its least pinned motions that fits this much more of the source's
 # overlap (masknet.registration.judge.constraints.best_slide) makes the pose likely wrong.
 SLIDE_GAIN = 0.035
+# The front end's start slid to cover more (masknet.registration.stages.consensus) is judged
+# only where, refined, it covers this much more of each cloud than the start (shares of all
+# points within the inlier distance: masknet.registration.judge.constraints.covered_shares).
+COVER_GAIN = 0.01
 VERDICTS = ("likely correct", "uncertain", "likely wrong")
 # Which rule of verdict_rule decided, and the verdict it gives.
 RULE_VERDICTS = {

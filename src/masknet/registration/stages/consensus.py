@@ -27,7 +27,8 @@ that agree with each other do not slide, and they cost little on a coarse grid:
    and an ``uncertain`` consensus still competes with their answer on the verdict.
 
 The pose as given can take part (``start``): refined the same way (from the clouds'
-centroids matched), judged first, and else competing with RANSAC's pose. ``"auto"`` asks for
+centroids matched), judged first, then slid to cover more of both clouds and refined again
+(:func:`_covering_start`), and else competing with RANSAC's pose. ``"auto"`` asks for
 it on sparse clouds, where it is right about as often as RANSAC's and costs a third as
 much, and on scans under 16,384 points, where it ends most calls on views of objects; on
 larger scans it takes no part.
@@ -55,7 +56,8 @@ from masknet.geometry.sampling import random_subset
 from masknet.io import has_open3d
 from masknet.registration.judge import arbiter
 from masknet.registration.judge.arbiter import Candidate
-from masknet.registration.judge.assessment import Assessment, judge
+from masknet.registration.judge.assessment import COVER_GAIN, Assessment, judge
+from masknet.registration.judge.constraints import covered_shares, covering_pose
 from masknet.registration.judge.prepared import PreparedCheck, PreparedPair, prepare_check
 from masknet.registration.solvers.correspondences import (
     feature_matches,
@@ -319,11 +321,37 @@ def _consensus(o3d: Any, grids: ConsensusGrids, options: RobustOptions, start: s
         near_check = judge(grids.check, near)
         if arbiter.settles(near_check):
             return Candidate(near, "start", check=near_check)
+        # A slide mends a slid pose, not a turned one: a `likely wrong` start is not slid.
+        slid = _covering_start(grids, near) if arbiter.may_compete(near_check) else None
+        if slid is not None:
+            slid_check = judge(grids.check, slid)
+            if arbiter.settles(slid_check):
+                return Candidate(slid, "start", check=slid_check)
+            if arbiter.displaces(slid_check, near_check, options.ambiguity_margin):
+                near, near_check = slid, slid_check
     best = _best_judged(grids, _ransac_poses(o3d, grids), options)
     if near is None:
         return best
     pose, check = _start_competes(best.pose, best.check, near, grids.check, options, near_check)
     return Candidate(pose, "start" if pose is near else "ransac", check=check)
+
+
+def _covering_start(grids: ConsensusGrids, near: np.ndarray) -> np.ndarray | None:
+    """The pose as given, refined (``near`` (4, 4), judged ``uncertain``), slid to cover
+    more of both clouds on the check's grid
+    (:func:`~masknet.registration.judge.constraints.covering_pose`) and refined again: (4,
+    4); None where no slide covers more, or the refined pose not ``COVER_GAIN`` more of each
+    cloud than ``near``. The centroids matched put a partial view at the template's
+    centroid, slid along an elongated object by the part it does not see: a re-sampled
+    milk carton view's start lay 23% of the radius off, and RANSAC's flips of the box took
+    the call; slid and refined, it lay 0.1 degrees and 0.3% off, covering 2.4 and 4.4
+    points more of the clouds. A room view's start 29 degrees off, slid, covered no more."""
+    slid = covering_pose(grids.check, near)
+    if slid is None:
+        return None
+    slid = _point_to_plane(grids, slid)
+    shares, held = (covered_shares(grids.check, pose) for pose in (slid, near))
+    return slid if arbiter.covers_more(shares, held, COVER_GAIN) else None
 
 
 def _ransac_poses(o3d: Any, grids: ConsensusGrids) -> list[np.ndarray]:
