@@ -30,6 +30,7 @@ def main() -> None:
     from masknet.evaluation.registration import pose_errors
     from masknet.experiments.rounds import scan_eval_set
     from masknet.geometry.clouds import centroid_radius
+    from masknet.registration.solvers.open3d_icp import centroids_matched
     from masknet.registration.stages import consensus
     from masknet.registration.terms.options import RobustOptions
 
@@ -61,7 +62,9 @@ def main() -> None:
             continue
         # The front end's first step: the pose as given, refined and judged on its grid.
         grids = consensus._grids(o3d, template, source, RobustOptions())
-        start = consensus._point_to_plane(grids, consensus._centroids_matched(o3d, *grids.coarse))
+        start = consensus._point_to_plane(
+            grids, centroids_matched(*grids.coarse, consensus.START_ITERATIONS)
+        )
         start_degrees, start_shift = off(start, truth, radius)
         rows.append(
             f"| {i} {name} | {degrees:.2f}°, {shift:.1%} | {np.atleast_1d(result.info['path'])[0]} "

@@ -432,3 +432,22 @@ def test_a_moved_name_still_imports_with_a_warning_naming_its_new_place(old, nam
     assert value is getattr(importlib.import_module(new), name)
     with pytest.raises(AttributeError):
         module.no_such_name  # noqa: B018
+
+
+MAX_FILE_LINES = 500  # a module longer than this holds more than one idea: split it
+
+
+def long_modules(root: Path = SRC) -> dict[str, int]:
+    """Modules under ``root`` longer than ``MAX_FILE_LINES``, by path: their line counts."""
+    counts = {str(p.relative_to(root)): len(p.read_text().splitlines()) for p in root.rglob("*.py")}
+    return {path: n for path, n in counts.items() if n > MAX_FILE_LINES}
+
+
+def test_no_module_is_over_500_lines():
+    assert not long_modules(), f"modules over {MAX_FILE_LINES} lines: {long_modules()}"
+
+
+def test_a_long_module_is_found(tmp_path):
+    (tmp_path / "short.py").write_text("x = 1\n" * MAX_FILE_LINES)
+    (tmp_path / "long.py").write_text("x = 1\n" * (MAX_FILE_LINES + 1))
+    assert long_modules(tmp_path) == {"long.py": MAX_FILE_LINES + 1}

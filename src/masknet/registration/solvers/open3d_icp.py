@@ -116,3 +116,22 @@ def point_to_plane_at_cuts(
         )
         pose, fitness = np.asarray(result.transformation), float(result.fitness)
     return pose, fitness
+
+
+def centroids_matched(template: Any, source: Any, iterations: int) -> np.ndarray:
+    """The pose as given, brought into reach: the Open3D ``source`` cloud's centroid on the
+    ``template``'s, then ``iterations`` of Open3D's point-to-point ICP with every pair (the
+    paper's ICP step, without a mask): (4, 4), source -> template."""
+    reg = require_open3d("ICP from the centroids matched").pipelines.registration
+    start = np.eye(4)
+    start[:3, 3] = template.get_center() - source.get_center()
+    reach = 2.0 * float(np.linalg.norm(template.get_max_bound() - template.get_min_bound()))
+    result = reg.registration_icp(
+        source,
+        template,
+        reach,
+        start,
+        reg.TransformationEstimationPointToPoint(),
+        reg.ICPConvergenceCriteria(max_iteration=iterations),
+    )
+    return np.asarray(result.transformation)

@@ -21,9 +21,11 @@ with the condition under which it runs. Each choice between poses is a rule of
    (:mod:`masknet.registration.stages.consensus`: a voxel budget, RANSAC on FPFH matches,
    point-to-plane ICP, the verdict). The pose as given is refined and judged first
    (``start="first"``: a ``likely correct`` pose ends the call before the features and
-   RANSAC; else it is slid to cover more of both clouds, refined and judged again), except on scans of ``CONSENSUS_FIRST`` times ``consensus_from`` points or
-   more (that large it is seldom right, and its refinement costs what RANSAC does);
-   else it competes with RANSAC's poses (a symmetric shape fits a flip as well). A
+   RANSAC; an ``uncertain`` one is slid to cover more of both clouds, refined and judged
+   again, ``arbiter.covers_more``), except on scans of ``CONSENSUS_FIRST`` times
+   ``consensus_from`` points or more (that large it is seldom right, and its refinement
+   costs what RANSAC does); else it competes with RANSAC's poses (a symmetric shape fits
+   a flip as well). A
    ``likely correct`` answer (``arbiter.settles``) ends the call: path ``"consensus"``.
    On views of objects in real scans the pose as given, refined, ends most calls at a
    third of the fast path's cost; on sparse clouds the fast path holds on a fifth to a

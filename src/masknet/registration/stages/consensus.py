@@ -70,7 +70,7 @@ from masknet.registration.solvers.open3d_global import (
     TUTORIAL_NEIGHBOURS,
     ransac_on_matches,
 )
-from masknet.registration.solvers.open3d_icp import point_to_plane_at_cuts
+from masknet.registration.solvers.open3d_icp import centroids_matched, point_to_plane_at_cuts
 from masknet.registration.terms.options import RobustOptions, inlier_cutoff
 
 __all__ = ["ConsensusGrids", "consensus_grids", "consensus_register"]
@@ -317,7 +317,7 @@ def _consensus(o3d: Any, grids: ConsensusGrids, options: RobustOptions, start: s
         # On sparse clouds the pose as given is right about as often as RANSAC's, at a
         # third of the cost, and it ends most calls on scan views (docs/RESULTS.md, "Sparse
         # clouds: the consensus front end first", "Scans start with the front end").
-        near = _point_to_plane(grids, _centroids_matched(o3d, *grids.coarse))
+        near = _point_to_plane(grids, centroids_matched(*grids.coarse, START_ITERATIONS))
         near_check = judge(grids.check, near)
         if arbiter.settles(near_check):
             return Candidate(near, "start", check=near_check)
@@ -465,25 +465,6 @@ def _point_to_plane(grids: ConsensusGrids, start: np.ndarray) -> np.ndarray:
         return point_to_plane_at_cuts(
             *grids.fine, pose, tuple(c * voxel for c in finer), ICP_ITERATIONS
         )[0]
-
-
-def _centroids_matched(o3d: Any, template: Any, source: Any) -> np.ndarray:
-    """The pose as given, brought into reach: the source's centroid on the template's, then
-    ``START_ITERATIONS`` of Open3D's point-to-point ICP with every pair (the paper's ICP
-    step, without a mask). (4, 4)."""
-    reg = o3d.pipelines.registration
-    start = np.eye(4)
-    start[:3, 3] = template.get_center() - source.get_center()
-    reach = 2.0 * float(np.linalg.norm(template.get_max_bound() - template.get_min_bound()))
-    result = reg.registration_icp(
-        source,
-        template,
-        reach,
-        start,
-        reg.TransformationEstimationPointToPoint(),
-        reg.ICPConvergenceCriteria(max_iteration=START_ITERATIONS),
-    )
-    return np.asarray(result.transformation)
 
 
 def _start_competes(
