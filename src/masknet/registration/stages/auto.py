@@ -52,7 +52,10 @@ with the condition under which it runs. Each choice between poses is a rule of
    4b. **Measured late**: a template between the sizes whose fast path fitted under
    ``partial_fit`` (``arbiter.partial_overlap``: two partial clouds) is measured now; a
    scan's runs the consensus front end (the scan's settings, the pose as given judged
-   first), whose pose then competes with the search's (stage 6).
+   first), whose pose then competes with the search's (stage 6). Where the principal
+   axes sent the pair to the search (stage 3), the search's answer's fit decides, after
+   stage 5: taken as partial unseen, 16 of 100 ModelNet40 pairs turned up to 180 degrees
+   ran the front end for nothing (median 23 -> 36 ms).
 5. **Search**, where the fast path's fit is lower (or the gate sent the pair): the
    coarse-to-fine pipeline of ``method="robust"``
    (:mod:`masknet.registration.stages.search`) on the same prepared pair: path
@@ -188,13 +191,32 @@ def _one(
         if fast.accepted is not None:
             return _against_consensus(fast.accepted, consensus, pair, options, route, model)
     late = route.shape is None and not route.sparse  # most objects ended above
-    partial = arbiter.partial_overlap(None if fast is None else fast.right, SHAPE.partial_fit)
-    if late and route.on and partial:  # both clouds partial: measured now
-        route = route.measured(template, options, times)
-        if route.scan:  # a scan's front end, its pose to compete with the search's
-            consensus = front_end.consensus_register(*clouds, options, times, "first", pair, True)
+
+    def measured_late(fitness: float) -> tuple[Route, Candidate | None]:
+        """Stage 4b: where a pose laid under ``partial_fit`` of the source on the template
+        (both clouds partial), the template measured now, and a scan's front end run."""
+        if not (late and route.on and arbiter.partial_overlap(fitness, SHAPE.partial_fit)):
+            return route, consensus
+        measured = route.measured(template, options, times)
+        if not measured.scan:
+            return measured, consensus
+        return measured, front_end.consensus_register(*clouds, options, times, "first", pair, True)
+
+    if fast is not None:  # the fast path's fit tells
+        route, consensus = measured_late(fast.right)
     run = _escalate(pair, nets, fast, model, search_model, options, times, precision)
+    if fast is None:  # turned by its principal axes: the search's answer's fit tells
+        route, consensus = measured_late(_checked_fitness(pair, run.transform[0]))
     return _against_consensus(run, consensus, pair, options, route, model, late)
+
+
+def _checked_fitness(pair: PreparedPair, pose: np.ndarray) -> float:
+    """The fast path's check for ``pose`` (4, 4): the share of the pair's checked source
+    points (its fit view's surface points where too few are checked) within its cut-off."""
+    prepared = pair.fit
+    checked = prepared.source[prepared.checked]
+    points = checked if len(checked) >= 3 else prepared.source[prepared.surface]
+    return pose_fit(prepared.tree, points, pose, prepared.limit).fitness
 
 
 def _against_consensus(
