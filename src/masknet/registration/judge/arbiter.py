@@ -141,8 +141,7 @@ def best_score(candidates: Sequence[Candidate]) -> float:
 
 def fits_better(candidate: Candidate, score: float) -> bool:
     """Whether ``candidate`` displaces a held answer of ``score``: a strictly higher score
-    (a tie keeps the held answer). Not :func:`rank`: fitness and RMSE break no tie here.
-    The search's answer gives way so to itself refined from a looser cut-off."""
+    (a tie keeps the held answer). Not :func:`rank`: fitness and RMSE break no tie here."""
     return candidate.score > score
 
 

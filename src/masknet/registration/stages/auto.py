@@ -59,8 +59,7 @@ with the condition under which it runs. Each choice between poses is a rule of
 5. **Search**, where the fast path's fit is lower (or the gate sent the pair): the
    coarse-to-fine pipeline of ``method="robust"``
    (:mod:`masknet.registration.stages.search`) on the same prepared pair: path
-   ``"robust/correspondences"`` (its early exit) or ``"robust/search"``; its answer is
-   refined once more from a looser cut-off and replaced where that fits better. The fast
+   ``"robust/correspondences"`` (its early exit) or ``"robust/search"``. The fast
    path's pose takes part: where it fits better (``arbiter.fits_better``) it is the
    answer after all (path ``"fast"``), ambiguous where one of the search's poses lies
    elsewhere and fits about as well (``arbiter.close_rival``).
