@@ -210,13 +210,28 @@ def _one(
     return _against_consensus(run, consensus, pair, options, route, model, late)
 
 
+def _check_fitness(
+    tree: object,
+    checked: np.ndarray,
+    kept: np.ndarray,
+    pose: np.ndarray,
+    limit: float,
+    kept_fit: PoseFit | None = None,
+) -> float:
+    """The fast path's check of ``pose`` (4, 4): the share of the ``checked`` source points
+    (P, 3) within ``limit`` of the template (its KD-tree ``tree``); of the ``kept`` ones
+    (K, 3) where fewer than three are checked (the verdict counts only points with
+    neighbours enough), ``kept_fit`` their fit where already measured."""
+    if len(checked) >= 3:
+        return pose_fit(tree, checked, pose, limit).fitness
+    return (kept_fit or pose_fit(tree, kept, pose, limit)).fitness
+
+
 def _checked_fitness(pair: PreparedPair, pose: np.ndarray) -> float:
-    """The fast path's check for ``pose`` (4, 4): the share of the pair's checked source
-    points (its fit view's surface points where too few are checked) within its cut-off."""
-    prepared = pair.fit
-    checked = prepared.source[prepared.checked]
-    points = checked if len(checked) >= 3 else prepared.source[prepared.surface]
-    return pose_fit(prepared.tree, points, pose, prepared.limit).fitness
+    """:func:`_check_fitness` of ``pose`` (4, 4) on the pair's fit view."""
+    view = pair.fit
+    checked, kept = view.source[view.checked], view.source[view.surface]
+    return _check_fitness(view.tree, checked, kept, pose, view.limit)
 
 
 def _against_consensus(
@@ -330,10 +345,7 @@ def _fast_path(
         )
         pose, converged = sol.transform[0], bool(sol.converged[0])
         fit = pose_fit(tree, kept, pose, limit)
-        right = fit.fitness
-        if len(checked) >= 3:  # the verdict counts only points with neighbours enough
-            right = pose_fit(tree, checked, pose, limit).fitness
-        return pose, fit, right, converged
+        return pose, fit, _check_fitness(tree, checked, kept, pose, limit, fit), converged
 
     transform, fit, right, converged = refined(fast.transform[0])
     if arbiter.accepts(right, accept) and not converged and options.inlier_iterations:
