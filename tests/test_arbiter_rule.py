@@ -68,9 +68,6 @@ COMPARISONS = (ast.Lt, ast.LtE, ast.Gt, ast.GtE, ast.Eq, ast.NotEq)
 ARBITER = "registration/judge/arbiter.py:"
 # (file:function, the decision's source) -> why it is no choice between poses.
 ALLOWED = {
-    ("registration/judge/assessment.py:judge", "min(source_fit, template_fit)"): (
-        "the verdict's overlap fit of one pose: the worse of its two directions"
-    ),
     ("registration/stages/auto.py:_fast_path", "len(fine_template) == len(template)"): (
         "a count of rows, not a pose: whether the fit view holds the whole template, so that"
         " its KD-tree serves the returned mask (``fine_template`` is read as a measure because"

@@ -418,14 +418,13 @@ def _quick_check(prepared: Any, transform: np.ndarray) -> Assessment | None:
     overlap fit at ``transform`` (4, 4) reads ``CORRECT_FIT`` or more both ways on
     ``prepared`` (:func:`~masknet.registration.judge.assessment.prepare_check`); None (ask the
     full verdict) otherwise. Its nearest fit and slide fields are NaN and 0: not measured."""
-    from masknet.geometry.knn import cloud_tree
     from masknet.geometry.se3 import transform_points
     from masknet.registration.judge.assessment import CORRECT_FIT, NEAR
-    from masknet.registration.judge.fit import overlap_fit
+    from masknet.registration.judge.fit import two_way_fit
 
     moved = transform_points(transform, prepared.source_points)
-    source_fit, fitness, overlap = overlap_fit(prepared.tree, moved, prepared.limit, NEAR)
-    template_fit = overlap_fit(cloud_tree(moved), prepared.template_points, prepared.limit, NEAR)[0]
+    both = two_way_fit(prepared.tree, prepared.template_points, moved, prepared.limit, NEAR)
+    (source_fit, fitness, overlap), template_fit = both[0], both[1, 0]
     if source_fit < CORRECT_FIT or template_fit < CORRECT_FIT:
         return None
     worse = min(source_fit, template_fit)

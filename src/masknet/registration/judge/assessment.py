@@ -53,7 +53,7 @@ from masknet.registration.judge.constraints import (
     least_pinned,
     pose_constraint,
 )
-from masknet.registration.judge.fit import given_cut
+from masknet.registration.judge.fit import given_cut, two_way_fit
 from masknet.registration.judge.fit import overlap_fit as implied_overlap_fit
 from masknet.registration.judge.hypotheses import rotation_between_deg
 
@@ -251,7 +251,6 @@ def judge(prepared: PreparedCheck, transform: np.ndarray) -> Assessment:
     :class:`~masknet.registration.judge.prepared.PreparedCheck`: ``PreparedPair.check()``,
     or the consensus front end's on its check grid) for ``transform`` (4, 4), rigid,
     source -> template (no checks: the pipelines' own poses)."""
-    from masknet.geometry.knn import cloud_tree
 
     limit, template_tree = prepared.limit, prepared.tree
 
@@ -262,11 +261,9 @@ def judge(prepared: PreparedCheck, transform: np.ndarray) -> Assessment:
     moved, nearest = moved_by(transform), moved_by(refined)
     _, fitness, overlap = implied_overlap_fit(template_tree, moved, limit, NEAR)
     # The fit of the nearest fitting pose: the surfaces there, not a few spacings off.
-    source_fit, _, _ = implied_overlap_fit(template_tree, nearest, limit, NEAR)
-    template_fit, _, _ = implied_overlap_fit(
-        cloud_tree(nearest), prepared.template_points, limit, NEAR
+    overlap_fit = float(
+        two_way_fit(template_tree, prepared.template_points, nearest, limit, NEAR)[:, 0].min()
     )
-    overlap_fit = min(source_fit, template_fit)
     nearby_deg = rotation_between_deg(refined, transform)
     radius = rms_radius(moved)
     nearby_shift = float(np.linalg.norm(nearest.mean(0) - moved.mean(0)) / max(radius, 1e-300))

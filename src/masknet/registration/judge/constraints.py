@@ -239,14 +239,11 @@ def covered_shares(check: Any, pose: np.ndarray) -> np.ndarray:
     inlier distance of the other cloud at ``pose`` (4, 4) on ``check`` (a
     :class:`~masknet.registration.judge.prepared.PreparedCheck`): what :func:`covering_slide`
     ranks slides by."""
-    from masknet.geometry.knn import cloud_tree
     from masknet.geometry.se3 import transform_points
-    from masknet.registration.judge.fit import overlap_fit
+    from masknet.registration.judge.fit import two_way_fit
 
     moved = transform_points(pose, check.source_points)
-    source = overlap_fit(check.tree, moved, check.limit)[1]
-    template = overlap_fit(cloud_tree(moved), check.template_points, check.limit)[1]
-    return np.array([source, template])
+    return two_way_fit(check.tree, check.template_points, moved, check.limit)[:, 1]
 
 
 def covering_pose(check: Any, pose: np.ndarray) -> np.ndarray | None:

@@ -204,6 +204,18 @@ def overlap_fit(
     return float(shares[0]), float(shares[1]), float(shares[2])
 
 
+def two_way_fit(
+    tree: Any, template_points: np.ndarray, moved: np.ndarray, limit: float, near: float = 3.0
+) -> np.ndarray:
+    """(2, 3) :func:`overlap_fit`'s three shares both ways: row 0 the moved source points
+    ``moved`` (M, 3) against the template's KD-tree ``tree``, row 1 the template's points
+    ``template_points`` (P, 3) against the moved source (a tree of it built here)."""
+    from masknet.geometry.knn import cloud_tree
+
+    source_side = overlap_fit(tree, moved, limit, near)
+    return np.array([source_side, overlap_fit(cloud_tree(moved), template_points, limit, near)])
+
+
 def overlap_fits(near_to: Any, points: np.ndarray, limit: float, near: float = 3.0) -> np.ndarray:
     """(C, 3) :func:`overlap_fit`'s three shares for each of C clouds ``points`` (C, P, 3)
     (one cloud moved C ways), the KD-tree queried once for all."""
