@@ -244,13 +244,13 @@ def _grids(
     clouds = side.cloud, to_open3d(source)
     # The template's normals on both grids, for point-to-plane ICP: the 30 nearest points
     # within 2 voxels on the first (as the features take them), FINE_NORMALS on the finer;
-    # on a grid where most points have no plane there (lidar rings), the 30 nearest.
+    # on a grid where most points have no plane there (lidar rings), the 30 nearest. The
+    # source's first grid gets its normals where RANSAC's features need them.
     coarse = [side.grid(voxel, 2 * voxel, ("coarse", voxel)), clouds[1].voxel_down_sample(voxel)]
     if min(len(c.points) for c in coarse) < 3 * 3:
         return None
     if len(coarse[1].points) > MAX_SOURCE_SHARE * len(coarse[0].points):
         return None  # an object in a scene: the scene search's work, not this one's
-    grid_normals(coarse[1], 2 * voxel)  # the source's, as its features take them
     scan = options.is_scan(len(template)) if scan is None else scan
     within = SCAN_FINE_NORMALS if scan else FINE_NORMALS
     fine = [
@@ -365,6 +365,8 @@ def _ransac_poses(o3d: Any, grids: ConsensusGrids) -> list[np.ndarray]:
     # At most a quarter of the smaller grid (see FEATURE_SHARE).
     neighbours = min(FEATURE_NEIGHBOURS, min(len(c.points) for c in coarse) // FEATURE_SHARE)
     key = ("consensus features", voxel, neighbours)
+    if not coarse[1].has_normals():  # once: a second estimate is turned towards the first
+        grid_normals(coarse[1], 2 * voxel)  # as the template's first grid has them
     features = [
         template_view(
             grids.template, key, lambda: fpfh_features(o3d, coarse[0], voxel, neighbours, False)
