@@ -92,11 +92,6 @@ CORRECT_SHIFT, WRONG_SHIFT = 0.075, 0.15  # its shift, in RMS radii of the moved
 # share of its firmest motion (masknet.registration.judge.constraints): the fit does not pin the
 # pose along it, and a pose slid that way fits as well.
 FREE_RATIO = 2e-4
-# A slid pose is searched for (best_slide) only where the least pinned motion weighs under this
-# share of the firmest: a slide along a firmly pinned motion moves the source off the surfaces
-# it lies on. On real scan views and sparse scan pairs every slide that fit SLIDE_GAIN better
-# came from a pose pinned under 0.006, while half of all poses judged are pinned over 0.03.
-WEAK_RATIO = 0.02
 # A pose slid along its least pinned motions that fits this much more of the source's
 # overlap (masknet.registration.judge.constraints.best_slide) makes the pose likely wrong.
 SLIDE_GAIN = 0.035
@@ -286,10 +281,8 @@ def judge(prepared: PreparedCheck, transform: np.ndarray) -> Assessment:
     pinned = pose_constraint(prepared.template, template_tree, moved, limit)
     constraint = 1.0 if pinned is None else float(pinned.ratios[0])
     free = describe_free(pinned, FREE_RATIO)
-    # No slide is searched where the verdict is already wrong, or the fit pins every motion.
-    slide = Slide(0.0, np.zeros(3))
-    wrong = RULE_VERDICTS[verdict_rule(overlap_fit, nearby_deg, nearby_shift)] == "likely wrong"
-    if not wrong and constraint < WEAK_RATIO:
+    slide = Slide(0.0, np.zeros(3))  # no slide is searched where the verdict is already wrong
+    if RULE_VERDICTS[verdict_rule(overlap_fit, nearby_deg, nearby_shift)] != "likely wrong":
         slide = best_slide(
             template_tree, prepared.template_points, moved, limit, pinned, overlap_fit
         )
