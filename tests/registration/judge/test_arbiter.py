@@ -319,6 +319,28 @@ def test_a_better_verdict_wins_whatever_the_overlap_fits():
     assert arbiter.ranks_higher(same_higher, right)
 
 
+def test_a_settled_answer_needs_a_better_verdict_and_a_held_one_not_likely_correct():
+    """``settled_better``: the search's refined answer replaces an ``uncertain`` one where
+    its verdict is better; a ``likely correct`` answer is kept, and the refined pose is then
+    not judged at all."""
+    asked = []
+
+    def judged(verdict: str, overlap_fit: float):
+        def check():
+            asked.append(verdict)
+            return _check(verdict, overlap_fit)
+
+        return check
+
+    unsure = _check("uncertain", 0.9)
+    assert arbiter.settled_better(judged("likely correct", 0.7), unsure)
+    assert not arbiter.settled_better(judged("uncertain", 0.99), unsure)  # same verdict
+    assert not arbiter.settled_better(judged("likely wrong", 0.99), unsure)
+    asked.clear()
+    assert not arbiter.settled_better(judged("likely correct", 0.99), _check("likely correct", 0.6))
+    assert asked == []  # a likely correct answer: its refined pose is not judged
+
+
 def test_partial_overlap_by_the_fast_paths_fit():
     """Under the level (or no fast path run): both clouds partial."""
     assert arbiter.partial_overlap(0.3, 0.8) and arbiter.partial_overlap(None, 0.8)

@@ -59,8 +59,9 @@ with the condition under which it runs. Each choice between poses is a rule of
 5. **Search**, where the fast path's fit is lower (or the gate sent the pair): the
    coarse-to-fine pipeline of ``method="robust"``
    (:mod:`masknet.registration.stages.search`) on the same prepared pair: path
-   ``"robust/correspondences"`` (its early exit) or ``"robust/search"``. The fast
-   path's pose takes part: where it fits better (``arbiter.fits_better``) it is the
+   ``"robust/correspondences"`` (its early exit) or ``"robust/search"``; its answer is
+   refined once more from a looser cut-off and replaced where the verdict calls that
+   better (``arbiter.settled_better``). The fast path's pose takes part: where it fits better (``arbiter.fits_better``) it is the
    answer after all (path ``"fast"``), ambiguous where one of the search's poses lies
    elsewhere and fits about as well (``arbiter.close_rival``).
 6. **The front end's pose against the answer**, where the front end ended without
@@ -103,7 +104,7 @@ from masknet.registration.judge.shape import SHAPE
 from masknet.registration.solvers.backends.base import MaskModels
 from masknet.registration.solvers.icp import icp
 from masknet.registration.stages import consensus as front_end
-from masknet.registration.stages.robust import NetworkMasks, pipeline_run
+from masknet.registration.stages.robust import GivenMasks, NetworkMasks, pipeline_run
 from masknet.registration.stages.rounds import mask_and_register
 from masknet.registration.stages.route import Route, turned_first
 from masknet.registration.stages.search import REFINE_TOLERANCE, coarse_to_fine
@@ -391,7 +392,7 @@ def _escalate(
     reuse = fast is not None and fast.mask is not None
     if search_model is not None and search_model is model and reuse:
         # The fast path's network is the search's: its masks serve again.
-        search_model = _GivenMasks(fast.mask, fast.source_mask)
+        search_model = GivenMasks(fast.mask, fast.source_mask)
     masks = None
     if search_model is not None:
         template_net, source_net = nets.clouds()
@@ -485,16 +486,3 @@ def _info(path: str, fit: PoseFit, escalated: float, source: str = "fast") -> di
         runner_up=None,
     )
     return {**info_arrays([pair]), "escalated_fitness": np.array([escalated])}
-
-
-class _GivenMasks:
-    """Masks already predicted, answering the mask protocol: template (n,) and source
-    (1, m) or None, for the clouds they were predicted on."""
-
-    def __init__(self, mask: np.ndarray, source_mask: np.ndarray | None) -> None:
-        self.masks = mask, None if source_mask is None else source_mask[0]
-
-    def predict_masks(
-        self, template: np.ndarray, source: np.ndarray, **_: object
-    ) -> tuple[np.ndarray, np.ndarray | None]:
-        return self.masks

@@ -22,7 +22,7 @@ from masknet.registration.stages.search import coarse_to_fine
 from masknet.registration.terms.options import RobustOptions
 from masknet.registration.terms.result import Solution, info_arrays
 
-__all__ = ["NetworkMasks", "pipeline_run", "robust_register"]
+__all__ = ["GivenMasks", "NetworkMasks", "pipeline_run", "robust_register"]
 
 
 class NetworkMasks:
@@ -54,6 +54,20 @@ class NetworkMasks:
             spread_labels(template, self.template_net, t_mask),
             spread_labels(source, self.source_net, s_mask),
         )
+
+
+class GivenMasks:
+    """Masks already predicted (the fast path's, where its network is the search's),
+    answering the mask protocol: template (n,) and source
+    (1, m) or None, for the clouds they were predicted on."""
+
+    def __init__(self, mask: np.ndarray, source_mask: np.ndarray | None) -> None:
+        self.masks = mask, None if source_mask is None else source_mask[0]
+
+    def predict_masks(
+        self, template: np.ndarray, source: np.ndarray, **_: object
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        return self.masks
 
 
 def robust_register(
