@@ -103,3 +103,34 @@ def test_candidates_a_few_spacings_apart_are_one_basin():
     wrap = [Candidate(pose, stage, PoseFit(1.0, 0.0, 1.0)) for pose, stage in entries]
     assert [e.stage for e in one_per_basin(wrap, 3, 0.1, 10.0)] == ["a", "c"]
     assert [e.stage for e in one_per_basin(wrap, 3, 0.01, 10.0)] == ["a", "b", "c"]
+
+
+def test_the_answer_settles_from_a_looser_cut_where_the_verdict_calls_it_better():
+    """The search's answer, stopped short of the truth, refined from a looser cut-off ends
+    nearer the truth, fitting better and judged better; a `likely correct` answer is kept
+    as it is."""
+    from masknet.registration.judge.assessment import VERDICTS, judge
+    from masknet.registration.stages.search import _Search
+    from masknet.registration.terms.options import RobustOptions
+
+    rng = np.random.default_rng(3)
+    template = _box_with_a_bump(rng)
+    truth = np.eye(4)
+    truth[:3, :3] = Rotation.from_euler("z", 12, degrees=True).as_matrix()
+    source = (template - truth[:3, 3]) @ truth[:3, :3]  # source -> template is ``truth``
+    search = _Search(template, source, RobustOptions(inlier_iterations=3), {}, None)
+    short = search.refine(np.eye(4), search.kept_source, "rotation")
+    before = VERDICTS.index(judge(search.prepared.check(), short.pose).verdict)
+    assert before > 0  # not likely correct
+    settled = search.settle(short)
+    assert settled is not short and settled.score > short.score
+
+    def turn(pose: np.ndarray) -> float:
+        return Rotation.from_matrix(pose[:3, :3] @ truth[:3, :3].T).magnitude()
+
+    assert turn(settled.pose) < turn(short.pose)
+    assert VERDICTS.index(judge(search.prepared.check(), settled.pose).verdict) < before
+    search = _Search(template, source, RobustOptions(), {}, None)
+    right = search.refine(truth, search.kept_source, "rotation")
+    assert search.settle(right) is right
+    assert turn(right.pose) < np.radians(0.5)
