@@ -3,6 +3,7 @@
     python scripts/ship.py masknet runs/modelnet40 modelnet40 --data PATH
     python scripts/ship.py masknet runs/seen20 modelnet40_seen20 --data PATH
     python scripts/ship.py masknet runs/ft modelnet40 --data PATH --previous OLD_CARD.json
+    python scripts/ship.py crossmasknet relay/crossmasknet_fpfh_modelnet40 modelnet40 --data PATH
     python scripts/ship.py denoise runs/denoise denoise_modelnet40 --data PATH
     python scripts/ship.py refine runs/refinemask_scans scans --data PATH --eval-scans DIR
     python scripts/ship.py pointnetlk runs/pointnetlk modelnet40 --data PATH
@@ -25,14 +26,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from masknet import cards
+from masknet import cards, cross_card
 from masknet.cli import run_script
 from masknet.data import PairConfig, load_modelnet40, make_test_pairs
 from masknet.denoising import open3d_radius_outlier_removal, open3d_statistical_outlier_removal
 from masknet.evaluation.evaluate import evaluate_masknet, format_table
 from masknet.evaluation.registration import batched_errors, error_summary
 from masknet.metrics import outlier_removal_metrics
-from masknet.models import REGISTRATION_NETWORKS, MaskNet
+from masknet.models import REGISTRATION_NETWORKS, CrossMaskNet, MaskNet
 
 WEIGHTS = Path(__file__).resolve().parents[1] / "src" / "masknet" / "resources" / "weights"
 
@@ -70,6 +71,54 @@ def ship_masknet(args: argparse.Namespace, previous: dict | None) -> None:
         card["speed"] = inference_times(model)
         print("inference ms", card["speed"]["ms"])
     install(args.run, f"masknet_{args.name}.safetensors", card, cards.render_masknet_card(card))
+
+
+def ship_crossmasknet(args: argparse.Namespace, previous: dict | None) -> None:
+    """CrossMaskNet: stored in fp16 where that keeps the fp32 weights' top-k labels (as
+    ``scripts/weights_storage.py`` decides), else fp32; then the shipped weights' mask
+    metrics on the test pairs and their time at batch 1 beside the paper's MaskNet."""
+    import tempfile
+
+    from weights_storage import MIN_AGREEMENT, rounded_copy
+
+    from masknet.evaluation.evaluate import evaluate_pairs
+    from masknet.models.masknet import select_mask
+    from masknet.models.weights import read_metadata
+
+    run, log = cards.read_run(args.run)
+    model = CrossMaskNet.from_file(args.run / "best.safetensors")
+    best = max(log, key=lambda row: float(row["val_precision"]))
+    pair_config = PairConfig(**run["task"]["pairs"])
+    test = load_modelnet40(args.data, "test").points
+    pairs = make_test_pairs(test, args.pairs, pair_config, args.seed)
+    half = rounded_copy(model, torch.float16)
+    evaluations, masks = {}, {}
+    for storage, network in (("fp32", model), ("fp16", half)):
+        evaluations[storage] = evaluate_pairs(
+            network, pairs, args.seed, pair_config.to_dict(), keep_outputs=True
+        )
+        scores = torch.from_numpy(evaluations[storage].scores)
+        masks[storage] = select_mask(scores, k=pairs.source.shape[1]).numpy()
+    agreement = float((masks["fp16"] == masks["fp32"]).mean())
+    storage = "fp16" if agreement >= MIN_AGREEMENT else "fp32"
+    shipped, evaluation = (half if storage == "fp16" else model), evaluations[storage]
+    print(f"fp16 top-k label agreement {agreement:.5f}: storing {storage}", flush=True)
+    print(format_table(evaluation.rows), flush=True)
+    card = cards.base_card(args.name, run, log, model.config, best, {}, previous)
+    card["test"] = {"all": evaluation.to_dict()}
+    card["storage"] = {"dtype": storage, "fp16_point_agreement": agreement}
+    card["storage"] |= {"min_agreement": MIN_AGREEMENT, "pairs": args.pairs}
+    card["speed"] = inference_times(shipped)
+    card["version"] = args.version
+    print("inference ms", card["speed"]["ms"])
+    held = read_metadata(args.run / "best.safetensors")  # save() writes config and storage
+    kept = {k: v for k, v in held.items() if not k.endswith("config") and k != "storage"}
+    with tempfile.TemporaryDirectory() as folder:  # the file shipped: save() with its storage
+        shipped.save(Path(folder) / "best.safetensors", kept, storage=storage)
+        markdown = cross_card.render_crossmasknet_card(card)
+        install(
+            Path(folder), f"{CrossMaskNet.weights_prefix}{args.name}.safetensors", card, markdown
+        )
 
 
 def inference_times(model: MaskNet, repeats: int = 30) -> dict:
@@ -231,7 +280,7 @@ def ship_network(args: argparse.Namespace, previous: dict | None) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="kind", required=True)
-    for kind in ("masknet", "denoise", "refine", *REGISTRATION_NETWORKS):
+    for kind in ("masknet", "crossmasknet", "denoise", "refine", *REGISTRATION_NETWORKS):
         p = sub.add_parser(kind, help=f"ship {kind} weights")
         p.add_argument("run", type=Path, help="the training run folder")
         p.add_argument("name", help="name of the shipped weights, e.g. modelnet40")
@@ -242,7 +291,9 @@ def main() -> None:
         p.add_argument("--scans", help="masknet: the --scans folder of the run (held-out scans)")
         p.add_argument("--eval-scans", help="masknet, refine: a folder of scans never trained on")
         p.add_argument("--pairs-per-scan", type=int, default=100)
-        p.add_argument("--version", default="1.0", help="refine: the version on the card")
+        p.add_argument(
+            "--version", default="1.0", help="refine, crossmasknet: the version on the card"
+        )
         p.add_argument(
             "--note", help="masknet, refine: a line for the card that the run cannot tell"
         )
@@ -255,9 +306,12 @@ def main() -> None:
     previous = json.loads(args.previous.read_text()) if args.previous else None
     if args.previous_run:
         previous = cards.run_summary(args.previous_run)
-    ship = {"masknet": ship_masknet, "denoise": ship_denoise, "refine": ship_refine}.get(
-        args.kind, ship_network
-    )
+    ship = {
+        "masknet": ship_masknet,
+        "crossmasknet": ship_crossmasknet,
+        "denoise": ship_denoise,
+        "refine": ship_refine,
+    }.get(args.kind, ship_network)
     ship(args, previous)
 
 

@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from masknet import cards
+from masknet import cards, cross_card
 from masknet.models.weights import shipped_weights_path
 
 CARDS = sorted(shipped_weights_path("").glob("*.json"))
@@ -20,6 +20,9 @@ def test_shipped_cards_render(path):
     elif path.stem.startswith("refinemask_"):
         text = cards.render_refine_card(card)
         assert text == path.with_suffix(".md").read_text()  # the card shipped is this render
+    elif path.stem.startswith("crossmasknet_"):
+        text = cross_card.render_crossmasknet_card(card)
+        assert text == path.with_suffix(".md").read_text()
     else:
         text = cards.render_network_card(card, path.stem.split("_")[0])
     assert text.startswith(f"# Model card: `{path.stem}`")

@@ -119,3 +119,15 @@ def test_one_spelling_per_idea_across_commands():
         assert not shown & {"--out", "--json", "--pretrained", "--network-weights"}, name
         assert "--inference-precision" not in shown, name
         assert {"-o", "--output"} <= shown, name  # every command writes something
+
+
+def test_shipped_crossmasknet_weights_load_by_name():
+    import argparse
+
+    from masknet.cli._common import load_model
+    from masknet.models import CrossMaskNet, MaskNet
+
+    args = argparse.Namespace(weights="crossmasknet_modelnet40", precision="fp32")
+    assert isinstance(load_model(args), CrossMaskNet)
+    args = argparse.Namespace(weights="modelnet40", precision="fp32")
+    assert type(load_model(args)) is MaskNet

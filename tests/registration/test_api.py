@@ -253,13 +253,19 @@ def test_default_model_is_loaded_once(monkeypatch, pairs, small_masknet):
         calls.append(1)
         return small_masknet
 
+    from masknet.models import CrossMaskNet
+
     plan.default_model.cache_clear()
+    plan.default_mask_x_model.cache_clear()
+    # Mask-ICP's default is CrossMaskNet (the paper's MaskNet without Open3D): either loads once.
     monkeypatch.setattr(MaskNet, "pretrained", staticmethod(fake_pretrained))
+    monkeypatch.setattr(CrossMaskNet, "pretrained", staticmethod(fake_pretrained))
     try:
         register(pairs.template[0].numpy(), pairs.source[0].numpy(), method="icp", max_iterations=1)
         register(pairs.template[1].numpy(), pairs.source[1].numpy(), method="icp", max_iterations=1)
     finally:
         plan.default_model.cache_clear()
+        plan.default_mask_x_model.cache_clear()
     assert calls == [1]
 
 
@@ -645,9 +651,10 @@ def test_fitness_is_open3ds_at_the_cut_off_for_a_masked_loop(pairs):
 
 def test_a_mask_of_under_three_points_is_refused_on_every_path(pairs):
     template, source = pairs.template[0].numpy(), pairs.source[0].numpy()
+    paper = MaskNet.pretrained()  # CrossMaskNet, Mask-ICP's default, is surer than 0.999999
     for method in ("icp", "open3d-icp"):
         with pytest.raises(MaskNetError, match="the mask kept [0-2] template point"):
-            register(template, source, method=method, mask_threshold=0.999999)
+            register(template, source, method=method, mask_threshold=0.999999, model=paper)
     with pytest.raises(MaskNetError, match="the mask kept 2 template point") as refused:
         register(template, source, method="icp", k=2)
     assert "k=2" in str(refused.value) and "threshold" not in str(refused.value)

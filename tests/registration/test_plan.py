@@ -5,17 +5,22 @@ from __future__ import annotations
 
 import pytest
 
-from masknet import MaskNetError
-from masknet.models import MaskNet
+from masknet import MaskNetError, register
+from masknet.errors import MaskNetWarning
+from masknet.models import CrossMaskNet, MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
+from masknet.registration import plan as plan_module
 from masknet.registration.plan import (
     FAST_PATH_WEIGHTS,
+    MASK_X_METHODS,
     default_fast_model,
+    default_mask_x_model,
     default_model,
     default_two_sided,
     plan_call,
     with_networks,
 )
+from masknet.registration.terms.methods import METHOD_TABLE
 from masknet.registration.terms.options import ICPCriteria, RobustOptions
 
 ARGUMENTS = dict(
@@ -39,7 +44,7 @@ def test_the_default_networks_load_once():
 
 def test_which_networks_a_plan_gets():
     one_round = with_networks(plan_call("icp", ICPCriteria(), None, **ARGUMENTS))
-    assert one_round.model is default_model() and one_round.refiner is None
+    assert one_round.model is default_mask_x_model() and one_round.refiner is None
     auto = with_networks(plan_call("auto", RobustOptions(), None, **ARGUMENTS))
     assert auto.model is default_fast_model() and auto.search_model is default_two_sided()
     given = MaskNet.pretrained()
@@ -55,3 +60,54 @@ def test_a_plan_refuses_what_no_stage_could_run():
         plan_call("icp", ICPCriteria(), "modelnet40", **ARGUMENTS)
     with pytest.raises(MaskNetError, match="refines itself"):
         plan_call("robust", RobustOptions(), None, **{**ARGUMENTS, "refine_iterations": 5})
+
+
+@pytest.mark.skipif(not plan_module.has_open3d(), reason="needs Open3D")
+def test_every_mask_x_masks_with_the_shipped_crossmasknet():
+    assert set(MASK_X_METHODS) == {"icp", "pointnetlk", "dcp", "prnet", "pcrnet", "rpmnet"}
+    model = default_mask_x_model()
+    assert isinstance(model, CrossMaskNet) and model.config.get("descriptors") == "fpfh"
+    for method in MASK_X_METHODS:
+        options = METHOD_TABLE[method].options()
+        assert with_networks(plan_call(method, options, None, **ARGUMENTS)).model is model
+    # Open3D's ICP keeps the paper's network, and so does "auto" (its small one).
+    open3d_icp = plan_call("open3d-icp", METHOD_TABLE["open3d-icp"].options(), None, **ARGUMENTS)
+    assert with_networks(open3d_icp).model is default_model()
+    auto = with_networks(plan_call("auto", RobustOptions(), None, **ARGUMENTS))
+    assert auto.model is default_fast_model()
+
+
+def test_the_paper_masknet_is_one_argument_away():
+    paper = MaskNet.pretrained()
+    options = METHOD_TABLE["pointnetlk"].options()
+    given = with_networks(plan_call("pointnetlk", options, paper, **ARGUMENTS))
+    assert given.model is paper and type(given.model) is MaskNet
+
+
+@pytest.mark.skipif(not plan_module.has_open3d(), reason="needs Open3D")
+def test_mask_x_registers_a_batch_with_crossmasknet():
+    from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
+
+    points = load_modelnet40(bundled_sample_path(), "test").points
+    pairs = make_test_pairs(points, 2, PairConfig(), seed=3)
+    template, source = pairs.template.numpy(), pairs.source.numpy()
+    result = register(template, source, method="pcrnet")
+    assert result.transform.shape == (2, 4, 4) and result.mask.shape == (2, 1024)
+    # The batch's masks are CrossMaskNet's, pair by pair, and mostly the true ones.
+    alone = default_mask_x_model().predict_mask(template[1], source[1], precision="fp32")
+    assert (result.mask[1] == alone).mean() > 0.99
+    truth = pairs.mask.numpy().astype(bool)
+    assert ((result.mask & truth).sum(1) / source.shape[1]).min() > 0.9
+
+
+def test_without_open3d_mask_x_falls_back_to_the_paper_masknet(monkeypatch):
+    monkeypatch.setattr(plan_module, "has_open3d", lambda: False)
+    default_mask_x_model.cache_clear()
+    try:
+        with pytest.warns(MaskNetWarning, match="Open3D is not installed.*paper's MaskNet"):
+            model = default_mask_x_model()
+        assert model is default_model()
+        planned = with_networks(plan_call("dcp", METHOD_TABLE["dcp"].options(), None, **ARGUMENTS))
+        assert planned.model is default_model()
+    finally:
+        default_mask_x_model.cache_clear()

@@ -340,8 +340,9 @@ def load_model(args: argparse.Namespace, two_sided: bool = False) -> MaskNet:
 
     ``two_sided``: shipped names are two-sided MaskNets (``masknet2_<name>``), and a
     ``--weights`` file may hold either kind (its metadata says which). A file of
-    CrossMaskNet weights (``masknet train --model crossmasknet``) gives a CrossMaskNet,
-    which answers MaskNet's calls. ``--weights`` unset: the kind's own shipped default.
+    CrossMaskNet weights (``masknet train --model crossmasknet``), or shipped ones named
+    ``crossmasknet_<name>``, give a CrossMaskNet, which answers MaskNet's calls.
+    ``--weights`` unset: the kind's own shipped default.
     """
 
     from masknet.models import CrossMaskNet, MaskNet
@@ -354,6 +355,8 @@ def load_model(args: argparse.Namespace, two_sided: bool = False) -> MaskNet:
     kind = TwoSidedMaskNet if two_sided else MaskNet
     if not args.weights:
         return kind.pretrained()
+    if args.weights.startswith(CrossMaskNet.weights_prefix) and not is_weights_file(args.weights):
+        return CrossMaskNet.pretrained(args.weights.removeprefix(CrossMaskNet.weights_prefix))
     if is_weights_file(args.weights):
         held = read_metadata(args.weights)
         if CrossMaskNet._config_key() in held:

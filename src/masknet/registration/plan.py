@@ -9,17 +9,22 @@ from typing import Any
 
 import torch
 
-from masknet.errors import MaskNetError
+from masknet._open3d import has_open3d
+from masknet.errors import MaskNetError, warn
 from masknet.models import REGISTRATION_NETWORKS
+from masknet.models.cross_masknet import CrossMaskNet
 from masknet.models.masknet import MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
 from masknet.registration.stages.refinement import Refiner, resolve_refiner
 from masknet.registration.stages.scene import SceneSearch
-from masknet.registration.terms.methods import METHOD_TABLE, Method
+from masknet.registration.terms.methods import METHOD_TABLE, NETWORK_METHODS, Method
 
 __all__ = [
+    "MASK_X_METHODS",
+    "MASK_X_WEIGHTS",
     "CallPlan",
     "default_fast_model",
+    "default_mask_x_model",
     "default_model",
     "default_network",
     "default_two_sided",
@@ -49,6 +54,28 @@ FAST_PATH_WEIGHTS = "modelnet40_small"
 def default_fast_model() -> MaskNet:
     """The shipped small MaskNet (``FAST_PATH_WEIGHTS``), ``"auto"``'s default, loaded once."""
     return MaskNet.pretrained(FAST_PATH_WEIGHTS)
+
+
+# One round of Mask-X with these methods masks with the shipped CrossMaskNet
+# (``crossmasknet_modelnet40``, more precise than the paper's MaskNet on the ModelNet40 test
+# pairs: its model card). ``model=MaskNet.pretrained()`` (``--weights modelnet40``) gives the
+# paper's network. The other methods (Open3D's) keep the paper's.
+MASK_X_METHODS = ("icp", *NETWORK_METHODS)
+MASK_X_WEIGHTS = "modelnet40"
+
+
+@functools.lru_cache(maxsize=1)
+def default_mask_x_model() -> MaskNet | CrossMaskNet:
+    """The mask of one round of Mask-X (:data:`MASK_X_METHODS`), loaded once: the shipped
+    CrossMaskNet where Open3D (the optional extra its training descriptors came from)
+    imports; else the paper's MaskNet, with one warning."""
+    if not has_open3d():
+        warn(
+            "Open3D is not installed: Mask-X masks with the paper's MaskNet "
+            "(masknet_modelnet40) instead of CrossMaskNet; pip install 'masknet[open3d]'"
+        )
+        return default_model()
+    return CrossMaskNet.pretrained(MASK_X_WEIGHTS)
 
 
 @functools.lru_cache(maxsize=1)
@@ -121,7 +148,7 @@ def with_networks(plan: CallPlan) -> CallPlan:
     if plan.use_mask and plan.method == "auto":  # auto's escalation masks both clouds
         search_model = model if isinstance(model, TwoSidedMaskNet) else default_two_sided()
     if plan.use_mask and model is None:
-        # One round is the paper's Mask-X with the paper's network; auto's fast path masks
+        # One round of Mask-X masks with CrossMaskNet (MASK_X_METHODS); auto's fast path masks
         # with the small one (FAST_PATH_WEIGHTS; with the two-sided network there, fewer
         # clean pairs pass the check and it is slower). A loop starts from the two-sided
         # network, which also rejects source outliers; its clean-pair cost after one round
@@ -130,6 +157,8 @@ def with_networks(plan: CallPlan) -> CallPlan:
             model = default_two_sided()
         elif plan.method == "auto":  # after a scene search the method is "icp" by now
             model = default_fast_model()
+        elif plan.method in MASK_X_METHODS and not plan.scene_for_auto:
+            model = default_mask_x_model()
         else:
             model = default_model()
     # Refined rounds exist only in a loop (robust and auto refine by ICP with a cut-off).
