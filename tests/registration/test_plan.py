@@ -6,10 +6,8 @@ from __future__ import annotations
 import pytest
 
 from masknet import MaskNetError, register
-from masknet.errors import MaskNetWarning
 from masknet.models import CrossMaskNet, MaskNet
 from masknet.models.two_sided import TwoSidedMaskNet
-from masknet.registration import plan as plan_module
 from masknet.registration.plan import (
     FAST_PATH_WEIGHTS,
     MASK_X_METHODS,
@@ -62,7 +60,6 @@ def test_a_plan_refuses_what_no_stage_could_run():
         plan_call("robust", RobustOptions(), None, **{**ARGUMENTS, "refine_iterations": 5})
 
 
-@pytest.mark.skipif(not plan_module.has_open3d(), reason="needs Open3D")
 def test_every_mask_x_masks_with_the_shipped_crossmasknet():
     assert set(MASK_X_METHODS) == {"icp", "pointnetlk", "dcp", "prnet", "pcrnet", "rpmnet"}
     model = default_mask_x_model()
@@ -84,7 +81,6 @@ def test_the_paper_masknet_is_one_argument_away():
     assert given.model is paper and type(given.model) is MaskNet
 
 
-@pytest.mark.skipif(not plan_module.has_open3d(), reason="needs Open3D")
 def test_mask_x_registers_a_batch_with_crossmasknet():
     from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
 
@@ -100,14 +96,21 @@ def test_mask_x_registers_a_batch_with_crossmasknet():
     assert ((result.mask & truth).sum(1) / source.shape[1]).min() > 0.9
 
 
-def test_without_open3d_mask_x_falls_back_to_the_paper_masknet(monkeypatch):
-    monkeypatch.setattr(plan_module, "has_open3d", lambda: False)
-    default_mask_x_model.cache_clear()
-    try:
-        with pytest.warns(MaskNetWarning, match="Open3D is not installed.*paper's MaskNet"):
-            model = default_mask_x_model()
-        assert model is default_model()
-        planned = with_networks(plan_call("dcp", METHOD_TABLE["dcp"].options(), None, **ARGUMENTS))
-        assert planned.model is default_model()
-    finally:
-        default_mask_x_model.cache_clear()
+def test_without_open3d_mask_x_still_masks_with_crossmasknet(monkeypatch):
+    """Without Open3D, CrossMaskNet's FPFH inputs come from numpy: the same mask."""
+    from masknet.data import PairConfig, bundled_sample_path, load_modelnet40, make_test_pairs
+    from masknet.models import descriptors
+
+    points = load_modelnet40(bundled_sample_path(), "test").points
+    pair = make_test_pairs(points, 1, PairConfig(), seed=5)
+    template, source = pair.template[0].numpy(), pair.source[0].numpy()
+    model = default_mask_x_model()
+    assert isinstance(model, CrossMaskNet)
+    with_open3d = model.predict_mask(template, source, precision="fp32")
+
+    def missing(feature: str):
+        raise MaskNetError(f"{feature} needs Open3D")
+
+    monkeypatch.setattr(descriptors, "require_open3d", missing)
+    without = model.predict_mask(template, source, precision="fp32")
+    assert (without == with_open3d).mean() > 0.99

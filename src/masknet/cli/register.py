@@ -76,7 +76,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         default_weights=None,
         default_text="modelnet40_small for the default method's fast path; "
         "crossmasknet_modelnet40 for one round of --method icp or a learned method "
-        "(modelnet40: the paper's MaskNet; without Open3D it is the default); with --two-sided, --iterations above 1 or --method robust the "
+        "(modelnet40: the paper's MaskNet); with --two-sided, --iterations above 1 or --method robust the "
         "two-sided scans; give it twice for a learned --method: the mask's and the "
         "network's file (masknet train --model NAME)",
         several=True,

@@ -155,8 +155,8 @@ def register(
             against the whole template (0: none).
         model: the MaskNet of the first round; None loads shipped weights once: for one
             round of ``"icp"`` or a learned network the CrossMaskNet
-            ``crossmasknet_modelnet40`` (``plan.MASK_X_METHODS``; without Open3D, with a
-            warning, and for Open3D's methods the paper's ``masknet_modelnet40``, which
+            ``crossmasknet_modelnet40`` (``plan.MASK_X_METHODS``; for Open3D's methods the
+            paper's ``masknet_modelnet40``, which
             ``model=MaskNet.pretrained()`` gives for any method; ``"auto"``'s fast path the
             smaller ``masknet_modelnet40_small``; its escalation uses ``masknet2_scans``),
             the two-sided ``masknet2_scans`` for

@@ -9,8 +9,7 @@ from typing import Any
 
 import torch
 
-from masknet._open3d import has_open3d
-from masknet.errors import MaskNetError, warn
+from masknet.errors import MaskNetError
 from masknet.models import REGISTRATION_NETWORKS
 from masknet.models.cross_masknet import CrossMaskNet
 from masknet.models.masknet import MaskNet
@@ -65,16 +64,10 @@ MASK_X_WEIGHTS = "modelnet40"
 
 
 @functools.lru_cache(maxsize=1)
-def default_mask_x_model() -> MaskNet | CrossMaskNet:
+def default_mask_x_model() -> CrossMaskNet:
     """The mask of one round of Mask-X (:data:`MASK_X_METHODS`), loaded once: the shipped
-    CrossMaskNet where Open3D (the optional extra its training descriptors came from)
-    imports; else the paper's MaskNet, with one warning."""
-    if not has_open3d():
-        warn(
-            "Open3D is not installed: Mask-X masks with the paper's MaskNet "
-            "(masknet_modelnet40) instead of CrossMaskNet; pip install 'masknet[open3d]'"
-        )
-        return default_model()
+    CrossMaskNet. Its FPFH inputs come from Open3D where it imports, else from the same
+    computation in numpy (:mod:`masknet.geometry.fpfh`)."""
     return CrossMaskNet.pretrained(MASK_X_WEIGHTS)
 
 
