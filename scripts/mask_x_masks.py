@@ -6,9 +6,9 @@
 template's points, rotations up to 45 degrees, ``make_test_pairs`` with ``--seed``, default
 0), the same pairs for every row. For each Mask-X method (ICP and the learned networks,
 their shipped weights and default iterations), one round of ``masknet.register`` in
-batches: with ``model=None`` (the default mask: the shipped CrossMaskNet where Open3D
-imports), with the paper's MaskNet (``model=MaskNet.pretrained()``), with the true mask
-(the template points the source was cut from), and plain X (``use_mask=False``). Prints
+batches: with ``model=None`` (the default mask: the shipped CrossMaskNet), with the paper's
+MaskNet (``model=MaskNet.pretrained()``), with the true mask (the template points the
+source was cut from), and plain X (``use_mask=False``). Prints
 one Markdown table of mean and median rotation errors in degrees; accuracy only (no times).
 """
 

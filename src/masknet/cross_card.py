@@ -83,7 +83,7 @@ FPFH descriptor and its distance to the nearest descriptor of the other cloud as
 in this repository. Load it with `CrossMaskNet.pretrained("{card["name"]}")`
 (`--weights crossmasknet_{card["name"]}` on the command line). It is the default mask of
 one round of Mask-X (`masknet.register(..., method="icp" | "pointnetlk" | "dcp" | "prnet" |
-"pcrnet" | "rpmnet")`) where Open3D imports.
+"pcrnet" | "rpmnet")`).
 
 ## Training actually done
 - Data: ModelNet40 training split, **{train["extra"].get("categories", "all")}** categories;
@@ -121,6 +121,5 @@ is the chance baseline. Top-k precision {topk:.4f} ± {result["topk_precision_st
 Trained on clean, synthetic, unit-radius CAD samples with {100 * (1 - pairs["keep_ratio"]):.0f}% of
 the points missing and rotations up to {pairs["max_angle_deg"]} degrees. Expect lower precision on
 real sensor data, other missing ratios, larger rotations, noise and outliers. Its FPFH inputs are
-computed on the CPU for every call (Open3D's; without Open3D the same numbers by numpy). Mask-X
-masks with it by default only where Open3D imports (else with the paper's MaskNet).
+computed on the CPU for every call (Open3D's; without Open3D the same numbers by numpy).
 """
