@@ -35,7 +35,7 @@ format: install
 	$(BIN)/ruff check --fix src tests
 	$(BIN)/ruff format src tests
 
-# Resume the relay training run of CrossMaskNet in the background (relay/crossmasknet_fpfh_modelnet40).
+# Resume the relay training run of CrossMaskNet in the background (relay/crossmasknet_fpfh_seen20).
 relay: install
 	bash scripts/relay.sh start
 

@@ -189,6 +189,6 @@ def test_the_relay_command_is_one_the_cli_takes():
     words = [run if word == "$RUN" else word for word in words[1:]]
     args = build_parser().parse_args(words)
     assert args.model == "crossmasknet" and args.resume and args.checkpoint_minutes
-    assert args.output == run == "relay/crossmasknet_fpfh_modelnet40"
+    assert args.output == run == "relay/crossmasknet_fpfh_seen20" and args.categories == "seen"
     assert args.model_config == {"descriptors": "fpfh"}
     assert (ROOT / run / "README.md").exists()
